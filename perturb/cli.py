@@ -1,0 +1,161 @@
+"""The ``perturb`` command.
+
+Subcommands::
+
+    perturb --version
+    perturb models                                  list the builtin models
+    perturb fourier "EXPR" --A 2 [--b 0] --n 15     Fourier coefficients of a force f(x)
+    perturb run [SCENE.toml] [--out DIR]            answer a scene (default: the embedded one)
+
+Errors a user can cause print one line ``perturb: error: ...`` and exit with status 2;
+nothing typed on the command line is evaluated as code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import re
+import sys
+from collections.abc import Sequence
+
+from . import __version__
+from .errors import ParameterError, PerturbError
+
+__all__ = ["main", "parse_param"]
+
+_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+
+
+def parse_param(text: str) -> tuple[str, float]:
+    """``"k=-2"`` -> ``("k", -2.0)``; the value must be a finite number.
+
+    Raises
+    ------
+    ParameterError
+        Naming the bad text.
+    """
+    name, sep, value = text.partition("=")
+    name, value = name.strip(), value.strip()
+    if not sep or not _NAME.fullmatch(name):
+        raise ParameterError(f"--param {text!r}: expected NAME=VALUE, e.g. k=-2")
+    try:
+        number = float(value)
+    except ValueError:
+        raise ParameterError(f"--param {text!r}: value {value!r} is not a number") from None
+    if not math.isfinite(number):
+        raise ParameterError(f"--param {text!r}: expected a finite number, got {value}")
+    return name, number
+
+
+def _finite(flag: str):
+    def convert(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{flag} {text!r}: expected a number") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"{flag} {text!r}: expected a finite number")
+        return value
+
+    return convert
+
+
+def _cmd_models(args: argparse.Namespace) -> int:
+    from .model import BUILTIN_MODELS
+
+    for spec in BUILTIN_MODELS.values():
+        defaults = ", ".join(f"{k}={v:g}" for k, v in spec.defaults.items())
+        print(f"{spec.name}")
+        print(f"    {spec.equation}")
+        print(f"    {spec.description}")
+        print(f"    defaults: {defaults}")
+    return 0
+
+
+def _cmd_fourier(args: argparse.Namespace) -> int:
+    import sympy as sp
+
+    from .fourier_symbols import series_coefficient
+    from .parsing import parse_expression, real_symbol
+
+    expr = parse_expression(args.expr)
+    x = real_symbol(args.var)
+    values = dict(parse_param(p) for p in args.param or ())
+    subs = {real_symbol(k): sp.Float(v) for k, v in values.items()}
+    expr = expr.xreplace(subs)
+    free = sorted(s.name for s in expr.free_symbols if s != x)
+    if free:
+        raise ParameterError(
+            f"expression {args.expr!r} has parameters without values: {', '.join(free)}; "
+            "give them with --param NAME=VALUE"
+        )
+    if args.A < 0:
+        raise ParameterError(f"--A {args.A}: expected an amplitude >= 0")
+    if args.n < 0 or args.n > 100_000:
+        raise ParameterError(f"--n {args.n}: expected 0 <= n <= 100000")
+    A, b = sp.Float(args.A), sp.Float(args.b)
+    print(f"# Fourier coefficients of f({args.var}) = {args.expr}")
+    print(f"# under {args.var} = A cos(psi) + b, A = {args.A:g}, b = {args.b:g}:")
+    print("# f = a_0/2 + sum_n a_n cos(n psi)   (no sine terms: f depends on x alone)")
+    print("n,a_n")
+    for n in range(args.n + 1):
+        value = float(series_coefficient(expr, x, n, A, b))
+        print(f"{n},{value:.17g}")
+    return 0
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from .scene import default_scene, load_scene, run_scene
+
+    scene = load_scene(args.scene) if args.scene else default_scene()
+    run_scene(scene, args.out)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="perturb",
+        description="Periodic responses of nonlinear and piecewise-linear oscillators.",
+    )
+    parser.add_argument("--version", action="version", version=f"perturb {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser("models", help="list the builtin models with their equations")
+    p.set_defaults(func=_cmd_models)
+
+    p = sub.add_parser(
+        "fourier",
+        help="closed-form Fourier coefficients of a force f(x) under x = A cos(psi) + b",
+    )
+    p.add_argument("expr", help='the force, e.g. "(x-1)*Heaviside(x-1)"')
+    p.add_argument("--A", type=_finite("--A"), required=True, help="amplitude A >= 0")
+    p.add_argument("--b", type=_finite("--b"), default=0.0, help="bias b (default 0)")
+    p.add_argument("--n", type=int, default=10, help="highest harmonic (default 10)")
+    p.add_argument("--var", default="x", help="the variable (default x)")
+    p.add_argument("--param", action="append", metavar="NAME=VALUE", help="parameter value")
+    p.set_defaults(func=_cmd_fourier)
+
+    p = sub.add_parser("run", help="answer a scene file (default: the embedded default scene)")
+    p.add_argument("scene", nargs="?", help="scene TOML file")
+    p.add_argument("--out", default="out", help="output directory (default ./out)")
+    p.set_defaults(func=_cmd_run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``perturb`` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "command", None):
+        parser.print_help()
+        return 0
+    try:
+        return int(args.func(args))
+    except PerturbError as exc:
+        print(f"perturb: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,208 @@
+"""SymPy functions that stand for the closed-form Fourier coefficients.
+
+The symbolic engines keep the coefficient of a nonsmooth term as a named function —
+``StepCoefficient(n, A, b, d)`` is a_n of ``H(x - d)`` under ``x = A cos(psi) + b`` — rather than
+as its formula. That keeps derivations short and readable (they print as the paper writes
+them, ``a_n``), lets SymPy differentiate them exactly (the derivative of a ramp coefficient is
+a step coefficient, of a step coefficient a Dirac coefficient), and lets the numeric layer
+evaluate them with the stable vectorised forms of :mod:`perturb.fourier` through
+:data:`NUMERIC_IMPLEMENTATIONS` (a ``lambdify`` module) instead of the textbook formula, which
+cancels catastrophically near grazing.
+
+:func:`series_coefficient` turns any restoring force the Fourier engine handles — polynomial
+terms plus a piecewise-linear part — into such an expression.
+"""
+
+from __future__ import annotations
+
+import sympy as sp
+
+from . import fourier
+from .errors import FourierError
+from .nonsmooth import PiecewiseLinear, is_nonsmooth, to_pwl
+
+__all__ = [
+    "StepCoefficient",
+    "RampCoefficient",
+    "DiracCoefficient",
+    "NUMERIC_IMPLEMENTATIONS",
+    "power_coefficient",
+    "pwl_coefficient",
+    "series_coefficient",
+]
+
+
+def _mirror(n: sp.Expr) -> sp.Expr:
+    # a_{-n} = a_n for an even function of psi; used by the derivative rules at n = 0.
+    return sp.Abs(n) if n.is_number else n
+
+
+class _Coefficient(sp.Function):
+    nargs = 4
+    _letter = "a"
+    _tag = ""
+
+    def _latex(self, printer: sp.printing.latex.LatexPrinter, exp: str | None = None) -> str:
+        n, A, b, d = (printer._print(a) for a in self.args)
+        shift = f"{A}\\cos\\psi" + ("" if self.args[2] == 0 else f" + {b}")
+        tex = f"{self._letter}^{{{self._tag}}}_{{{n}}}\\!\\left({shift};\\, {d}\\right)"
+        return f"\\left({tex}\\right)^{{{exp}}}" if exp else tex
+
+    @classmethod
+    def eval(cls, n, A, b, d):  # noqa: D102 - SymPy hook
+        if n.is_number and (n.is_integer is False or n.is_negative):
+            raise FourierError(f"{cls.__name__}: harmonic index n = {n}, expected an integer >= 0")
+        if all(a.is_number for a in (n, A, b, d)):
+            return sp.Float(float(cls._numeric(int(n), float(A), float(b), float(d))), 17)
+        return None
+
+    @staticmethod
+    def _numeric(n: int, A: float, b: float, d: float) -> float:
+        raise NotImplementedError
+
+
+class StepCoefficient(_Coefficient):
+    r"""a_n of ``Heaviside(x - d)`` under ``x = A cos(psi) + b``.
+
+    For ``|d - b| < A``: :math:`a_0 = 2\theta/\pi`, :math:`a_n = 2\sin(n\theta)/(n\pi)`,
+    :math:`\theta = \arccos((d - b)/A)`; zero when ``x`` never exceeds ``d``; ``a_0 = 2`` and
+    the rest zero when it always does.
+    """
+
+    _tag = "H"
+
+    @staticmethod
+    def _numeric(n, A, b, d):
+        return fourier.step_coefficients(n, A, b, d)
+
+    def fdiff(self, argindex: int = 1) -> sp.Expr:
+        n, A, b, d = self.args
+        if argindex == 2:  # d/dA H(A cos + b - d) = delta(...) cos(psi)
+            return (
+                DiracCoefficient(_mirror(n - 1), A, b, d) + DiracCoefficient(n + 1, A, b, d)
+            ) / 2
+        if argindex == 3:
+            return DiracCoefficient(n, A, b, d)
+        if argindex == 4:
+            return -DiracCoefficient(n, A, b, d)
+        raise sp.ArgumentIndexError(self, argindex)
+
+
+class RampCoefficient(_Coefficient):
+    r"""a_n of ``(x - d) Heaviside(x - d)`` under ``x = A cos(psi) + b``."""
+
+    _tag = "R"
+
+    @staticmethod
+    def _numeric(n, A, b, d):
+        return fourier.ramp_coefficients(n, A, b, d)
+
+    def fdiff(self, argindex: int = 1) -> sp.Expr:
+        n, A, b, d = self.args
+        if argindex == 2:  # d/dA (A cos + b - d) H(...) = cos(psi) H(...)
+            return (StepCoefficient(_mirror(n - 1), A, b, d) + StepCoefficient(n + 1, A, b, d)) / 2
+        if argindex == 3:
+            return StepCoefficient(n, A, b, d)
+        if argindex == 4:
+            return -StepCoefficient(n, A, b, d)
+        raise sp.ArgumentIndexError(self, argindex)
+
+
+class DiracCoefficient(_Coefficient):
+    r"""a_n of ``DiracDelta(x - d)`` under ``x = A cos(psi) + b``:
+    :math:`2\cos(n\theta)/(\pi A \sin\theta)` when ``|d - b| < A``, else zero."""
+
+    _tag = "\\delta"
+
+    @staticmethod
+    def _numeric(n, A, b, d):
+        return fourier.dirac_coefficients(n, A, b, d)
+
+    def fdiff(self, argindex: int = 1) -> sp.Expr:
+        raise FourierError(
+            "derivatives of Dirac-delta Fourier coefficients are not available: they are "
+            "singular at grazing"
+        )
+
+
+#: ``lambdify`` module mapping the function names above to perturb's numeric forms.
+NUMERIC_IMPLEMENTATIONS: dict[str, object] = {
+    "StepCoefficient": fourier.step_coefficients,
+    "RampCoefficient": fourier.ramp_coefficients,
+    "DiracCoefficient": fourier.dirac_coefficients,
+}
+
+
+def power_coefficient(m: int, n: int, A: sp.Expr, b: sp.Expr) -> sp.Expr:
+    """a_n of ``x**m`` under ``x = A cos(psi) + b``, exactly.
+
+    Uses :math:`\\cos^k\\psi = 2^{1-k}\\sum_j \\binom{k}{j}\\cos((k-2j)\\psi)` (with the
+    ``k = 2j`` term halved), so only harmonics ``n <= m`` appear.
+    """
+    total = sp.Integer(0)
+    for k in range(n, m + 1):
+        if (k - n) % 2:
+            continue
+        # coefficient of cos(n psi) in cos^k psi, in the a_n convention (a_0 is twice the mean)
+        c = sp.Rational(2, 2**k) * sp.binomial(k, (k - n) // 2)
+        total += sp.binomial(m, k) * b ** (m - k) * A**k * c
+    return sp.expand(total)
+
+
+def pwl_coefficient(pwl: PiecewiseLinear, n: int, A: sp.Expr, b: sp.Expr) -> sp.Expr:
+    """a_n of a piecewise-linear force under ``x = A cos(psi) + b``, as step/ramp functions."""
+    base_slope, base_offset, points, slope_jumps, value_jumps = pwl.ramp_step_form()
+    expr = base_slope * power_coefficient(1, n, A, b) + base_offset * power_coefficient(0, n, A, b)
+    for d, ds, dv in zip(points, slope_jumps, value_jumps, strict=True):
+        if ds != 0:
+            expr += ds * RampCoefficient(n, A, b, d)
+        if dv != 0:
+            expr += dv * StepCoefficient(n, A, b, d)
+    return expr
+
+
+def series_coefficient(
+    force: sp.Expr, x: sp.Symbol, n: int, A: sp.Expr, b: sp.Expr | int = 0
+) -> sp.Expr:
+    """a_n of ``force(x)`` under ``x = A cos(psi) + b``.
+
+    ``force`` may mix polynomial terms with piecewise-linear ones (Heaviside, Max, Min, Abs,
+    sign, Piecewise) and ``DiracDelta(x - d)`` terms.
+
+    Raises
+    ------
+    FourierError
+        For terms that are neither (``sin(x)`` has no finite closed form here).
+    """
+    if n < 0 or int(n) != n:
+        raise FourierError(f"harmonic index n = {n}: expected an integer >= 0")
+    n = int(n)
+    b = sp.sympify(b)
+    poly_terms, pwl_terms, dirac = [], [], sp.Integer(0)
+    for term in sp.Add.make_args(sp.expand(force) if not is_nonsmooth(force) else force):
+        if term.has(sp.DiracDelta):
+            coeff, delta = term.as_independent(x, as_Add=False)
+            if not isinstance(delta, sp.DiracDelta):
+                raise FourierError(f"term {term}: expected c*DiracDelta(x - d)")
+            arg = sp.expand(delta.args[0])
+            slope = arg.coeff(x)
+            if slope == 0 or sp.expand(arg - slope * x).has(x):
+                raise FourierError(f"term {term}: the argument of DiracDelta must be linear in {x}")
+            d = -sp.expand(arg - slope * x) / slope
+            dirac += coeff / sp.Abs(slope) * DiracCoefficient(n, A, b, d)
+        elif is_nonsmooth(term):
+            pwl_terms.append(term)
+        elif term.is_polynomial(x):
+            poly_terms.append(term)
+        else:
+            raise FourierError(
+                f"term {term} of the force has no closed-form Fourier coefficients: expected "
+                "polynomial, piecewise-linear or DiracDelta terms"
+            )
+    expr = dirac
+    for term in poly_terms:
+        for (deg,), coeff in sp.Poly(term, x).terms():
+            expr += coeff * power_coefficient(deg, n, A, b)
+    if pwl_terms:
+        expr += pwl_coefficient(to_pwl(sp.Add(*pwl_terms), x), n, A, b)
+    return expr
