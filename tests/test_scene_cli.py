@@ -1,0 +1,139 @@
+"""The perturb command and scene files."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import mpmath as mp
+import pytest
+
+from perturb import PerturbError, __version__
+from perturb.cli import main, parse_param
+from perturb.errors import ParameterError
+from perturb.model import BUILTIN_MODELS
+from perturb.response import CSV_COLUMNS
+from perturb.scene import default_scene, parse_scene, run_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["--version"])
+    assert info.value.code == 0
+    assert __version__ in capsys.readouterr().out
+
+
+def test_models_lists_every_builtin_with_its_equation(capsys):
+    assert main(["models"]) == 0
+    out = capsys.readouterr().out
+    for name, spec in BUILTIN_MODELS.items():
+        assert f"\n{name}\n" in "\n" + out
+        assert spec.equation in out
+
+
+def test_fourier_command_against_mpmath_quadrature(capsys):
+    assert (
+        main(
+            ["fourier", "k*Max(x - 1, 0)", "--A", "2.5", "--b", "0.3", "--n", "6", "--param", "k=3"]
+        )
+        == 0
+    )
+    rows = [
+        line.split(",")
+        for line in capsys.readouterr().out.splitlines()
+        if line and line[0].isdigit()
+    ]
+    assert len(rows) == 7
+    mp.mp.dps = 30
+    psi_c = mp.acos((1 - mp.mpf("0.3")) / mp.mpf("2.5"))
+    for n_text, value in rows:
+        n = int(n_text)
+        ref = (
+            2
+            / mp.pi
+            * mp.quad(
+                lambda p, n=n: 3 * (mp.mpf("2.5") * mp.cos(p) + mp.mpf("0.3") - 1) * mp.cos(n * p),
+                [0, psi_c],
+            )
+        )
+        assert float(value) == pytest.approx(float(ref), rel=1e-12, abs=1e-14)
+
+
+@pytest.mark.parametrize(
+    "argv, fragment",
+    [
+        (["fourier", "foo(x)", "--A", "1"], "unknown function 'foo'"),
+        (["fourier", "k*x", "--A", "1"], "without values: k"),
+        (["fourier", "x", "--A", "-1"], "--A -1"),
+        (["fourier", "x", "--A", "1", "--param", "k"], "expected NAME=VALUE"),
+        (["fourier", "x", "--A", "1", "--param", "k=nan"], "finite"),
+        (["run", "/nonexistent/scene.toml"], "cannot read scene file"),
+    ],
+)
+def test_user_errors_exit_2_with_one_clear_line(argv, fragment, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("perturb: error:") and fragment in err
+    assert "Traceback" not in err
+
+
+def test_parse_param():
+    assert parse_param("k=-2") == ("k", -2.0)
+    assert parse_param(" mu = 0.05 ") == ("mu", 0.05)
+    for bad in ("=1", "1k=2", "k=abc", "k=inf", "__import__=1"):
+        with pytest.raises(ParameterError):
+            parse_param(bad)
+
+
+def test_default_scene_is_the_shipped_scene_file():
+    shipped = (ROOT / "scenes" / "nsd_frequency_response.toml").read_text()
+    embedded = (ROOT / "perturb" / "scenes" / "default.toml").read_text()
+    assert shipped == embedded
+    scene = default_scene()
+    assert scene.model == "nsd" and dict(scene.params) == {"k": -2.0, "mu": 0.05, "F": 2.0}
+
+
+def test_run_default_scene_writes_csv_png_latex(tmp_path):
+    paths = run_scene(default_scene(), tmp_path, log=open(tmp_path / "log.txt", "w"))
+    with open(paths["csv"]) as fh:
+        reader = csv.reader(fh)
+        assert tuple(next(reader)) == CSV_COLUMNS
+        rows = list(reader)
+    assert len(rows) > 1000
+    assert paths["png"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    tex = paths["latex"].read_text()
+    assert "\\begin{document}" in tex and "\\end{document}" in tex
+    assert "H\\left(" in tex or "a^{R}" in tex
+
+
+@pytest.mark.parametrize(
+    "text, fragment",
+    [
+        ("[modle]\nname='nsd'", "unknown section [modle]"),
+        ("[model]\nname='nsd'\ncolour=1", "unknown key 'colour'"),
+        ("[model]\nname='nsd'\n[ask]\nomega=[2, 1]", "omega"),
+        ("[model]\nname='nsd'\n[ask]\nkind='bifurcation'", "kind"),
+        ("[model]\nname='nsd'\n[params]\nk=nan", "finite"),
+        ("[model]\nname='nsd'\n[output]\ncsv='../evil.csv'", "plain file name"),
+        ("[model]\nname='nsd'\n[method]\nname='magic'", "method"),
+        ("[model\nname='nsd'", "invalid TOML"),
+        ("[params]\nk=1", "needs a builtin"),
+    ],
+)
+def test_bad_scenes(text, fragment):
+    with pytest.raises(PerturbError) as info:
+        parse_scene(text, "test.toml")
+    assert fragment in str(info.value)
+
+
+def test_equation_scene_is_parsed_safely():
+    scene = parse_scene(
+        "[model]\nequation = \"x'' + mu*x' + x + x**3 = F*cos(Omega*t)\"\n"
+        "[params]\nmu = 0.1\nF = 0.5\n"
+    )
+    osc = scene.oscillator()
+    assert osc.params["mu"] == 0.1
+    with pytest.raises(PerturbError):
+        parse_scene("[model]\nequation = \"__import__('os').system('id')\"\n").oscillator()
