@@ -175,3 +175,39 @@ def test_latex_and_str():
     assert "\\theta" not in osc._repr_latex_()
     assert "H\\left(x - 1\\right)" in osc._repr_latex_()
     assert "k=-2" in str(osc)
+
+
+PWL_MODELS = ("nsd", "clearance", "deadzone", "saturation", "bilinear")
+
+
+@pytest.mark.parametrize("name", PWL_MODELS)
+def test_builtin_canonical_forms_round_trip(name):
+    """Canonical form vs the builtin's own restoring force, at random points and parameters."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    spec = BUILTIN_MODELS[name]
+
+    @settings(max_examples=40, deadline=None, database=None)
+    @given(
+        scale=st.lists(
+            st.floats(0.2, 3.0), min_size=len(spec.defaults), max_size=len(spec.defaults)
+        ),
+        xs=st.lists(st.floats(-20, 20, allow_nan=False), min_size=5, max_size=5),
+    )
+    def check(scale, xs):
+        # gaps/dead-zones must stay positive: scale every default by a positive factor
+        values = {
+            p: v * s if v != 0 else s
+            for (p, v), s in zip(spec.defaults.items(), scale, strict=True)
+        }
+        osc = builtin_model(name, **values)
+        pwl = osc.piecewise_linear().numeric()
+        f = sp.lambdify(osc.x, osc.restoring_force.xreplace(osc.substitutions()), "sympy")
+        for xv in xs:
+            if np.min(np.abs(np.asarray(pwl.breakpoints) - xv), initial=np.inf) < 1e-9:
+                continue
+            exact = float(f(sp.Rational(xv)))
+            assert float(pwl(xv)) == pytest.approx(exact, rel=1e-12, abs=1e-12)
+
+    check()
