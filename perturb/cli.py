@@ -155,6 +155,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except PerturbError as exc:
         print(f"perturb: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # output piped into `head` and closed: not an error
+        sys.stderr.close()
+        return 0
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -29,6 +29,7 @@ __all__ = [
     "power_coefficient",
     "pwl_coefficient",
     "series_coefficient",
+    "closed_form",
 ]
 
 
@@ -206,3 +207,56 @@ def series_coefficient(
     if pwl_terms:
         expr += pwl_coefficient(to_pwl(sp.Add(*pwl_terms), x), n, A, b)
     return expr
+
+
+_SERIES = {
+    StepCoefficient: fourier.step_series,
+    RampCoefficient: fourier.ramp_series,
+    DiracCoefficient: fourier.dirac_series,
+}
+
+
+def closed_form(
+    expr: sp.Expr, theta: str = "theta"
+) -> tuple[sp.Expr, tuple[tuple[sp.Symbol, sp.Expr], ...], tuple[sp.Basic, ...]]:
+    """Replace the coefficient functions in ``expr`` by their textbook theta-forms.
+
+    Each distinct switching point gets its own angle ``theta_i = arccos((d_i - b)/A)``,
+    numbered in increasing ``d``. The forms hold where every switching point is crossed
+    (``|d_i - b| < A``); the other regimes are exact zeros or linear terms, which the numeric
+    layer evaluates anyway.
+
+    Returns
+    -------
+    (expression, definitions, domains)
+        ``definitions`` pairs each angle with its arccos; ``domains`` are the validity
+        conditions.
+    """
+    calls = sorted(
+        expr.atoms(StepCoefficient, RampCoefficient, DiracCoefficient),
+        key=lambda c: sp.default_sort_key(c.args[1:]),
+    )
+    keys: list[tuple[sp.Expr, ...]] = []
+    for c in calls:
+        if tuple(c.args[1:]) not in keys:
+            keys.append(tuple(c.args[1:]))
+    if len(keys) > 1:
+        try:
+            keys.sort(key=lambda k: float(k[2] - k[1]))
+        except TypeError:  # symbolic switching points: keep SymPy's order
+            pass
+    names = {
+        k: sp.Symbol(f"{theta}_{i + 1}" if len(keys) > 1 else theta, positive=True)
+        for i, k in enumerate(keys)
+    }
+    reps, definitions, domains = {}, {}, {}
+    for c in calls:
+        n, A, b, d = c.args
+        if not n.is_Integer:
+            continue
+        series = _SERIES[type(c)](A, b, d, theta=names[(A, b, d)])
+        reps[c] = series.coefficient(int(n))
+        for sym, value in series.definitions:
+            definitions[sym] = value
+        domains[series.domain] = True
+    return expr.xreplace(reps), tuple(definitions.items()), tuple(domains)

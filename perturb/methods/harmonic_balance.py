@@ -27,7 +27,7 @@ import sympy as sp
 
 from ..approximation import Approximation, Step
 from ..errors import ModelError
-from ..fourier_symbols import series_coefficient
+from ..fourier_symbols import closed_form, series_coefficient
 from ..model import Oscillator
 from ..parsing import real_symbol
 
@@ -108,15 +108,24 @@ def single_harmonic_balance(oscillator: Oscillator) -> Approximation:
     tau = real_symbol("tau")
 
     a1 = series_coefficient(f, x, 1, A, sp.Integer(0))
-    residuals = (sp.expand(a1 - Omega**2 * A - F * sp.cos(phi)), mu * Omega * A - F * sp.sin(phi))
+    a1_closed, definitions, domains = closed_form(a1)
+    # Everything is first written with a_1(A) by name, as a paper would; the numeric fields
+    # get the coefficient substituted in.
+    a1s = sp.Function("a_1")(A)
     W = Omega**2
-    c0 = sp.expand(a1**2 - F**2)
-    c1 = sp.expand(mu**2 * A**2 - 2 * A * a1)
-    c2 = A**2
-    slow_flow = (
+    shown_residuals = (a1s - W * A - F * sp.cos(phi), mu * Omega * A - F * sp.sin(phi))
+    shown_poly = (a1s**2 - F**2, mu**2 * A**2 - 2 * A * a1s, A**2)
+    shown_flow = (
         -(mu * Omega * A - F * sp.sin(phi)) / (2 * Omega),
-        (F * sp.cos(phi) - a1 + Omega**2 * A) / (2 * Omega * A),
+        (F * sp.cos(phi) - a1s + W * A) / (2 * Omega * A),
     )
+
+    def with_a1(exprs: tuple[sp.Expr, ...]) -> tuple[sp.Expr, ...]:
+        return tuple(e.subs(a1s, a1) for e in exprs)
+
+    residuals = with_a1(shown_residuals)
+    c0, c1, c2 = with_a1(shown_poly)
+    slow_flow = with_a1(shown_flow)
     steps = (
         Step("Equation of motion", (osc.equation,)),
         Step(
@@ -126,23 +135,32 @@ def single_harmonic_balance(oscillator: Oscillator) -> Approximation:
         ),
         Step(
             "First Fourier coefficient of the restoring force",
-            (sp.Eq(sp.Symbol("a_1"), a1),),
+            (sp.Eq(a1s, a1),),
             "f(A cos psi) = a_1(A) cos psi + higher harmonics; the nonsmooth terms enter through "
             "the closed-form step and ramp coefficients (theta = arccos(d/A)).",
         ),
         Step(
+            "The coefficient in closed form",
+            (sp.Eq(a1s, a1_closed),) + tuple(sp.Eq(sym, value) for sym, value in definitions),
+            "Valid where the orbit crosses every switching point ("
+            + ", ".join(sp.sstr(c) for c in domains)
+            + "); in the other regimes the terms are exactly zero or linear."
+            if domains
+            else "",
+        ),
+        Step(
             "Balance of cos psi and sin psi",
-            tuple(sp.Eq(r, 0) for r in residuals),
+            tuple(sp.Eq(r, 0) for r in shown_residuals),
         ),
         Step(
             "Frequency-amplitude equation (phase eliminated), a quadratic in Omega^2",
-            (sp.Eq(c2 * W**2 + c1 * W + c0, 0),),
+            (sp.Eq(sp.Add(*(c * W**j for j, c in enumerate(shown_poly))), 0),),
         ),
         Step(
             "Slow flow (first-order averaging); its Jacobian decides stability",
             (
-                sp.Eq(sp.Derivative(A, osc.t), slow_flow[0]),
-                sp.Eq(sp.Derivative(phi, osc.t), slow_flow[1]),
+                sp.Eq(sp.Derivative(A, osc.t), shown_flow[0]),
+                sp.Eq(sp.Derivative(phi, osc.t), shown_flow[1]),
             ),
         ),
     )
