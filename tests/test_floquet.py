@@ -77,3 +77,43 @@ def test_refuses_time_dependent_linearisation_and_coarse_sampling():
         monodromy_multipliers(
             builtin_model("nsd"), np.zeros((1, 8)), np.zeros((1, 8)), np.array([1.0])
         )
+
+
+def test_hill_exponents_of_a_constant_coefficient_system_are_exact():
+    # x'' + mu x' + q x = 0: multipliers exp(lambda T), lambda = -mu/2 +- sqrt(mu^2/4 - q),
+    # whatever harmonic truncation (exponents are defined modulo i*w)
+    from perturb.numeric.floquet import hill_exponents
+
+    for mu, q, W in ((0.1, 1.69, 0.8), (0.05, -2.0, 0.6), (0.3, 0.2, 2.0)):
+        osc = builtin_model("duffing", alpha=0.0, mu=mu, omega0=np.sqrt(q) if q > 0 else 1.0)
+        if q < 0:
+            osc = builtin_model("nsd", k=q, mu=mu)  # |x| < 1 keeps it in the linear segment
+        T = 2 * np.pi / W
+        t = np.linspace(0, T, 256, endpoint=False)
+        x, v = (0.5 * np.cos(W * t))[None], (-0.5 * W * np.sin(W * t))[None]
+        for H in (1, 3):
+            lam = hill_exponents(osc, x, v, np.array([T]), H)[0]
+            roots = np.roots([1.0, mu, q]).astype(complex)
+            got = np.exp(lam * T)
+            expected = np.exp(roots * T)
+            # compare as sets: each expected multiplier has a computed one next to it
+            for e in expected:
+                assert np.min(np.abs(got - e)) <= 1e-9 * abs(e) + 1e-12, (got, expected)
+            assert abs(np.prod(got) - np.prod(expected)) <= 1e-9 * abs(np.prod(expected))
+
+
+def test_hill_converges_to_the_monodromy_of_the_same_linearisation():
+    from perturb.numeric.floquet import hill_exponents
+
+    osc = builtin_model("nsd", k=-0.5, mu=0.05)
+    A, W = 2.0, 0.9
+    T = 2 * np.pi / W
+    t = np.linspace(0, T, 1024, endpoint=False)
+    x, v = (A * np.cos(W * t))[None], (-A * W * np.sin(W * t))[None]
+    reference = monodromy_multipliers(osc, x, v, np.array([T]))[0]
+    errors = []
+    for H in (4, 16, 64):
+        lam = hill_exponents(osc, x, v, np.array([T]), H)[0]
+        errors.append(abs(np.max(np.abs(np.exp(lam * T))) - reference) / reference)
+    assert errors[-1] < 1e-3
+    assert errors[2] < errors[0]  # converging with H

@@ -120,3 +120,22 @@ def test_bad_requests_are_clear_errors():
         single_harmonic_balance(builtin_model("clearance"))
     with pytest.raises(ModelError, match="covers"):
         single_harmonic_balance(builtin_model("vanderpol"))
+
+
+def test_hill_stability_changes_exactly_at_the_folds():
+    """Hill's method truncated at the solution's harmonic changes stability where the
+    harmonic-balance branch turns (a saddle-node), unlike Floquet about the approximate orbit
+    with all harmonics, which on this strongly nonlinear Duffing case turns far from it."""
+    osc = builtin_model("duffing", mu=0.1, omega0=1.0, alpha=1.0, F=0.5)
+    approx = single_harmonic_balance(osc)
+    resp = frequency_response(approx, (0.5, 2.5), points=3000)
+    (br,) = resp.branches
+    flips = np.nonzero(np.diff(br.stable.astype(int)))[0]
+    assert len(flips) == 2 == len(resp.folds)
+    for (w_fold, a_fold), j in zip(
+        sorted(resp.folds), sorted(flips, key=lambda j: br.omega[j]), strict=True
+    ):
+        assert abs(br.omega[j] - w_fold) < 1e-3
+        assert abs(br.first_harmonic_amplitude[j] - a_fold) / a_fold < 1e-2
+    floquet = frequency_response(approx, (0.5, 2.5), points=3000, stability="floquet")
+    assert not np.array_equal(floquet.branches[0].stable, br.stable)

@@ -17,6 +17,8 @@ is why this module exists.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import sympy as sp
 
@@ -24,7 +26,7 @@ from ..errors import PerturbError
 from ..model import Oscillator
 from .compile import lambdify
 
-__all__ = ["expm2", "monodromy_multipliers"]
+__all__ = ["expm2", "linearise", "Linearisation", "monodromy_multipliers", "hill_exponents"]
 
 
 def expm2(p: np.ndarray, q: np.ndarray, h: np.ndarray) -> np.ndarray:
@@ -88,36 +90,48 @@ def _hermite_crossing(x0, x1, m0, m1, d, guess) -> np.ndarray:
     return s
 
 
-def monodromy_multipliers(
+@dataclass(frozen=True)
+class Linearisation:
+    """The equation of motion linearised about sampled orbits, ``y'' + p(t) y' + q(t) y = 0``,
+    as two sub-steps per sample interval with constant ``(p, q)`` on each.
+
+    ``q = dg/dx`` and ``p = dg/dx'`` are evaluated at sub-step midpoints; each sample interval
+    is split where the orbit crosses a breakpoint of a piecewise-linear force, so ``(p, q)`` is
+    exact there and second-order (midpoint rule) for smooth forces. Arrays have shape
+    ``(n_orbits, 2N)``: start time ``t``, duration ``h``, and ``p``, ``q``.
+    """
+
+    t: np.ndarray
+    h: np.ndarray
+    p: np.ndarray
+    q: np.ndarray
+    period: np.ndarray
+
+
+def linearise(
     oscillator: Oscillator,
     x: np.ndarray,
     v: np.ndarray,
     period: np.ndarray,
     frequency: sp.Symbol | None = None,
-    frequency_values: np.ndarray | None = None,
-) -> np.ndarray:
-    """Largest Floquet multiplier modulus about sampled approximate orbits.
+) -> Linearisation:
+    """Linearise ``oscillator`` about orbits sampled at ``N`` equally spaced instants.
 
     Parameters
     ----------
     oscillator
-        The system; its parameters must have values (the forcing frequency may be given
-        per orbit through ``frequency``/``frequency_values``).
+        The system; its parameters must have values (``frequency`` names a parameter, the
+        forcing frequency, that the linearisation does not need and may lack a value).
     x, v
-        Shape ``(n_orbits, N)``: the orbits sampled at ``N`` equally spaced instants over one
-        period (``N >= 64``; ``x[:, 0]`` at ``t = 0``).
+        Shape ``(n_orbits, N)``, ``N >= 64``; ``x[:, 0]`` at ``t = 0``.
     period
         Shape ``(n_orbits,)``.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``max |mu|`` for each orbit.
 
     Raises
     ------
     PerturbError
-        If the linearisation depends on time explicitly (parametric terms).
+        If the linearisation depends on time explicitly (parametric terms), on too few
+        samples or on parameters without values.
     """
     osc = oscillator
     if osc.parametric != 0:
@@ -134,24 +148,24 @@ def monodromy_multipliers(
     free = g.free_symbols - {osc.x, osc.v}
     if free:
         raise PerturbError(f"model {osc.name!r} needs values for {sorted(map(str, free))}")
-    gx = sp.diff(g, osc.x)
-    gv = sp.diff(g, osc.v)
     # Heaviside'(.) = DiracDelta: the jump of a PWL force is treated by the crossing split,
-    # so the delta terms of g_x are dropped here (continuous PWL forces have none).
-    gx = gx.replace(sp.DiracDelta, lambda *a: sp.Integer(0))
-    gv = gv.replace(sp.DiracDelta, lambda *a: sp.Integer(0))
+    # so the delta terms are dropped here (continuous PWL forces have none).
+    gx = sp.diff(g, osc.x).replace(sp.DiracDelta, lambda *a: sp.Integer(0))
+    gv = sp.diff(g, osc.v).replace(sp.DiracDelta, lambda *a: sp.Integer(0))
     coeff = lambdify((osc.x, osc.v), [gv, gx])
     breakpoints: np.ndarray = np.array([])
     if osc.is_piecewise_linear and osc.nonsmooth != 0:
         breakpoints = np.asarray(osc.piecewise_linear().numeric().breakpoints, float)
 
-    h = np.asarray(period, float)[:, None] / N * np.ones((1, N))
+    period = np.asarray(period, float).reshape(-1)
+    h = period[:, None] / N * np.ones((1, N))
+    t0 = period[:, None] * np.arange(N)[None, :] / N
     x0, x1 = x, np.roll(x, -1, axis=1)
     v0, v1 = v, np.roll(v, -1, axis=1)
-    xm, vm = (x0 + x1) / 2, (v0 + v1) / 2
+    vm = (v0 + v1) / 2
     if breakpoints.size == 0:
-        p, q = coeff(xm, vm)
-        steps = expm2(p, q, h)
+        frac = np.full_like(x0, 0.5)
+        xa, xb = (3 * x0 + x1) / 4, (x0 + 3 * x1) / 4
     else:
         # split each step at the first breakpoint crossed (one per step at these sample
         # rates; a second crossing in one step would need a grazing orbit and is caught by
@@ -164,14 +178,114 @@ def monodromy_multipliers(
         with np.errstate(all="ignore"):
             frac = np.where(cross, (d - x0) / (x1 - x0), 1.0)
         frac = np.clip(np.nan_to_num(frac, nan=0.5), 0.0, 1.0)
-        frac = np.where(cross, _hermite_crossing(x0, x1, v0 * h, v1 * h, d, frac), frac)
+        if cross.any():  # only the few crossing intervals need the Newton polish
+            frac[cross] = _hermite_crossing(
+                x0[cross], x1[cross], (v0 * h)[cross], (v1 * h)[cross], d[cross], frac[cross]
+            )
         xa = (x0 + np.where(cross, d, x1)) / 2
         xb = (np.where(cross, d, x0) + x1) / 2
-        pa, qa = coeff(xa, vm)
-        pb, qb = coeff(xb, vm)
-        first = expm2(pa, qa, h * frac)
-        second = expm2(pb, qb, h * (1 - frac))
-        steps = _matmul(second, first)
-    P = _ordered_product(steps)
-    mult = np.linalg.eigvals(P)
-    return np.max(np.abs(mult), axis=-1)
+    pa, qa = coeff(xa, vm)
+    pb, qb = coeff(xb, vm)
+    ha, hb = h * frac, h * (1 - frac)
+
+    def interleave(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        out = np.empty(a.shape[:-1] + (2 * a.shape[-1],))
+        out[..., 0::2], out[..., 1::2] = a, b
+        return out
+
+    return Linearisation(
+        t=interleave(t0, t0 + ha),
+        h=interleave(ha, hb),
+        p=interleave(np.broadcast_to(pa, ha.shape), np.broadcast_to(pb, hb.shape)),
+        q=interleave(np.broadcast_to(qa, ha.shape), np.broadcast_to(qb, hb.shape)),
+        period=period,
+    )
+
+
+def monodromy_multipliers(
+    oscillator: Oscillator,
+    x: np.ndarray,
+    v: np.ndarray,
+    period: np.ndarray,
+    frequency: sp.Symbol | None = None,
+) -> np.ndarray:
+    """Largest Floquet multiplier modulus about sampled approximate orbits: the ordered
+    product of the exact propagators of the :func:`linearise` pieces.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``max |mu|`` for each orbit.
+    """
+    lin = linearise(oscillator, x, v, period, frequency)
+    P = _ordered_product(expm2(lin.p, lin.q, lin.h))
+    return np.max(np.abs(np.linalg.eigvals(P)), axis=-1)
+
+
+def hill_exponents(
+    oscillator: Oscillator,
+    x: np.ndarray,
+    v: np.ndarray,
+    period: np.ndarray,
+    harmonics: int,
+    frequency: sp.Symbol | None = None,
+) -> np.ndarray:
+    """Floquet exponents by Hill's method with perturbation harmonics ``-H..H``.
+
+    With ``y = exp(lambda t) sum_n c_n exp(i n w t)``, ``w = 2 pi / T``, the linearisation
+    ``y'' + p y' + q y = 0`` becomes the quadratic eigenproblem
+
+        (lambda + i n w)^2 c_n + sum_m p_{n-m} (lambda + i m w) c_m + sum_m q_{n-m} c_m = 0,
+
+    with ``p_k, q_k`` the Fourier coefficients of ``p(t), q(t)`` (integrated exactly over the
+    constant pieces of :func:`linearise`). Truncated at the harmonics of a harmonic-balance
+    solution, its singularity at ``lambda = 0`` coincides with the solution's folds, so the
+    stability it reports changes exactly where the approximate branch turns. Of the
+    ``2(2H+1)`` eigenvalues the two with the smallest ``|Im lambda|`` are the Floquet exponents
+    (the others are copies shifted by multiples of ``i w``).
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape ``(n_orbits, 2)``, complex.
+    """
+    if int(harmonics) < 1:
+        raise PerturbError(f"harmonics = {harmonics}: expected at least 1")
+    H = int(harmonics)
+    lin = linearise(oscillator, x, v, period, frequency)
+    w = 2 * np.pi / lin.period
+    ks = np.arange(-2 * H, 2 * H + 1)
+    # Fourier coefficients c_k = (1/T) int c(t) exp(-i k w t) dt of the piecewise-constant
+    # coefficients, exact per piece.
+    # exp(-i k w t) at the piece ends by powers of exp(-i w t): one complex exponential per
+    # point instead of one per harmonic
+    e_a = np.exp(-1j * w[:, None] * lin.t)
+    e_b = np.exp(-1j * w[:, None] * (lin.t + lin.h))
+    kernel = np.empty((lin.t.shape[0], ks.size, lin.t.shape[1]), dtype=complex)
+    kernel[:, 2 * H, :] = lin.h
+    pa, pb = np.ones_like(e_a), np.ones_like(e_b)
+    for k in range(1, 2 * H + 1):
+        pa, pb = pa * e_a, pb * e_b
+        val = (pb - pa) / (-1j * k * w[:, None])
+        kernel[:, 2 * H + k, :] = val
+        kernel[:, 2 * H - k, :] = np.conj(val)
+    T = lin.period[:, None]
+    pk = np.einsum("okj,oj->ok", kernel, lin.p) / T
+    qk = np.einsum("okj,oj->ok", kernel, lin.q) / T
+    n = np.arange(-H, H + 1)
+    size = n.size
+    idx = (n[:, None] - n[None, :]) + 2 * H  # index of k = n - m
+    Pm = pk[:, idx]
+    Qm = qk[:, idx]
+    eye = np.eye(size)
+    inw = 1j * n[None, :] * w[:, None]  # (n_orb, size)
+    C = 2 * inw[:, :, None] * eye + Pm
+    K = (inw**2)[:, :, None] * eye + Pm * inw[:, None, :] + Qm
+    n_orb = lin.period.size
+    big = np.zeros((n_orb, 2 * size, 2 * size), dtype=complex)
+    big[:, :size, size:] = eye
+    big[:, size:, :size] = -K
+    big[:, size:, size:] = -C
+    lam = np.linalg.eigvals(big)
+    order = np.argsort(np.abs(lam.imag) + 1e-12 * np.abs(lam.real), axis=1)
+    return np.take_along_axis(lam, order[:, :2], axis=1)

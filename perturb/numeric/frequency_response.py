@@ -22,14 +22,15 @@ from ..approximation import Approximation
 from ..errors import ParameterError, PerturbError
 from ..response import Branch, Response
 from .compile import bind_parameters, lambdify
-from .floquet import monodromy_multipliers
+from .floquet import hill_exponents, monodromy_multipliers
 
-__all__ = ["frequency_response"]
+__all__ = ["frequency_response", "solutions_at"]
 
 _SCAN_POINTS = 6000
 _WAVEFORM_SAMPLES = 128
 _FLOQUET_SAMPLES = 512
-_CHUNK = 1024
+_CHUNK = 512
+_STABILITY = ("hill", "floquet", "slow_flow")
 
 
 def _check_window(omega_range: Sequence[float]) -> tuple[float, float]:
@@ -59,43 +60,7 @@ def _roots(c0: np.ndarray, c1: np.ndarray, c2: np.ndarray) -> tuple[np.ndarray, 
     return lo, hi, disc
 
 
-def frequency_response(
-    approximation: Approximation,
-    omega_range: Sequence[float] = (0.2, 2.0),
-    *,
-    points: int = 2000,
-    amplitude_range: Sequence[float] | None = None,
-    stability: str = "floquet",
-) -> Response:
-    """Every branch of the frequency response of ``approximation`` in ``omega_range``.
-
-    Parameters
-    ----------
-    approximation
-        Must provide ``frequency_polynomial`` (degree <= 2 in ``Omega**2``), ``amplitude``,
-        ``phase_from`` and ``slow_flow``; all parameters but the frequency need values.
-    omega_range
-        ``(low, high)`` forcing frequencies.
-    points
-        Number of amplitudes on the fine grid (the response has up to twice as many points).
-    amplitude_range
-        ``(low, high)`` amplitudes to search; found automatically by default.
-    stability
-        ``"floquet"`` (default): multipliers of the equation of motion linearised about the
-        approximate orbit (:mod:`perturb.numeric.floquet`), the same test for every method;
-        ``"slow_flow"``: eigenvalues of the method's slow-flow Jacobian.
-
-    Returns
-    -------
-    Response
-
-    Raises
-    ------
-    PerturbError
-        If the approximation has no frequency polynomial; ParameterError for bad ranges or
-        missing parameter values.
-    """
-    approx = approximation
+def _check_approximation(approx: Approximation, stability: str) -> None:
     if (
         approx.frequency_polynomial is None
         or approx.amplitude is None
@@ -111,8 +76,128 @@ def frequency_response(
             f"{approx.label}: amplitude equation of degree {len(approx.frequency_polynomial) - 1} "
             "in Omega^2; only degree <= 2 is traced by amplitude parametrisation"
         )
-    if stability not in ("floquet", "slow_flow"):
-        raise ParameterError(f"stability = {stability!r}: expected 'floquet' or 'slow_flow'")
+    if stability not in _STABILITY:
+        raise ParameterError(f"stability = {stability!r}: expected one of {', '.join(_STABILITY)}")
+
+
+def _polynomial(approx: Approximation):
+    coeffs = list(approx.frequency_polynomial or ())
+    coeffs += [sp.Integer(0)] * (3 - len(coeffs))
+    return lambdify((approx.amplitude,), bind_parameters(approx, coeffs, keep=(approx.amplitude,)))
+
+
+def solutions_at(
+    approximation: Approximation,
+    omegas: Sequence[float],
+    *,
+    stability: str = "hill",
+    amplitude_range: Sequence[float] = (1e-8, 1e8),
+) -> Response:
+    """Every solution of ``approximation`` at exactly the forcing frequencies ``omegas``.
+
+    All roots ``A`` of the amplitude equation at each frequency are bracketed on a
+    logarithmic scan and refined by bisection; solutions at consecutive frequencies are
+    linked into branches by nearest amplitude. Use this when the output must contain given
+    frequencies; :func:`frequency_response` traces smoother curves.
+
+    Raises
+    ------
+    ParameterError
+        For non-positive or non-finite frequencies.
+    """
+    approx = approximation
+    _check_approximation(approx, stability)
+    w_all = np.asarray(omegas, dtype=float).reshape(-1)
+    if w_all.size == 0 or not np.all(np.isfinite(w_all)) or np.any(w_all <= 0):
+        raise ParameterError(f"omegas = {list(omegas)!r}: expected positive finite frequencies")
+    a_lo, a_hi = (float(a) for a in amplitude_range)
+    if not (0 < a_lo < a_hi and np.isfinite(a_hi)):
+        raise ParameterError(f"amplitude_range = {amplitude_range!r}: expected 0 < low < high")
+    poly = _polynomial(approx)
+    grid = np.geomspace(a_lo, a_hi, _SCAN_POINTS)
+    c0, c1, c2 = poly(grid)
+    W = (w_all**2)[:, None]
+    vals = c0[None, :] + c1[None, :] * W + c2[None, :] * W * W
+    iw, ia = np.nonzero(np.sign(vals[:, :-1]) * np.sign(vals[:, 1:]) < 0)
+    lo_a, hi_a = grid[ia], grid[ia + 1]
+    f_lo = vals[iw, ia]
+    Wr = W[iw, 0]
+    for _ in range(80):  # bisection to full precision, all roots at once
+        mid = 0.5 * (lo_a + hi_a)
+        d0, d1, d2 = poly(mid)
+        f_mid = d0 + d1 * Wr + d2 * Wr * Wr
+        left = np.sign(f_mid) == np.sign(f_lo)
+        lo_a, f_lo = np.where(left, mid, lo_a), np.where(left, f_mid, f_lo)
+        hi_a = np.where(left, hi_a, mid)
+    roots = 0.5 * (lo_a + hi_a)
+    # Link the solutions into branches along the amplitude-parametrised curve: each solution
+    # joins the traced branch passing nearest to it, ordered by position along that branch
+    # (nearest-amplitude linking between frequencies fails on coarse grids near folds).
+    span = (float(w_all.min()) * 0.999, float(w_all.max()) * 1.001)
+    traced = frequency_response(approx, span, points=2000, stability="slow_flow")
+    branches: list[list[tuple[float, float, float]]] = [[] for _ in traced.branches]
+    wr = w_all[iw]
+    for w, a in zip(wr, roots, strict=True):
+        best = (np.inf, 0, 0)
+        for b, br in enumerate(traced.branches):
+            d = np.hypot(np.log(br.omega / w), np.log(br.first_harmonic_amplitude / a))
+            k = int(np.argmin(d))
+            if d[k] < best[0]:
+                best = (d[k], b, k)
+        branches[best[1]].append((best[2], float(w), float(a)))
+    branches = [sorted(pts) for pts in branches if pts]
+    A, Omega = approx.amplitude, approx.frequency
+    phase = approx.unknowns[1]
+    out = []
+    for pts in branches:
+        w_b = np.array([p[1] for p in pts])
+        a_b = np.array([p[2] for p in pts])
+        out.append(_branch(approx, a_b, w_b, A, Omega, phase, stability))
+    return Response(tuple(out), approx.label, approx.oscillator.name, _params(approx))
+
+
+def frequency_response(
+    approximation: Approximation,
+    omega_range: Sequence[float] = (0.2, 2.0),
+    *,
+    points: int = 2000,
+    amplitude_range: Sequence[float] | None = None,
+    stability: str = "hill",
+) -> Response:
+    """Every branch of the frequency response of ``approximation`` in ``omega_range``.
+
+    Parameters
+    ----------
+    approximation
+        Must provide ``frequency_polynomial`` (degree <= 2 in ``Omega**2``), ``amplitude``,
+        ``phase_from`` and ``slow_flow``; all parameters but the frequency need values.
+    omega_range
+        ``(low, high)`` forcing frequencies.
+    points
+        Number of amplitudes on the fine grid (the response has up to twice as many points).
+    amplitude_range
+        ``(low, high)`` amplitudes to search; found automatically by default.
+    stability
+        ``"hill"`` (default): Hill's method about the approximate orbit, truncated at the
+        approximation's harmonics, so stability changes exactly at its folds;
+        ``"floquet"``: multipliers of the equation of motion linearised about the approximate
+        orbit (all harmonics of the orbit's linearisation; changes near, not at, the folds of a
+        coarse approximation); ``"slow_flow"``: eigenvalues of the method's slow-flow
+        Jacobian (right only where the averaging ansatz holds: it calls the saddle orbit inside
+        a negative-stiffness well stable).
+
+    Returns
+    -------
+    Response
+
+    Raises
+    ------
+    PerturbError
+        If the approximation has no frequency polynomial; ParameterError for bad ranges or
+        missing parameter values.
+    """
+    approx = approximation
+    _check_approximation(approx, stability)
     if int(points) < 10:
         raise ParameterError(f"points = {points}: expected at least 10")
     lo, hi = _check_window(omega_range)
@@ -120,11 +205,7 @@ def frequency_response(
     Omega = approx.frequency
     unknowns = approx.unknowns
     phase = unknowns[1] if len(unknowns) > 1 else sp.Symbol("phi")
-    coeffs = list(approx.frequency_polynomial) + [sp.Integer(0)] * (
-        3 - len(approx.frequency_polynomial)
-    )
-    bound = bind_parameters(approx, coeffs, keep=(A,))
-    poly = lambdify((A,), bound)
+    poly = _polynomial(approx)
 
     def valid_mask(a: np.ndarray) -> tuple[np.ndarray, ...]:
         c0, c1, c2 = poly(a)
@@ -256,13 +337,13 @@ def _branch(
     first = 2 * np.abs(spectrum[:, 1]) / _WAVEFORM_SAMPLES
 
     period = 2 * np.pi / w
-    if stability == "floquet":
+    if stability in ("floquet", "hill"):
         # derivative along the orbit: dx/dt = Omega dx/dtau
         dwave_fn = lambdify((approx.tau, A, phase, Omega), sp.diff(wave, approx.tau))
         tau_f = np.linspace(0, 2 * np.pi, _FLOQUET_SAMPLES, endpoint=False)[None, :]
         xf = wave_fn(tau_f, a[:, None], phi[:, None], w[:, None])
         vf = w[:, None] * dwave_fn(tau_f, a[:, None], phi[:, None], w[:, None])
-        max_mult = _floquet_in_chunks(approx, xf, vf, period, Omega, w)
+        max_mult = _floquet_in_chunks(approx, xf, vf, period, Omega, w, stability)
         stable = max_mult < 1 - 1e-9
     else:
         flow = bind_parameters(approx, list(approx.slow_flow or ()), keep)
@@ -286,11 +367,17 @@ def _branch(
     )
 
 
-def _floquet_in_chunks(approx, xf, vf, period, Omega, w) -> np.ndarray:
+def _floquet_in_chunks(approx, xf, vf, period, Omega, w, stability) -> np.ndarray:
     out = np.empty(period.size)
+    harmonics = int(approx.options.get("harmonics", 1))
     for start in range(0, period.size, _CHUNK):
         sl = slice(start, start + _CHUNK)
-        out[sl] = monodromy_multipliers(approx.oscillator, xf[sl], vf[sl], period[sl], Omega, w[sl])
+        if stability == "hill":
+            lam = hill_exponents(approx.oscillator, xf[sl], vf[sl], period[sl], harmonics, Omega)
+            re = np.max(lam.real, axis=1)
+            out[sl] = np.exp(np.clip(re * period[sl], -700, 700))
+        else:
+            out[sl] = monodromy_multipliers(approx.oscillator, xf[sl], vf[sl], period[sl], Omega)
     return out
 
 
