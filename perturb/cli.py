@@ -5,6 +5,8 @@ Subcommands::
     perturb --version
     perturb models                                  list the builtin models
     perturb fourier "EXPR" --A 2 [--b 0] --n 15     Fourier coefficients of a force f(x)
+    perturb frc MODEL [--method hb1] [--param k=-2 ...] [--omega 0.2:2.0[:N] | w1,w2]
+                      [--out frc.csv] [--plot frc.png]
     perturb run [SCENE.toml] [--out DIR]            answer a scene (default: the embedded one)
 
 Errors a user can cause print one line ``perturb: error: ...`` and exit with status 2;
@@ -22,7 +24,7 @@ from collections.abc import Sequence
 from . import __version__
 from .errors import ParameterError, PerturbError
 
-__all__ = ["main", "parse_param"]
+__all__ = ["main", "parse_param", "parse_omega"]
 
 _NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 
@@ -105,6 +107,86 @@ def _cmd_fourier(args: argparse.Namespace) -> int:
     return 0
 
 
+def parse_omega(text: str) -> tuple[str, list[float]]:
+    """``--omega`` forms: ``lo:hi`` (a traced curve), ``lo:hi:count`` (exactly ``count``
+    equally spaced frequencies) or ``w1,w2,...`` (exactly those frequencies).
+
+    Returns ``("range", [lo, hi])`` or ``("points", [...])``.
+
+    Raises
+    ------
+    ParameterError
+        Naming the bad text.
+    """
+    text = text.strip()
+    usage = f"--omega {text!r}: expected start:stop, start:stop:count or a list like 0.6,0.9"
+    parts = text.split(":")
+    try:
+        numbers = [float(p) for p in parts] if ":" in text else []
+        values = [float(w) for w in text.split(",") if w.strip()] if ":" not in text else []
+    except ValueError:
+        raise ParameterError(usage) from None
+    if ":" in text:
+        if len(parts) not in (2, 3):
+            raise ParameterError(usage)
+        lo, hi = numbers[0], numbers[1]
+        if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
+            raise ParameterError(f"--omega {text!r}: expected 0 < start < stop")
+        if len(parts) == 2:
+            return "range", [lo, hi]
+        count = numbers[2]
+        if count != int(count) or not 2 <= count <= 1_000_000:
+            raise ParameterError(f"--omega {text!r}: expected a whole count from 2 to 1e6")
+        import numpy as np
+
+        return "points", [float(w) for w in np.linspace(lo, hi, int(count))]
+    if not values:
+        raise ParameterError(usage)
+    if not all(math.isfinite(w) and w > 0 for w in values):
+        raise ParameterError(f"--omega {text!r}: frequencies must be positive and finite")
+    return "points", values
+
+
+def _model_from_arg(text: str, params: dict[str, float]):
+    from .model import BUILTIN_MODELS, Oscillator, builtin_model
+
+    if text in BUILTIN_MODELS:
+        return builtin_model(text, **params)
+    if "''" in text:
+        return Oscillator.parse(text, params)
+    raise PerturbError(
+        f"model {text!r}: expected a builtin name ({', '.join(BUILTIN_MODELS)}) or an "
+        "equation such as \"x'' + mu*x' + x + x**3 = F*cos(Omega*t)\""
+    )
+
+
+def _cmd_frc(args: argparse.Namespace) -> int:
+    from .numeric.frequency_response import frequency_response, solutions_at
+    from .report.figures import plot_frequency_response
+    from .scene import METHODS
+
+    params = dict(parse_param(p) for p in args.param or ())
+    osc = _model_from_arg(args.model, params)
+    if args.method not in METHODS:
+        raise PerturbError(
+            f"--method {args.method!r}: expected one of {', '.join(METHODS)} (more methods "
+            "arrive with the symbolic engines and the exact solvers)"
+        )
+    kind, omegas = parse_omega(args.omega)
+    approx = METHODS[args.method](osc)
+    if kind == "range":
+        resp = frequency_response(approx, omegas, points=args.points)
+    else:
+        resp = solutions_at(approx, omegas)
+    print(repr(resp), file=sys.stderr)
+    text = resp.to_csv(args.out)
+    if args.out is None:
+        sys.stdout.write(text)
+    if args.plot:
+        plot_frequency_response(resp, args.plot)
+    return 0
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from .scene import default_scene, load_scene, run_scene
 
@@ -135,6 +217,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--var", default="x", help="the variable (default x)")
     p.add_argument("--param", action="append", metavar="NAME=VALUE", help="parameter value")
     p.set_defaults(func=_cmd_fourier)
+
+    p = sub.add_parser("frc", help="frequency response of a model (CSV, optional PNG)")
+    p.add_argument("model", help="builtin model name or an equation string")
+    p.add_argument("--method", default="hb1", help="method (default hb1)")
+    p.add_argument("--param", action="append", metavar="NAME=VALUE", help="parameter value")
+    p.add_argument(
+        "--omega",
+        default="0.2:2.0",
+        help="start:stop (traced curve), start:stop:count or w1,w2,... (exact frequencies)",
+    )
+    p.add_argument("--points", type=int, default=2000, help="curve resolution for start:stop")
+    p.add_argument("--out", help="CSV file (default: standard output)")
+    p.add_argument("--plot", help="PNG file")
+    p.set_defaults(func=_cmd_frc)
 
     p = sub.add_parser("run", help="answer a scene file (default: the embedded default scene)")
     p.add_argument("scene", nargs="?", help="scene TOML file")

@@ -137,3 +137,63 @@ def test_equation_scene_is_parsed_safely():
     assert osc.params["mu"] == 0.1
     with pytest.raises(PerturbError):
         parse_scene("[model]\nequation = \"__import__('os').system('id')\"\n").oscillator()
+
+
+def test_parse_omega_forms():
+    from perturb.cli import parse_omega
+
+    assert parse_omega("0.2:2") == ("range", [0.2, 2.0])
+    kind, values = parse_omega("0.2:2.0:5")
+    assert kind == "points" and values == [0.2, 0.65, 1.1, 1.55, 2.0]
+    assert parse_omega("0.6, 0.9") == ("points", [0.6, 0.9])
+    for bad in ("2:1", "a:b", "1:2:3:4", "1:2:2.5", "0.6,-1", "", "0.6,nan", "0:1"):
+        with pytest.raises(ParameterError):
+            parse_omega(bad)
+
+
+def test_frc_listed_frequencies_appear_exactly_and_solve_the_amplitude_equation(tmp_path):
+    out = tmp_path / "frc.csv"
+    png = tmp_path / "frc.png"
+    argv = [
+        "frc",
+        "nsd",
+        "--param",
+        "k=-2",
+        "--param",
+        "mu=0.05",
+        "--param",
+        "F=2",
+        "--omega",
+        "0.6,0.9",
+        "--out",
+        str(out),
+        "--plot",
+        str(png),
+    ]
+    assert main(argv) == 0
+    with open(out) as fh:
+        rows = list(csv.DictReader(fh))
+    assert tuple(rows[0].keys()) == CSV_COLUMNS
+    assert {float(r["omega"]) for r in rows} == {0.6, 0.9}
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    # every row solves the first-order (describing-function) equation of the paper
+    import numpy as np
+
+    for r in rows:
+        A, W = float(r["first_harmonic_amplitude"]), float(r["omega"])
+        th = np.arccos(min(1.0, 1.0 / A))
+        c1 = A * (2 * th / np.pi + np.sin(2 * th) / np.pi) - 4 * np.sin(th) / np.pi
+        res = ((W**2 + 2) * A - 3 * c1) ** 2 + (0.05 * W * A) ** 2 - 4
+        assert abs(res) < 1e-8
+    # at Omega = 0.6 the three symmetric solutions: large stable, middle and in-well unstable
+    at = sorted((float(r["amplitude"]), int(r["stable"])) for r in rows if r["omega"] == "0.6")
+    assert [s for _, s in at] == [0, 0, 1]
+
+
+def test_frc_errors(capsys):
+    assert main(["frc", "nope"]) == 2
+    assert "builtin name" in capsys.readouterr().err
+    assert main(["frc", "nsd", "--method", "magic"]) == 2
+    assert "--method 'magic'" in capsys.readouterr().err
+    assert main(["frc", "nsd", "--omega", "2:1"]) == 2
+    assert "0 < start < stop" in capsys.readouterr().err
