@@ -15,10 +15,12 @@ terms plus a piecewise-linear part — into such an expression.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import sympy as sp
 
 from . import fourier
-from .errors import FourierError
+from .errors import FourierError, NonsmoothError
 from .nonsmooth import PiecewiseLinear, is_nonsmooth, to_pwl
 
 __all__ = [
@@ -163,12 +165,18 @@ def pwl_coefficient(pwl: PiecewiseLinear, n: int, A: sp.Expr, b: sp.Expr) -> sp.
 
 
 def series_coefficient(
-    force: sp.Expr, x: sp.Symbol, n: int, A: sp.Expr, b: sp.Expr | int = 0
+    force: sp.Expr,
+    x: sp.Symbol,
+    n: int,
+    A: sp.Expr,
+    b: sp.Expr | int = 0,
+    values: Mapping[str, float] | None = None,
 ) -> sp.Expr:
     """a_n of ``force(x)`` under ``x = A cos(psi) + b``.
 
     ``force`` may mix polynomial terms with piecewise-linear ones (Heaviside, Max, Min, Abs,
-    sign, Piecewise) and ``DiracDelta(x - d)`` terms.
+    sign, Piecewise) and ``DiracDelta(x - d)`` terms. ``values`` (parameter name -> number)
+    are used only when symbolic breakpoints cannot be ordered otherwise.
 
     Raises
     ------
@@ -205,7 +213,16 @@ def series_coefficient(
         for (deg,), coeff in sp.Poly(term, x).terms():
             expr += coeff * power_coefficient(deg, n, A, b)
     if pwl_terms:
-        expr += pwl_coefficient(to_pwl(sp.Add(*pwl_terms), x), n, A, b)
+        nonsmooth = sp.Add(*pwl_terms)
+        try:
+            pwl = to_pwl(nonsmooth, x)
+        except NonsmoothError:
+            if not values:
+                raise
+            # symbolic breakpoints that cannot be ordered (d and -d with d merely real):
+            # order them with the parameter values, which then appear as numbers
+            pwl = to_pwl(nonsmooth, x, values=values)
+        expr += pwl_coefficient(pwl, n, A, b)
     return expr
 
 

@@ -107,7 +107,8 @@ def single_harmonic_balance(oscillator: Oscillator) -> Approximation:
     psi = real_symbol("psi")
     tau = real_symbol("tau")
 
-    a1 = series_coefficient(f, x, 1, A, sp.Integer(0))
+    values = {n: v for n, v in osc.params.items() if v is not None}
+    a1 = series_coefficient(f, x, 1, A, sp.Integer(0), values=values)
     a1_closed, definitions, domains = closed_form(a1)
     # Everything is first written with a_1(A) by name, as a paper would; the numeric fields
     # get the coefficient substituted in.
@@ -149,15 +150,15 @@ def single_harmonic_balance(oscillator: Oscillator) -> Approximation:
             else "",
         ),
         Step(
-            "Balance of cos psi and sin psi",
+            "Balance of the cosine and sine terms",
             tuple(sp.Eq(r, 0) for r in shown_residuals),
         ),
         Step(
-            "Frequency-amplitude equation (phase eliminated), a quadratic in Omega^2",
+            "Frequency-amplitude equation: phase eliminated, quadratic in the squared frequency",
             (sp.Eq(sp.Add(*(c * W**j for j, c in enumerate(shown_poly))), 0),),
         ),
         Step(
-            "Slow flow (first-order averaging); its Jacobian decides stability",
+            "Slow flow (first-order averaging)",
             (
                 sp.Eq(sp.Derivative(A, osc.t), shown_flow[0]),
                 sp.Eq(sp.Derivative(phi, osc.t), shown_flow[1]),

@@ -79,6 +79,7 @@ def latex_document(
     doc = "\n".join(
         [
             r"\documentclass[11pt]{article}",
+            r"\usepackage[T1]{fontenc}",
             r"\usepackage{amsmath,amssymb}",
             r"\usepackage[margin=2cm]{geometry}",
             r"\allowdisplaybreaks",
