@@ -27,11 +27,11 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.integrate import solve_ivp
 
-from ..errors import ParameterError, PerturbError
-from ..model import Oscillator
-from .system import NumericRHS, first_order_rhs
+from ..errors import ModelError, ParameterError, PerturbError
+from ..model import Oscillator, validate_parameter_value
+from .system import NumericRHS, first_order_rhs, frequency_symbol
 
-__all__ = ["Flow", "FlowResult", "ODEFlow"]
+__all__ = ["Flow", "FlowResult", "ODEFlow", "FlowFamily"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,9 +109,10 @@ class ODEFlow:
         *,
         rtol: float = 1e-11,
         atol: float = 1e-12,
+        rhs: NumericRHS | None = None,
     ) -> None:
         self.oscillator = oscillator
-        self.rhs: NumericRHS = first_order_rhs(oscillator, Omega)
+        self.rhs: NumericRHS = rhs if rhs is not None else first_order_rhs(oscillator, Omega)
         self.period = self.rhs.period
         self.rtol, self.atol = float(rtol), float(atol)
 
@@ -151,6 +152,8 @@ class ODEFlow:
             raise PerturbError(
                 f"integration of {self.oscillator.name!r} failed on [{t0}, {t1}]: {sol.message}"
             )
+        # (solve_ivp integrates across switches of a nonsmooth force without locating them:
+        # accuracy there is the step control's, which is why PWL models use ExactPWLFlow)
         if t_eval is not None:
             final = solve_ivp(fun, (t0, t1), z0, method="DOP853", rtol=self.rtol, atol=self.atol).y[
                 :, -1
@@ -165,3 +168,161 @@ class ODEFlow:
             t=None if t_eval is None else sol.t.copy(),
             ys=None if t_eval is None else sol.y[:2].T.copy(),
         )
+
+
+class FlowFamily:
+    """Flows of one oscillator over the values of one parameter, compiled once.
+
+    Continuation and sweeps ask for thousands of flows that differ in one number; rebuilding
+    the canonical PWL form or re-lambdifying per value would dominate their cost. Piecewise-
+    linear oscillators get the exact flow (:class:`~perturb.simulate.exact_flow.ExactPWLFlow`,
+    breakpoints, slopes and offsets compiled as functions of the parameter); others the
+    smooth :class:`ODEFlow`.
+
+    Parameters
+    ----------
+    oscillator
+        All parameters but ``parameter`` need values.
+    parameter
+        Name of the parameter that varies; default: the forcing frequency.
+    exact
+        ``None`` (default) chooses the exact flow when the model is piecewise linear;
+        ``False`` forces the ODE flow.
+    """
+
+    def __init__(
+        self,
+        oscillator: Oscillator,
+        parameter: str | None = None,
+        *,
+        exact: bool | None = None,
+        rtol: float = 1e-11,
+        atol: float = 1e-12,
+    ) -> None:
+        osc = oscillator
+        if parameter is None:
+            sym = frequency_symbol(osc)
+            if sym is None:
+                raise ModelError(
+                    f"model {osc.name!r} has no forcing-frequency parameter; name the parameter"
+                )
+            parameter = sym.name
+        if parameter not in osc.params:
+            raise ParameterError(
+                f"parameter {parameter!r} is not in model {osc.name!r}: expected one of "
+                + ", ".join(osc.params)
+            )
+        self.oscillator = osc
+        self.parameter = parameter
+        self.rtol, self.atol = rtol, atol
+        use_exact = osc.is_piecewise_linear if exact is None else bool(exact)
+        if use_exact and not osc.is_piecewise_linear:
+            raise ModelError(f"model {osc.name!r} is not piecewise linear: no exact flow")
+        self.exact = use_exact
+        self._pwl = _compile_pwl(osc, parameter) if use_exact else None
+        self._rhs = None if use_exact else _compile_rhs(osc, parameter)
+
+    def __repr__(self) -> str:
+        kind = "exact" if self.exact else "ode"
+        return f"FlowFamily({self.oscillator.name}, {self.parameter}, {kind})"
+
+    def at(self, value: float) -> Flow:
+        """The flow at ``parameter = value``."""
+        value = validate_parameter_value(self.parameter, value)
+        if self.exact:
+            from .exact_flow import ExactPWLFlow
+
+            if self._pwl is None:  # breakpoints could not be ordered symbolically
+                return ExactPWLFlow(self.oscillator.with_params({self.parameter: value}))
+            return ExactPWLFlow(self._pwl(value))
+        assert self._rhs is not None
+        return ODEFlow(self.oscillator, rhs=self._rhs(value), rtol=self.rtol, atol=self.atol)
+
+
+def _others(osc: Oscillator, parameter: str) -> dict:
+    subs = {s: v for s, v in osc.substitutions().items() if s.name != parameter}
+    return subs
+
+
+def _compile_pwl(osc: Oscillator, parameter: str):
+    """value -> PWLSystem, with the canonical form computed once symbolically in the
+    parameter; None when its breakpoints cannot be ordered without a value."""
+    import sympy as sp
+
+    from ..errors import NonsmoothError
+    from ..nonsmooth import to_pwl
+    from ..parsing import real_symbol
+    from .piecewise_exact import PWLSystem
+
+    p = real_symbol(parameter)
+    subs = _others(osc, parameter)
+    try:
+        pwl = to_pwl(osc.restoring_force.xreplace(subs), osc.x)
+    except NonsmoothError:
+        return None
+    exprs = [
+        *pwl.breakpoints,
+        *pwl.slopes,
+        *pwl.offsets,
+        osc.damping.xreplace(subs),
+        osc.forcing.constant.xreplace(subs),
+    ]
+    for h in osc.forcing.harmonics:
+        exprs += [h.amplitude.xreplace(subs), h.frequency.xreplace(subs), h.phase.xreplace(subs)]
+    free = sorted({s.name for e in exprs for s in sp.sympify(e).free_symbols} - {parameter})
+    if free:
+        raise ParameterError(f"model {osc.name!r} needs values for {', '.join(free)}")
+    fn = sp.lambdify(p, exprs, modules="math")
+    m = len(pwl.breakpoints)
+
+    def build(value: float) -> PWLSystem:
+        vals = [float(v) for v in fn(value)]
+        bps, rest = vals[:m], vals[m:]
+        slopes, offsets = rest[: m + 1], rest[m + 1 : 2 * m + 2]
+        mu, static = rest[2 * m + 2], rest[2 * m + 3]
+        harm = rest[2 * m + 4 :]
+        forcing = []
+        for j in range(0, len(harm), 3):
+            amp, w, ph = harm[j : j + 3]
+            if amp != 0.0:
+                forcing.append((amp, abs(w), ph if w > 0 else -ph))
+        return PWLSystem(
+            bps, slopes, offsets, damping=mu, forcing=tuple(forcing), static_force=static
+        )
+
+    return build
+
+
+def _compile_rhs(osc: Oscillator, parameter: str):
+    """value -> NumericRHS, lambdified once with the parameter as an argument."""
+    import sympy as sp
+
+    from ..parsing import real_symbol
+
+    p = real_symbol(parameter)
+    subs = _others(osc, parameter)
+    acc = (osc.forcing.expr(osc.t) - osc.g).xreplace(subs)
+    free = sorted(s.name for s in acc.free_symbols - {osc.x, osc.v, osc.t, p})
+    if free:
+        raise ParameterError(f"model {osc.name!r} needs values for {', '.join(free)}")
+    dx = sp.diff(acc, osc.x).replace(sp.DiracDelta, lambda *a: sp.Integer(0))
+    dv = sp.diff(acc, osc.v).replace(sp.DiracDelta, lambda *a: sp.Integer(0))
+    mods = [{"Heaviside": lambda z, h0=0.5: np.heaviside(z, h0)}, "numpy"]
+    acc_fn = sp.lambdify((osc.t, osc.x, osc.v, p), acc, modules=mods)
+    jac_fn = sp.lambdify((osc.t, osc.x, osc.v, p), [dx, dv], modules=mods)
+    base = osc.forcing.base_frequency
+    period_fn = None
+    if base is not None:
+        period_fn = sp.lambdify(p, 2 * sp.pi / sp.Abs(base.xreplace(subs)), modules="math")
+
+    def build(value: float) -> NumericRHS:
+        def fun(t: float, y: np.ndarray) -> np.ndarray:
+            return np.array([y[1], acc_fn(t, y[0], y[1], value)], dtype=float)
+
+        def jac(t: float, y: np.ndarray) -> np.ndarray:
+            a, b = jac_fn(t, y[0], y[1], value)
+            return np.array([[0.0, 1.0], [float(a), float(b)]])
+
+        return NumericRHS(fun=fun, jac=jac, period=None if period_fn is None else period_fn(value))
+
+    return build
