@@ -7,6 +7,8 @@ Subcommands::
     perturb fourier "EXPR" --A 2 [--b 0] --n 15     Fourier coefficients of a force f(x)
     perturb frc MODEL [--method hb1] [--param k=-2 ...] [--omega 0.2:2.0[:N] | w1,w2]
                       [--out frc.csv] [--plot frc.png]
+    perturb simulate MODEL [--param ...] --y0 x,v --t 0:100 [--method auto|exact|event|lcp|ode]
+    perturb periodic MODEL [--param ...] --omega 0.6 [--m 1]
     perturb run [SCENE.toml] [--out DIR]            answer a scene (default: the embedded one)
 
 Errors a user can cause print one line ``perturb: error: ...`` and exit with status 2;
@@ -187,6 +189,62 @@ def _cmd_frc(args: argparse.Namespace) -> int:
     return 0
 
 
+def _pair(flag: str, text: str) -> list[float]:
+    try:
+        values = [float(p) for p in text.split(",")]
+    except ValueError:
+        raise ParameterError(f"{flag} {text!r}: expected two numbers like 0.3,0.1") from None
+    if len(values) != 2 or not all(math.isfinite(v) for v in values):
+        raise ParameterError(f"{flag} {text!r}: expected two finite numbers like 0.3,0.1")
+    return values
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from .simulate.time_history import time_history
+
+    params = dict(parse_param(p) for p in args.param or ())
+    osc = _model_from_arg(args.model, params)
+    t0, t1 = _pair("--t", args.t.replace(":", ","))
+    hist = time_history(
+        osc, _pair("--y0", args.y0), (t0, t1), method=args.method, samples=args.samples, h=args.h
+    )
+    print(repr(hist), file=sys.stderr)
+    text = hist.to_csv(args.out)
+    if args.out is None:
+        sys.stdout.write(text)
+    if args.plot:
+        from .report.figures import plot_time_history
+
+        plot_time_history(hist, args.plot, title=str(osc))
+    return 0
+
+
+def _cmd_periodic(args: argparse.Namespace) -> int:
+    from .simulate.orbits import periodic_orbits
+
+    params = dict(parse_param(p) for p in args.param or ())
+    osc = _model_from_arg(args.model, params)
+    orbits = periodic_orbits(osc, args.omega, m=args.m)
+    cols = "omega,m,amplitude,first_harmonic_amplitude,mean,stable,max_multiplier,stability,x0,v0"
+    lines = [cols]
+    for o in orbits:
+        nums = [o.amplitude, o.first_harmonic_amplitude, o.mean]
+        lines.append(
+            f"{float(args.omega)!r},{o.m},"
+            + ",".join(repr(float(n)) for n in nums)
+            + f",{int(o.max_multiplier < 1)},{float(o.max_multiplier)!r},{o.stability},"
+            f"{float(o.y0[0])!r},{float(o.y0[1])!r}"
+        )
+    text = "\n".join(lines) + "\n"
+    if args.out:
+        with open(args.out, "w") as fh:
+            fh.write(text)
+    else:
+        sys.stdout.write(text)
+    print(f"{len(orbits)} period-{args.m} orbits at Omega = {args.omega}", file=sys.stderr)
+    return 0
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from .scene import default_scene, load_scene, run_scene
 
@@ -231,6 +289,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="CSV file (default: standard output)")
     p.add_argument("--plot", help="PNG file")
     p.set_defaults(func=_cmd_frc)
+
+    p = sub.add_parser("simulate", help="time history (exact, event-driven, LCP or ODE)")
+    p.add_argument("model", help="builtin model name or an equation string")
+    p.add_argument("--param", action="append", metavar="NAME=VALUE", help="parameter value")
+    p.add_argument("--y0", default="0,0", help="initial state x0,v0 (default 0,0)")
+    p.add_argument("--t", default="0:100", help="time span t0:t1 (default 0:100)")
+    p.add_argument("--samples", type=int, default=2001, help="output samples (default 2001)")
+    p.add_argument("--method", default="auto", help="auto, exact, event, lcp or ode")
+    p.add_argument("--h", type=_finite("--h"), help="LCP step (default: period/200)")
+    p.add_argument("--out", help="CSV file t,x,v (default: standard output)")
+    p.add_argument("--plot", help="PNG file")
+    p.set_defaults(func=_cmd_simulate)
+
+    p = sub.add_parser("periodic", help="all periodic orbits at one forcing frequency")
+    p.add_argument("model", help="builtin model name or an equation string")
+    p.add_argument("--param", action="append", metavar="NAME=VALUE", help="parameter value")
+    p.add_argument("--omega", type=_finite("--omega"), required=True, help="forcing frequency")
+    p.add_argument("--m", type=int, default=1, help="forcing periods per orbit (default 1)")
+    p.add_argument("--out", help="CSV file (default: standard output)")
+    p.set_defaults(func=_cmd_periodic)
 
     p = sub.add_parser("run", help="answer a scene file (default: the embedded default scene)")
     p.add_argument("scene", nargs="?", help="scene TOML file")

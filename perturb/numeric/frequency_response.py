@@ -133,18 +133,21 @@ def solutions_at(
     # Link the solutions into branches along the amplitude-parametrised curve: each solution
     # joins the traced branch passing nearest to it, ordered by position along that branch
     # (nearest-amplitude linking between frequencies fails on coarse grids near folds).
-    span = (float(w_all.min()) * 0.999, float(w_all.max()) * 1.001)
+    span = (float(w_all.min()) * 0.95, float(w_all.max()) * 1.05)
     traced = frequency_response(approx, span, points=2000, stability="slow_flow")
     branches: list[list[tuple[float, float, float]]] = [[] for _ in traced.branches]
     wr = w_all[iw]
     for w, a in zip(wr, roots, strict=True):
-        best = (np.inf, 0, 0)
+        best = (np.inf, -1, 0)
         for b, br in enumerate(traced.branches):
             d = np.hypot(np.log(br.omega / w), np.log(br.first_harmonic_amplitude / a))
             k = int(np.argmin(d))
             if d[k] < best[0]:
                 best = (d[k], b, k)
-        branches[best[1]].append((best[2], float(w), float(a)))
+        if best[1] < 0 or best[0] > 0.1:  # no traced curve passes here: a branch of its own
+            branches.append([(0, float(w), float(a))])
+        else:
+            branches[best[1]].append((best[2], float(w), float(a)))
     branches = [sorted(pts) for pts in branches if pts]
     A, Omega = approx.amplitude, approx.frequency
     phase = approx.unknowns[1]

@@ -73,3 +73,26 @@ def plot_frequency_response(
     if path is not None:
         fig.savefig(path)
     return fig
+
+
+def plot_time_history(history, path=None, *, title: str | None = None):
+    """Time history ``x(t)`` and the phase portrait ``(x, x')`` side by side."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4), dpi=110)
+    ax1.plot(history.t, history.x, lw=0.8)
+    ax1.set_xlabel("t")
+    ax1.set_ylabel("x")
+    ax1.grid(alpha=0.3)
+    ax2.plot(history.x, history.v, lw=0.6)
+    ax2.set_xlabel("x")
+    ax2.set_ylabel("x'")
+    ax2.grid(alpha=0.3)
+    fig.suptitle(title or f"time history ({history.method})", fontsize=8)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path)
+    return fig
