@@ -115,7 +115,7 @@ from sympy.logic.boolalg import BooleanFalse, BooleanTrue
 from ..errors import ModelError, ParameterError, PerturbError
 from ..model import Oscillator, validate_parameter_value
 from .flow import FlowResult
-from .system import first_order_rhs, frequency_symbol
+from .system import first_order_rhs, parameter_values
 
 __all__ = [
     "Surface",
@@ -537,14 +537,7 @@ class EventFlow:
             raise ParameterError(f"max_events = {max_events!r}: expected a positive integer")
         self.max_events = max_events
         osc = oscillator
-        subs = osc.substitutions()
-        if Omega is not None:
-            sym = frequency_symbol(osc)
-            if sym is None:
-                raise ModelError(
-                    f"model {osc.name!r} has no forcing-frequency parameter to set Omega = {Omega}"
-                )
-            subs[sym] = sp.Float(validate_parameter_value(sym.name, Omega))
+        subs = parameter_values(osc, Omega)
         g = osc.g.xreplace(subs)
         forcing = osc.forcing.expr(osc.t).xreplace(subs)
         free = sorted(

@@ -21,7 +21,13 @@ from ..errors import ModelError, ParameterError
 from ..model import Forcing, Harmonic, Oscillator, validate_parameter_value
 from .piecewise_exact import PWLSystem
 
-__all__ = ["to_pwl_system", "first_order_rhs", "NumericRHS", "frequency_symbol"]
+__all__ = [
+    "to_pwl_system",
+    "first_order_rhs",
+    "NumericRHS",
+    "frequency_symbol",
+    "parameter_values",
+]
 
 
 def frequency_symbol(osc: Oscillator) -> sp.Symbol | None:
@@ -33,7 +39,8 @@ def frequency_symbol(osc: Oscillator) -> sp.Symbol | None:
     return None
 
 
-def _values(osc: Oscillator, Omega: float | None) -> dict[sp.Symbol, sp.Float]:
+def parameter_values(osc: Oscillator, Omega: float | None = None) -> dict[sp.Symbol, sp.Float]:
+    """Parameter symbol -> value, with the forcing frequency overridden by ``Omega``."""
     subs = osc.substitutions()
     if Omega is not None:
         sym = frequency_symbol(osc)
@@ -67,7 +74,7 @@ def to_pwl_system(osc: Oscillator, Omega: float | None = None) -> PWLSystem:
         raise ModelError(
             f"model {osc.name!r} is not piecewise linear; use the event-driven integrator"
         )
-    subs = _values(osc, Omega)
+    subs = parameter_values(osc, Omega)
     numeric = osc.with_params({s.name: float(v) for s, v in subs.items()})
     pwl = numeric.piecewise_linear().numeric()
     mu = _number(numeric.damping.xreplace(subs), "damping", osc)
@@ -108,7 +115,7 @@ def first_order_rhs(osc: Oscillator, Omega: float | None = None) -> NumericRHS:
     Heaviside is evaluated with ``H(0) = 1/2``; the Jacobian drops Dirac terms (jumps are
     for event handling, not for the smooth Jacobian).
     """
-    subs = _values(osc, Omega)
+    subs = parameter_values(osc, Omega)
     g = osc.g.xreplace(subs)
     f = osc.forcing.expr(osc.t).xreplace(subs)
     free = sorted(s.name for s in (g.free_symbols | f.free_symbols) - {osc.x, osc.v, osc.t})
