@@ -1,0 +1,1 @@
+"""Reference integrators: exact piecewise-analytic propagation, event-driven, shooting."""
