@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from importlib.metadata import PackageNotFoundError, version
 
+from .api import frequency_response
 from .errors import (
     FourierError,
     ModelError,
@@ -23,6 +24,21 @@ from .errors import (
 from .model import BUILTIN_MODELS, Forcing, Harmonic, Oscillator, builtin_model
 from .nonsmooth import PiecewiseLinear, to_pwl
 from .parsing import parse_expression
+from .response import Branch, Response
+
+
+def __getattr__(name: str):
+    # the reference solvers pull in scipy.integrate; load them on first use
+    if name == "periodic_orbits":
+        from .simulate.orbits import periodic_orbits
+
+        return periodic_orbits
+    if name == "time_history":
+        from .simulate.time_history import time_history
+
+        return time_history
+    raise AttributeError(f"module 'perturb' has no attribute {name!r}")
+
 
 try:
     __version__ = version("perturb")
@@ -39,6 +55,11 @@ __all__ = [
     "PiecewiseLinear",
     "to_pwl",
     "parse_expression",
+    "frequency_response",
+    "Response",
+    "Branch",
+    "periodic_orbits",
+    "time_history",
     "PerturbError",
     "ParseError",
     "ModelError",

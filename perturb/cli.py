@@ -163,9 +163,9 @@ def _model_from_arg(text: str, params: dict[str, float]):
 
 
 def _cmd_frc(args: argparse.Namespace) -> int:
+    from .methods import METHODS
     from .numeric.frequency_response import frequency_response, solutions_at
     from .report.figures import plot_frequency_response
-    from .scene import METHODS
 
     params = dict(parse_param(p) for p in args.param or ())
     osc = _model_from_arg(args.model, params)

@@ -25,14 +25,14 @@ from __future__ import annotations
 
 import sys
 import tomllib
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any
 
 from .errors import ParameterError, PerturbError
+from .methods import METHODS
 from .model import Oscillator, builtin_model, validate_parameter_value
 
 __all__ = ["Scene", "load_scene", "default_scene", "run_scene", "METHODS"]
@@ -46,16 +46,6 @@ _KEYS: dict[str, set[str]] = {
     "accuracy": {"rtol"},
 }
 _KINDS = ("frequency_response",)
-
-
-def _hb1(osc: Oscillator):
-    from .methods.harmonic_balance import single_harmonic_balance
-
-    return single_harmonic_balance(osc)
-
-
-#: Methods a scene may name, by their short name.
-METHODS: Mapping[str, Callable[[Oscillator], Any]] = MappingProxyType({"hb1": _hb1})
 
 
 @dataclass(frozen=True)

@@ -197,3 +197,16 @@ def test_frc_errors(capsys):
     assert "--method 'magic'" in capsys.readouterr().err
     assert main(["frc", "nsd", "--omega", "2:1"]) == 2
     assert "0 < start < stop" in capsys.readouterr().err
+
+
+def test_front_door_dispatches_methods():
+    import perturb
+
+    osc = perturb.builtin_model("nsd")
+    resp = perturb.frequency_response(osc, "hb1", points=[0.6, 0.9])
+    assert {w for br in resp.branches for w in br.omega} == {0.6, 0.9}
+    with pytest.raises(ParameterError, match="method"):
+        perturb.frequency_response(osc, "magic")
+    assert callable(perturb.periodic_orbits) and callable(perturb.time_history)
+    with pytest.raises(AttributeError):
+        perturb.no_such_thing  # noqa: B018
