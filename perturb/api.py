@@ -23,7 +23,7 @@ def frequency_response(
     method: str = "hb1",
     Omega: Sequence[float] = (0.2, 2.0),
     *,
-    points: Sequence[float] | None = None,
+    frequencies: Sequence[float] | None = None,
     **options: Any,
 ) -> Response:
     """The frequency response of ``oscillator`` by ``method``.
@@ -34,7 +34,7 @@ def frequency_response(
         ``"exact"`` or a name in :data:`perturb.methods.METHODS`.
     Omega
         ``(low, high)``.
-    points
+    frequencies
         Exact frequencies to report instead of a traced curve (approximations only).
     options
         Passed to the solver.
@@ -42,8 +42,10 @@ def frequency_response(
     if method == "exact":
         from .simulate.continuation import exact_frequency_response
 
-        if points is not None:
-            raise ParameterError("points= is not supported with method='exact'; use a window")
+        if frequencies is not None:
+            raise ParameterError(
+                "frequencies= is not supported with method='exact'; give a window Omega=(lo, hi)"
+            )
         return exact_frequency_response(oscillator, Omega, **options)
     if method not in METHODS:
         raise ParameterError(
@@ -53,6 +55,6 @@ def frequency_response(
     from .numeric.frequency_response import solutions_at
 
     approx = METHODS[method](oscillator)
-    if points is not None:
-        return solutions_at(approx, points, **options)
+    if frequencies is not None:
+        return solutions_at(approx, frequencies, **options)
     return traced(approx, Omega, **options)

@@ -163,23 +163,28 @@ def _model_from_arg(text: str, params: dict[str, float]):
 
 
 def _cmd_frc(args: argparse.Namespace) -> int:
+    from .api import frequency_response
     from .methods import METHODS
-    from .numeric.frequency_response import frequency_response, solutions_at
     from .report.figures import plot_frequency_response
 
     params = dict(parse_param(p) for p in args.param or ())
     osc = _model_from_arg(args.model, params)
-    if args.method not in METHODS:
+    if args.method != "exact" and args.method not in METHODS:
         raise PerturbError(
-            f"--method {args.method!r}: expected one of {', '.join(METHODS)} (more methods "
-            "arrive with the symbolic engines and the exact solvers)"
+            f"--method {args.method!r}: expected exact or one of {', '.join(METHODS)} (more "
+            "methods arrive with the symbolic engines)"
         )
     kind, omegas = parse_omega(args.omega)
-    approx = METHODS[args.method](osc)
-    if kind == "range":
-        resp = frequency_response(approx, omegas, points=args.points)
+    if args.method == "exact":
+        if kind != "range":
+            raise PerturbError(
+                "--method exact traces branches by continuation: give --omega start:stop"
+            )
+        resp = frequency_response(osc, "exact", omegas)
+    elif kind == "range":
+        resp = frequency_response(osc, args.method, omegas, points=args.points)
     else:
-        resp = solutions_at(approx, omegas)
+        resp = frequency_response(osc, args.method, frequencies=omegas)
     print(repr(resp), file=sys.stderr)
     text = resp.to_csv(args.out)
     if args.out is None:

@@ -203,7 +203,7 @@ def test_front_door_dispatches_methods():
     import perturb
 
     osc = perturb.builtin_model("nsd")
-    resp = perturb.frequency_response(osc, "hb1", points=[0.6, 0.9])
+    resp = perturb.frequency_response(osc, "hb1", frequencies=[0.6, 0.9])
     assert {w for br in resp.branches for w in br.omega} == {0.6, 0.9}
     with pytest.raises(ParameterError, match="method"):
         perturb.frequency_response(osc, "magic")
