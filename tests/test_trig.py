@@ -1,0 +1,55 @@
+"""Harmonic bookkeeping: components against numerical quadrature and round trips."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import sympy as sp
+from scipy.integrate import quad
+
+from perturb.errors import PerturbError
+from perturb.methods.trig import from_harmonics, harmonics, solve_harmonic_oscillator
+
+psi, a, b, phi = sp.symbols("psi a b phi", real=True)
+EXPRS = [
+    (a * sp.cos(psi + phi)) ** 3 + b * sp.sin(2 * psi) * sp.cos(psi) + 3,
+    sp.sin(psi) ** 4 * phi + a * sp.cos(3 * psi - 1) * sp.sin(psi + b),
+    (a * sp.cos(psi) + a**2 * sp.cos(3 * psi)) ** 5,
+]
+
+
+@pytest.mark.parametrize("expr", EXPRS)
+def test_components_equal_fourier_integrals(expr):
+    vals = {a: 0.7, b: -1.3, phi: 0.4}
+    f = sp.lambdify(psi, expr.subs(vals))
+    for n, (c, s) in harmonics(expr, psi).items():
+        w = 1 / (2 * np.pi) if n == 0 else 1 / np.pi
+        c_ref = w * quad(lambda p, n=n: f(p) * np.cos(n * p), 0, 2 * np.pi, limit=200)[0]
+        s_ref = w * quad(lambda p, n=n: f(p) * np.sin(n * p), 0, 2 * np.pi, limit=200)[0]
+        assert float(c.subs(vals)) == pytest.approx(c_ref, abs=1e-11)
+        assert float(s.subs(vals)) == pytest.approx(s_ref, abs=1e-11)
+
+
+@pytest.mark.parametrize("expr", EXPRS)
+def test_round_trip(expr):
+    d = sp.lambdify((psi, a, b, phi), from_harmonics(harmonics(expr, psi), psi) - expr)
+    f = sp.lambdify((psi, a, b, phi), expr)
+    r = np.random.default_rng(1).uniform(-2, 2, (4, 40))
+    # relative to the size of the terms (expr2 reaches ~1e4)
+    assert np.max(np.abs(d(*r))) < 1e-13 * max(1.0, np.max(np.abs(f(*r))) * 10)
+
+
+def test_particular_solution_solves_the_equation():
+    rhs = {0: (sp.Integer(2), sp.Integer(0)), 3: (a, b), 5: (sp.Integer(1), sp.Integer(0))}
+    u = solve_harmonic_oscillator(rhs, psi, omega2=4)
+    residual = 4 * (sp.diff(u, psi, 2) + u) - from_harmonics(rhs, psi)
+    assert sp.simplify(residual) == 0
+    with pytest.raises(PerturbError, match="secular"):
+        solve_harmonic_oscillator({1: (a, 0)}, psi)
+
+
+def test_rejects_non_harmonic_dependence():
+    with pytest.raises(PerturbError, match="integer"):
+        harmonics(sp.cos(psi / 2), psi)
+    with pytest.raises(PerturbError):
+        harmonics(psi * sp.cos(psi), psi)
