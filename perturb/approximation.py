@@ -14,6 +14,8 @@ contract (DESIGN.md, "the method contract"):
   which lets the numeric layer trace every branch by amplitude parametrisation;
 - ``waveform``: ``x`` as an expression of the phase variable ``tau = Omega*t`` and the
   unknowns;
+- ``backbone``: optional frequency-amplitude relation ``omega(a)`` of the free undamped
+  system (Lindstedt–Poincaré, multiple scales, averaging), in the amplitude symbol;
 - ``fourier``: the Fourier coefficients the method used, by label;
 - ``steps``: the derivation as (title, expression or text) pairs.
 """
@@ -62,6 +64,7 @@ class Approximation:
     amplitude: sp.Symbol | None = None
     frequency_polynomial: tuple[sp.Expr, ...] | None = None
     phase_from: tuple[sp.Expr, sp.Expr] | None = None
+    backbone: sp.Expr | None = None
     fourier: Mapping[str, sp.Expr] = field(default_factory=lambda: MappingProxyType({}))
     steps: tuple[Step, ...] = ()
 
