@@ -9,6 +9,7 @@ Subcommands::
                       [--out frc.csv] [--plot frc.png]
     perturb simulate MODEL [--param ...] --y0 x,v --t 0:100 [--method auto|exact|event|lcp|ode]
     perturb periodic MODEL [--param ...] --omega 0.6 [--m 1]
+    perturb derive METHOD MODEL [--order N] [--param ...] [--latex F.tex] [--json F.json]
     perturb run [SCENE.toml] [--out DIR]            answer a scene (default: the embedded one)
 
 Errors a user can cause print one line ``perturb: error: ...`` and exit with status 2;
@@ -250,6 +251,37 @@ def _cmd_periodic(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_derive(args: argparse.Namespace) -> int:
+    import inspect
+    import json
+
+    from .cache import cached_derivation
+    from .methods import METHODS
+    from .report.latex import latex_document
+    from .serialize import approximation_to_dict
+
+    if args.method not in METHODS:
+        raise PerturbError(f"method {args.method!r}: expected one of {', '.join(METHODS)}")
+    fn = METHODS[args.method]
+    params = dict(parse_param(p) for p in args.param or ())
+    osc = _model_from_arg(args.model, params)
+    options = {}
+    if args.order is not None:
+        if "order" not in inspect.signature(fn).parameters:
+            raise PerturbError(f"method {args.method!r} has no --order option")
+        if args.order < 1:
+            raise ParameterError(f"--order {args.order}: expected an order >= 1")
+        options["order"] = args.order
+    approx = cached_derivation(args.method, fn, osc, use_cache=not args.no_cache, **options)
+    print(str(approx))
+    if args.latex:
+        latex_document(approx, args.latex)
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(approximation_to_dict(approx), fh, indent=1, sort_keys=True)
+    return 0
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from .scene import default_scene, load_scene, run_scene
 
@@ -314,6 +346,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--m", type=int, default=1, help="forcing periods per orbit (default 1)")
     p.add_argument("--out", help="CSV file (default: standard output)")
     p.set_defaults(func=_cmd_periodic)
+
+    p = sub.add_parser("derive", help="derive an approximation (text, LaTeX, JSON)")
+    p.add_argument("method", help="method short name (perturb.methods.METHODS)")
+    p.add_argument("model", help="builtin model name or an equation string")
+    p.add_argument("--order", type=int, help="expansion order, for methods that have one")
+    p.add_argument("--param", action="append", metavar="NAME=VALUE", help="parameter value")
+    p.add_argument("--latex", help="write a standalone LaTeX document")
+    p.add_argument("--json", help="write the approximation as JSON (expressions as srepr)")
+    p.add_argument("--no-cache", action="store_true", help="do not read or write the cache")
+    p.set_defaults(func=_cmd_derive)
 
     p = sub.add_parser("run", help="answer a scene file (default: the embedded default scene)")
     p.add_argument("scene", nargs="?", help="scene TOML file")

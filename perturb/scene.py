@@ -174,6 +174,7 @@ def default_scene() -> Scene:
 
 def run_scene(scene: Scene, out_dir: str | Path = "out", *, log=None) -> dict[str, Path]:
     """Answer ``scene`` and write its outputs into ``out_dir``; returns the written paths."""
+    from .cache import cached_derivation
     from .numeric.frequency_response import frequency_response
     from .report.figures import plot_frequency_response
     from .report.latex import latex_document
@@ -186,7 +187,7 @@ def run_scene(scene: Scene, out_dir: str | Path = "out", *, log=None) -> dict[st
     osc = scene.oscillator()
     say(f"[perturb] scene {scene.source}: {osc}")
     say(f"[perturb] deriving {scene.method} ...")
-    approx = METHODS[scene.method](osc)
+    approx = cached_derivation(scene.method, METHODS[scene.method], osc)
     say(f"[perturb] tracing the frequency response over Omega in {scene.omega} ...")
     resp = frequency_response(approx, scene.omega, points=scene.points)
     say(f"[perturb] {resp!r}".replace("\n", "\n[perturb] "))

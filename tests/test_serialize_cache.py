@@ -1,0 +1,105 @@
+"""Safe text serialisation of derivations, the derivation cache and `perturb derive`."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import sympy as sp
+
+from perturb import PerturbError, builtin_model
+from perturb.cache import cached_derivation, derivation_key
+from perturb.cli import main
+from perturb.methods.harmonic_balance import single_harmonic_balance
+from perturb.serialize import (
+    approximation_from_dict,
+    approximation_to_dict,
+    expr_from_text,
+    expr_to_text,
+)
+
+
+@pytest.mark.parametrize("model", ["nsd", "duffing", "saturation"])
+def test_round_trip_is_exact(model):
+    approx = single_harmonic_balance(builtin_model(model))
+    text = json.dumps(approximation_to_dict(approx))
+    back = approximation_from_dict(json.loads(text), approx.oscillator)
+    assert back.residuals == approx.residuals
+    assert back.frequency_polynomial == approx.frequency_polynomial
+    assert back.slow_flow == approx.slow_flow
+    assert back.steps == approx.steps
+    assert back.waveform == approx.waveform
+
+
+def test_expressions_with_constants_and_applied_functions():
+    x = sp.Symbol("x", real=True)
+    for e in (
+        sp.pi * x + sp.E,
+        sp.Function("a_1")(x) ** 2,
+        sp.Piecewise((x, x > 0), (0, True)),
+        sp.Heaviside(x - 1) * sp.Rational(3, 7),
+        sp.oo,
+        sp.Float("0.1", 30),
+    ):
+        assert expr_from_text(expr_to_text(e)) == e
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        '__import__("os").system("id")',
+        'Symbol("x").__class__',
+        'eval("1")',
+        "(lambda: 1)()",
+        'Symbol(**{"a": 1})',
+        'Symbol("x", real=[1])',
+        "os",
+        'Symbol("x")(1)',
+        "Add(*[1])",
+        "not valid (",
+    ],
+)
+def test_hostile_or_broken_text_is_refused(text, tmp_path):
+    with pytest.raises(PerturbError):
+        expr_from_text(text)
+
+
+def test_cache_hit_corruption_and_tampering(tmp_path, monkeypatch):
+    monkeypatch.setenv("PERTURB_CACHE_DIR", str(tmp_path))
+    osc = builtin_model("nsd")
+    calls = []
+
+    def method(o):
+        calls.append(1)
+        return single_harmonic_balance(o)
+
+    first = cached_derivation("hb1", method, osc)
+    second = cached_derivation("hb1", method, osc)
+    assert len(calls) == 1 and second.residuals == first.residuals
+    (entry,) = tmp_path.glob("*.json")
+    # corruption: recomputed, not trusted
+    entry.write_text("{ not json")
+    third = cached_derivation("hb1", method, osc)
+    assert len(calls) == 2 and third.residuals == first.residuals
+    # tampering with code in an expression: refused, recomputed, never executed
+    data = json.loads(entry.read_text())
+    marker = tmp_path / "pwned"
+    data["waveform"] = f'__import__("os").system("touch {marker}")'
+    entry.write_text(json.dumps(data))
+    fourth = cached_derivation("hb1", method, osc)
+    assert len(calls) == 3 and fourth.waveform == first.waveform and not marker.exists()
+    # different parameters, different key
+    other = osc.with_params(k=-3.0)
+    assert derivation_key("hb1", method, other, {}) != derivation_key("hb1", method, osc, {})
+
+
+def test_derive_command_writes_latex_and_json(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("PERTURB_CACHE_DIR", str(tmp_path / "cache"))
+    tex, js = tmp_path / "d.tex", tmp_path / "d.json"
+    assert main(["derive", "hb1", "nsd", "--latex", str(tex), "--json", str(js)]) == 0
+    assert "\\begin{document}" in tex.read_text()
+    data = json.loads(js.read_text())
+    assert data["method"] == "hb1" and data["oscillator"]["name"] == "nsd"
+    assert main(["derive", "hb1", "nsd", "--order", "2"]) == 2
+    assert "no --order" in capsys.readouterr().err
+    assert main(["derive", "nope", "nsd"]) == 2
