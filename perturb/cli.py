@@ -81,7 +81,7 @@ def _cmd_models(args: argparse.Namespace) -> int:
 def _cmd_fourier(args: argparse.Namespace) -> int:
     import sympy as sp
 
-    from .fourier_symbols import series_coefficient
+    from .fourier_symbols import series_coefficients
     from .parsing import parse_expression, real_symbol
 
     expr = parse_expression(args.expr)
@@ -99,14 +99,12 @@ def _cmd_fourier(args: argparse.Namespace) -> int:
         raise ParameterError(f"--A {args.A}: expected an amplitude >= 0")
     if args.n < 0 or args.n > 100_000:
         raise ParameterError(f"--n {args.n}: expected 0 <= n <= 100000")
-    A, b = sp.Float(args.A), sp.Float(args.b)
     print(f"# Fourier coefficients of f({args.var}) = {args.expr}")
     print(f"# under {args.var} = A cos(psi) + b, A = {args.A:g}, b = {args.b:g}:")
     print("# f = a_0/2 + sum_n a_n cos(n psi)   (no sine terms: f depends on x alone)")
     print("n,a_n")
-    for n in range(args.n + 1):
-        value = float(series_coefficient(expr, x, n, A, b))
-        print(f"{n},{value:.17g}")
+    for n, value in enumerate(series_coefficients(expr, x, args.n, args.A, args.b)):
+        print(f"{n},{float(value):.17g}")
     return 0
 
 

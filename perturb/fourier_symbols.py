@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
+import numpy as np
 import sympy as sp
 
 from . import fourier
@@ -31,6 +32,7 @@ __all__ = [
     "power_coefficient",
     "pwl_coefficient",
     "series_coefficient",
+    "series_coefficients",
     "closed_form",
 ]
 
@@ -164,6 +166,44 @@ def pwl_coefficient(pwl: PiecewiseLinear, n: int, A: sp.Expr, b: sp.Expr) -> sp.
     return expr
 
 
+def _classify(force: sp.Expr, x: sp.Symbol):
+    """Split ``force`` into polynomial terms, piecewise-linear terms and Dirac terms
+    ``(coefficient, d)`` meaning ``coefficient * DiracDelta(x - d)``."""
+    poly_terms, pwl_terms, dirac_terms = [], [], []
+    for term in sp.Add.make_args(sp.expand(force) if not is_nonsmooth(force) else force):
+        if term.has(sp.DiracDelta):
+            coeff, delta = term.as_independent(x, as_Add=False)
+            if not isinstance(delta, sp.DiracDelta):
+                raise FourierError(f"term {term}: expected c*DiracDelta(x - d)")
+            arg = sp.expand(delta.args[0])
+            slope = arg.coeff(x)
+            if slope == 0 or sp.expand(arg - slope * x).has(x):
+                raise FourierError(f"term {term}: the argument of DiracDelta must be linear in {x}")
+            dirac_terms.append((coeff / sp.Abs(slope), -sp.expand(arg - slope * x) / slope))
+        elif is_nonsmooth(term):
+            pwl_terms.append(term)
+        elif term.is_polynomial(x):
+            poly_terms.append(term)
+        else:
+            raise FourierError(
+                f"term {term} of the force has no closed-form Fourier coefficients: expected "
+                "polynomial, piecewise-linear or DiracDelta terms"
+            )
+    return poly_terms, pwl_terms, dirac_terms
+
+
+def _pwl_of(terms: list[sp.Expr], x: sp.Symbol, values: Mapping[str, float] | None):
+    nonsmooth = sp.Add(*terms)
+    try:
+        return to_pwl(nonsmooth, x)
+    except NonsmoothError:
+        if not values:
+            raise
+        # symbolic breakpoints that cannot be ordered (d and -d with d merely real): order
+        # them with the parameter values, which then appear as numbers
+        return to_pwl(nonsmooth, x, values=values)
+
+
 def series_coefficient(
     force: sp.Expr,
     x: sp.Symbol,
@@ -187,43 +227,44 @@ def series_coefficient(
         raise FourierError(f"harmonic index n = {n}: expected an integer >= 0")
     n = int(n)
     b = sp.sympify(b)
-    poly_terms, pwl_terms, dirac = [], [], sp.Integer(0)
-    for term in sp.Add.make_args(sp.expand(force) if not is_nonsmooth(force) else force):
-        if term.has(sp.DiracDelta):
-            coeff, delta = term.as_independent(x, as_Add=False)
-            if not isinstance(delta, sp.DiracDelta):
-                raise FourierError(f"term {term}: expected c*DiracDelta(x - d)")
-            arg = sp.expand(delta.args[0])
-            slope = arg.coeff(x)
-            if slope == 0 or sp.expand(arg - slope * x).has(x):
-                raise FourierError(f"term {term}: the argument of DiracDelta must be linear in {x}")
-            d = -sp.expand(arg - slope * x) / slope
-            dirac += coeff / sp.Abs(slope) * DiracCoefficient(n, A, b, d)
-        elif is_nonsmooth(term):
-            pwl_terms.append(term)
-        elif term.is_polynomial(x):
-            poly_terms.append(term)
-        else:
-            raise FourierError(
-                f"term {term} of the force has no closed-form Fourier coefficients: expected "
-                "polynomial, piecewise-linear or DiracDelta terms"
-            )
-    expr = dirac
+    poly_terms, pwl_terms, dirac_terms = _classify(force, x)
+    expr = sp.Add(*(c * DiracCoefficient(n, A, b, d) for c, d in dirac_terms))
     for term in poly_terms:
         for (deg,), coeff in sp.Poly(term, x).terms():
             expr += coeff * power_coefficient(deg, n, A, b)
     if pwl_terms:
-        nonsmooth = sp.Add(*pwl_terms)
-        try:
-            pwl = to_pwl(nonsmooth, x)
-        except NonsmoothError:
-            if not values:
-                raise
-            # symbolic breakpoints that cannot be ordered (d and -d with d merely real):
-            # order them with the parameter values, which then appear as numbers
-            pwl = to_pwl(nonsmooth, x, values=values)
-        expr += pwl_coefficient(pwl, n, A, b)
+        expr += pwl_coefficient(_pwl_of(pwl_terms, x, values), n, A, b)
     return expr
+
+
+def series_coefficients(
+    force: sp.Expr, x: sp.Symbol, n_max: int, A: float, b: float = 0.0
+) -> np.ndarray:
+    """a_0 ... a_{n_max} of a force with numeric coefficients, vectorised over ``n``.
+
+    The same decomposition as :func:`series_coefficient`, evaluated by the stable numeric
+    forms of :mod:`perturb.fourier` in one pass (fast for ``n_max`` in the thousands).
+    """
+    if int(n_max) != n_max or n_max < 0:
+        raise FourierError(f"n_max = {n_max}: expected an integer >= 0")
+    n = np.arange(int(n_max) + 1)
+    poly_terms, pwl_terms, dirac_terms = _classify(force, x)
+    out = np.zeros(n.size)
+    try:
+        for c, d in dirac_terms:
+            out += float(c) * fourier.dirac_coefficients(n, A, b, float(d))
+        for term in poly_terms:
+            for (deg,), coeff in sp.Poly(term, x).terms():
+                out += float(coeff) * fourier.power_coefficients(n, A, b, int(deg))
+        if pwl_terms:
+            rs = _pwl_of(pwl_terms, x, None).numeric().ramp_step_form()
+            out += fourier.pwl_coefficients(n, A, b, *rs)
+    except TypeError:
+        free = sorted(str(s) for s in force.free_symbols - {x})
+        raise FourierError(
+            f"force {force} has parameters without values ({', '.join(free)})"
+        ) from None
+    return out
 
 
 _SERIES = {
