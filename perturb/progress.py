@@ -40,7 +40,10 @@ class Progress:
         if enabled is None:
             enabled = os.environ.get("PERTURB_PROGRESS", "1") != "0"
         self.enabled = bool(enabled) and self.total > 0
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        try:
+            self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        except (OSError, ValueError):  # a closed stream
+            self.tty, self.enabled = False, False
         self.done = 0
         self.start = time.perf_counter()
         self._last_decile = -1
