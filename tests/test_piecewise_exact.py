@@ -718,7 +718,13 @@ def test_random_continuous_pwl_systems_agree_with_solve_ivp(case):
 
 
 @pytest.mark.slow
-@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(
+    max_examples=40,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow],
+    derandomize=True,  # CI must not meet a new, arbitrarily expensive example on some run
+    database=None,
+)
 @given(random_systems())
 def test_random_continuous_pwl_systems_agree_with_solve_ivp_many(case):
     _hypothesis_case(*case, periods=20)
