@@ -7,12 +7,23 @@ from collections.abc import Callable
 from types import MappingProxyType
 
 from ..approximation import Approximation
-from ..model import Oscillator
-from .harmonic_balance import single_harmonic_balance
+from .averaging import krylov_bogoliubov, van_der_pol_averaging
+from .harmonic_balance import harmonic_balance, single_harmonic_balance
 
-__all__ = ["METHODS", "single_harmonic_balance"]
+__all__ = [
+    "METHODS",
+    "single_harmonic_balance",
+    "harmonic_balance",
+    "krylov_bogoliubov",
+    "van_der_pol_averaging",
+]
 
 #: Short name -> method. ``exact`` is not here: it is a solver, not an approximation.
-METHODS: MappingProxyType[str, Callable[[Oscillator], Approximation]] = MappingProxyType(
-    {"hb1": single_harmonic_balance}
+METHODS: MappingProxyType[str, Callable[..., Approximation]] = MappingProxyType(
+    {
+        "hb1": single_harmonic_balance,
+        "hb": harmonic_balance,
+        "kb": krylov_bogoliubov,
+        "vdp": van_der_pol_averaging,
+    }
 )
