@@ -200,8 +200,12 @@ def _pwl_of(terms: list[sp.Expr], x: sp.Symbol, values: Mapping[str, float] | No
         if not values:
             raise
         # symbolic breakpoints that cannot be ordered (d and -d with d merely real): order
-        # them with the parameter values, which then appear as numbers
-        return to_pwl(nonsmooth, x, values=values)
+        # them with the values of the parameters inside the switches only, so that the
+        # other parameters (a stiffness k2 in front) stay symbolic
+        inside: set[str] = set()
+        for f in nonsmooth.atoms(sp.Heaviside, sp.Max, sp.Min, sp.Abs, sp.sign, sp.Piecewise):
+            inside |= {str(sym) for sym in f.free_symbols if sym != x}
+        return to_pwl(nonsmooth, x, values={k: v for k, v in values.items() if k in inside})
 
 
 def series_coefficient(
