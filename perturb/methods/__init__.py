@@ -9,6 +9,7 @@ from types import MappingProxyType
 from ..approximation import Approximation
 from .averaging import krylov_bogoliubov, van_der_pol_averaging
 from .harmonic_balance import harmonic_balance, single_harmonic_balance
+from .multiple_scales import multiple_scales
 
 __all__ = [
     "METHODS",
@@ -16,6 +17,7 @@ __all__ = [
     "harmonic_balance",
     "krylov_bogoliubov",
     "van_der_pol_averaging",
+    "multiple_scales",
 ]
 
 #: Short name -> method. ``exact`` is not here: it is a solver, not an approximation.
@@ -25,5 +27,6 @@ METHODS: MappingProxyType[str, Callable[..., Approximation]] = MappingProxyType(
         "hb": harmonic_balance,
         "kb": krylov_bogoliubov,
         "vdp": van_der_pol_averaging,
+        "ms": multiple_scales,
     }
 )
