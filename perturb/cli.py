@@ -271,12 +271,13 @@ def _cmd_derive(args: argparse.Namespace) -> int:
             raise ParameterError(f"--order {args.order}: expected an order >= 1")
         options["order"] = args.order
     approx = cached_derivation(args.method, fn, osc, use_cache=not args.no_cache, **options)
-    print(str(approx))
+    # files first: the summary may go to a pipe that closes early
     if args.latex:
         latex_document(approx, args.latex)
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(approximation_to_dict(approx), fh, indent=1, sort_keys=True)
+    print(str(approx))
     return 0
 
 
