@@ -9,6 +9,8 @@ from types import MappingProxyType
 from ..approximation import Approximation
 from .averaging import krylov_bogoliubov, van_der_pol_averaging
 from .harmonic_balance import harmonic_balance, single_harmonic_balance
+from .lindstedt import lindstedt_poincare
+from .modified_lindstedt import modified_lindstedt
 from .multiple_scales import multiple_scales
 
 __all__ = [
@@ -18,6 +20,8 @@ __all__ = [
     "krylov_bogoliubov",
     "van_der_pol_averaging",
     "multiple_scales",
+    "lindstedt_poincare",
+    "modified_lindstedt",
 ]
 
 #: Short name -> method. ``exact`` is not here: it is a solver, not an approximation.
@@ -28,5 +32,7 @@ METHODS: MappingProxyType[str, Callable[..., Approximation]] = MappingProxyType(
         "kb": krylov_bogoliubov,
         "vdp": van_der_pol_averaging,
         "ms": multiple_scales,
+        "lp": lindstedt_poincare,
+        "mlp": modified_lindstedt,
     }
 )

@@ -1,0 +1,585 @@
+r"""Modified Lindstedt–Poincaré method (Cheung, Chen & Lau 1991), any order, free or forced.
+
+For ``x'' + mu x' + f(x) = F cos(Omega t)`` (``mu = F = 0`` for the free conservative case)
+split the restoring force about a reference frequency, :math:`f(x) = \omega_0^2 x + g(x)`
+(default :math:`\omega_0^2`: the linear stiffness, or the mean outer slope of a
+piecewise-linear force — 1 for the Zou–Nagarajaiah ``nsd`` model, whose paper writes
+:math:`k = 1 - \varepsilon\bar k`). With :math:`\tau = \Omega t`,
+
+.. math::
+
+    \Omega^2 x'' + \mu\Omega x' + \omega_0^2 x + g(x) = F\cos\tau .
+
+The damping, ``g`` and ``F`` are :math:`O(\varepsilon)`; expand
+:math:`\Omega^2 = \omega_0^2 + \varepsilon\omega_1 + \varepsilon^2\omega_2 + \dots` and trade
+:math:`\varepsilon` for the parameter that stays below 1 however large the nonlinearity,
+
+.. math::
+
+    \alpha = \frac{\varepsilon\omega_1}{\omega_0^2 + \varepsilon\omega_1}, \qquad
+    \Omega^2 = \omega_0^2\,\frac{1 + \delta_2\alpha^2 + \delta_3\alpha^3 + \dots}{1 - \alpha}.
+
+Only :math:`\nu = \varepsilon\omega_1` (the first-order shift of :math:`\Omega^2`) appears, and
+multiplying by :math:`(1-\alpha)/\omega_0^2 = \alpha/\nu` gives the equation exactly linear in
+:math:`\alpha` apart from the :math:`\delta`'s,
+
+.. math::
+
+    (1 + \delta_2\alpha^2 + \dots)\,x'' + x
+      + \alpha\Big[\frac{\mu\Omega}{\nu}x' - x + \frac{g(x)}{\nu} - \frac{F}{\nu}\cos\tau\Big] = 0,
+
+solved with :math:`x = x_0 + \alpha x_1 + \dots`, :math:`x_0 = A\cos\psi`,
+:math:`\psi = \tau + \varphi` (the phase convention of Zou & Nagarajaiah), and at order
+:math:`\alpha^n`
+
+.. math::
+
+    x_n'' + x_n = -\sum_{j=2}^{n}\delta_j x_{n-j}'' - \frac{\mu\Omega}{\nu}x_{n-1}' + x_{n-1}
+      - \frac{1}{\nu}[\alpha^{n-1}]\,g(X) + [n = 1]\,\frac{F}{\nu}\cos(\psi - \varphi).
+
+Secular conditions. Order 1: the :math:`\cos\psi` and :math:`\sin\psi` coefficients give
+
+.. math::
+
+    \nu A - \hat g_1(A) + F\cos\varphi = 0, \qquad \mu\Omega A + F\sin\varphi = 0,
+
+(:math:`\hat g_1` the first Fourier coefficient of :math:`g(A\cos\psi)`); free: :math:`\nu =
+\hat g_1/A`. With :math:`\nu = \Omega^2 - \omega_0^2` (first order) these are Zou–Nagarajaiah
+eqs. (54)–(55) times :math:`\varepsilon`, and :math:`x_0 + \alpha x_1` is their eq. (59)
+(:math:`\alpha/\nu = 1/\Omega^2`). Order :math:`n \ge 2`: the :math:`\cos\psi` coefficient
+fixes :math:`\delta_n` (it enters as :math:`\delta_n A`); the :math:`\sin\psi` coefficients
+(absent for free systems and at order 2) are summed with the first-order one,
+:math:`\sum_n \alpha^{n-1}\nu S_n = 0`, which fixes the phase. The forced residuals at order
+:math:`N \ge 2` are therefore
+
+.. math::
+
+    (\omega_0^2 + \nu)\Big(1 + \sum_{n\ge2}\delta_n\alpha^n\Big) - \Omega^2 = 0,\qquad
+    \mu\Omega A + F\sin\varphi + \sum_{n\ge2}\alpha^{n-1}\nu S_n = 0,
+
+with :math:`\nu(A, \varphi) = (\hat g_1 - F\cos\varphi)/A` and
+:math:`\alpha = \nu/(\omega_0^2 + \nu)`. Everything is written with
+:math:`\beta = \alpha/\nu = 1/(\omega_0^2+\nu)` so that nothing is singular where
+:math:`\nu = 0`.
+
+Piecewise-linear ``g`` enter through the closed-form ramp/step/Dirac Fourier coefficients of
+:mod:`perturb.fourier_symbols` (the Taylor terms :math:`g^{(k)}(x_0)` are distributions along
+:math:`x_0 = A\cos\psi`: steps at order 2, Dirac deltas at order 3 — eq. (48) of the paper,
+whose Dirac terms :math:`(x_0 \mp 1)\,\delta(x_0 \mp 1)` vanish identically for the
+continuous ``nsd`` force), truncated at ``harmonics``.
+"""
+
+from __future__ import annotations
+
+from types import MappingProxyType
+from typing import Any
+
+import sympy as sp
+
+from ..approximation import Approximation, Step
+from ..errors import ModelError, ParameterError
+from ..model import Oscillator
+from ..parsing import real_symbol
+from .lindstedt import (
+    _ONE,
+    _ZERO,
+    PWL_MAX_ORDER,
+    Series,
+    _check_options,
+    _closed_form_step,
+    _dummy,
+    _eq,
+    _Expansion,
+    _free_symbol,
+    _is_short,
+    _lift,
+    _Lp,
+    _model,
+    _s_at_zero,
+    _s_combine,
+    _s_deriv,
+    _s_solve,
+    _s_sympy,
+    _step,
+    _tidy,
+    _vanishes,
+    _w0_lp,
+)
+
+__all__ = ["modified_lindstedt"]
+
+
+def _forcing(osc: Oscillator) -> tuple[sp.Expr, sp.Expr] | None:
+    """``(F, Omega)`` of a single forcing harmonic ``F cos(Omega t)``, or None if free."""
+    live = [h for h in osc.forcing.harmonics if not _vanishes(h.amplitude, osc)]
+    if not live:
+        return None
+    if len(live) > 1:
+        raise ModelError(
+            f"the modified Lindstedt-Poincare method takes one forcing harmonic; model "
+            f"{osc.name!r} has {' + '.join(str(h) for h in live)}"
+        )
+    h = live[0]
+    if h.phase != 0:
+        raise ModelError(
+            f"forcing {h} of model {osc.name!r}: expected F*cos(Omega*t) with no phase (shift "
+            "the time origin)"
+        )
+    if not isinstance(h.frequency, sp.Symbol):
+        raise ModelError(
+            f"the forcing frequency of model {osc.name!r} is {h.frequency}: expected a single "
+            "parameter symbol (e.g. Omega) to sweep"
+        )
+    return h.amplitude, h.frequency
+
+
+def modified_lindstedt(
+    oscillator: Oscillator,
+    order: int = 1,
+    *,
+    amplitude: str = "first_harmonic",
+    omega0: float | sp.Expr | str | None = None,
+    harmonics: int = 15,
+) -> Approximation:
+    r"""Modified Lindstedt–Poincaré (α-transformation) approximation to ``order``.
+
+    Parameters
+    ----------
+    oscillator
+        ``x'' + mu x' + f(x) = F cos(Omega t)`` with ``f`` polynomial and/or piecewise linear;
+        either free and conservative (``mu`` and ``F`` absent or with value 0) or forced by
+        one harmonic (``Omega`` a parameter symbol), damped or not.
+    order
+        Highest power of :math:`\alpha` (>= 1). Polynomial forces: any order; piecewise-linear
+        forces: up to :data:`PWL_MAX_ORDER`.
+    amplitude
+        Free systems: ``"first_harmonic"`` (default; every :math:`x_n` is free of
+        :math:`\cos\psi`) or ``"initial"`` (``A = x(0)``). Forced systems: only
+        ``"first_harmonic"``.
+    omega0
+        Reference linear frequency (default: square root of the linear stiffness plus the mean
+        outer slope of a piecewise-linear part).
+    harmonics
+        Highest harmonic kept for piecewise-linear forces (the paper's figures use 15, i.e.
+        its eq. (60) with n <= 7).
+
+    Returns
+    -------
+    Approximation
+        Free: ``unknowns = (A,)``, ``backbone`` :math:`\Omega(A)`, ``waveform`` in
+        :math:`\tau = \Omega t`. Forced: ``unknowns = (A, phi)`` with
+        :math:`x = A\cos(\tau + \varphi) + \dots`, ``residuals`` (eqs. (54)–(55) of Zou &
+        Nagarajaiah at first order); at first order also ``frequency_polynomial`` (quadratic
+        in :math:`\Omega^2`), ``phase_from`` and the averaged ``slow_flow``, so
+        :func:`perturb.numeric.frequency_response.frequency_response` traces every branch.
+
+    Raises
+    ------
+    ModelError
+        Free damped systems (no periodic orbit), several forcing harmonics, velocity or
+        parametric terms, non-polynomial smooth terms, non-positive reference stiffness.
+    ParameterError
+        Bad options, ``amplitude="initial"`` for a forced system, a piecewise-linear force
+        above :data:`PWL_MAX_ORDER`.
+    """
+    osc = oscillator
+    order = _check_options(order, amplitude, harmonics)
+    if osc.velocity != 0 or osc.parametric != 0:
+        raise ModelError(
+            f"the modified Lindstedt-Poincare method covers x'' + mu x' + f(x) = F cos(Omega t); "
+            f"model {osc.name!r} also has {osc.velocity + osc.parametric}"
+        )
+    forced = _forcing(osc)
+    damped = not _vanishes(osc.damping, osc)
+    if forced is None and damped:
+        raise ModelError(
+            f"model {osc.name!r} is free and damped ({osc.damping}): it has no periodic orbit "
+            "to expand; give the damping the value 0 or add forcing"
+        )
+    if forced is not None and amplitude != "first_harmonic":
+        raise ParameterError(
+            f"amplitude = {amplitude!r} is for free systems; a forced response is "
+            "parametrised by its first-harmonic amplitude and phase"
+        )
+    model = _model(osc, omega0)
+    if model.ramps and order > PWL_MAX_ORDER:
+        raise ParameterError(
+            f"order = {order} for the piecewise-linear model {osc.name!r}: expected at most "
+            f"{PWL_MAX_ORDER} (higher orders need products of whole truncated series)"
+        )
+    w0, w2 = model.w0, model.w2
+    w0_lp = _w0_lp(w0)
+    w2_lp = w0_lp * w0_lp
+    nmax = harmonics if model.ramps else None
+    force = model.force
+
+    A = sp.Symbol("A", positive=True)
+    tau = real_symbol("tau")
+    psi = real_symbol("psi")
+    phi = real_symbol("phi")
+    nu = _dummy("nu")
+    alpha = _dummy("alphahat" if "alpha" in osc.params else "alpha")
+    deltas = [None, None] + [_dummy(f"delta_{n}") for n in range(2, order + 1)]
+    if forced is not None:
+        F, Omega = forced
+        mu = osc.damping if damped else sp.Integer(0)
+    else:
+        F, Omega, mu = sp.Integer(0), _free_symbol(osc, "omega"), sp.Integer(0)
+    eps, om1, om2 = _dummy("varepsilon"), _dummy("omega_1"), _dummy("omega_2")
+    cphi, sphi = sp.cos(phi), sp.sin(phi)
+    inv_nu = _Lp.atom(nu, -1)
+    damp_lp = _lift(mu) * _lift(Omega) * inv_nu  # mu Omega / nu
+    A_lp = _Lp.atom(A)
+
+    exp = _Expansion({1: (A_lp, _ZERO)}, A, nmax)
+    xf = [sp.Function(f"x_{n}") for n in range(order + 1)]
+    xpp = real_symbol(osc.x.name + "''")
+    g_expr = model.g_written(osc)
+    gfun = sp.Function("g")
+    steps: list[Step] = [
+        _step("Equation of motion", (osc.equation,)),
+        _step(
+            "Split of the restoring force",
+            (
+                _eq(gfun(osc.x), g_expr),
+                _eq(xpp + mu * osc.v + w2 * osc.x + gfun(osc.x), F * sp.cos(Omega * osc.t)),
+            ),
+            "The restoring force is a linear reference term plus the remainder g"
+            + (
+                " (the reference stiffness is the mean stiffness of the outer segments)"
+                if model.ramps and model.default_w0
+                else ""
+            )
+            + ". The damping, g and the forcing are taken small, of order epsilon.",
+        ),
+        _step(
+            "Alpha-transformation",
+            (
+                _eq(tau, Omega * osc.t),
+                _eq(Omega**2, w2 + eps * om1 + eps**2 * om2 + sp.Symbol("...")),
+                _eq(nu, eps * om1),
+                _eq(alpha, eps * om1 / (w2 + eps * om1)),
+                _eq(alpha, nu / (w2 + nu)),
+                _eq(
+                    Omega**2,
+                    w2
+                    * (1 + sp.Add(*(deltas[n] * alpha**n for n in range(2, order + 1))))
+                    / (1 - alpha),
+                ),
+            ),
+            "Time is scaled by the response frequency and its square expanded in epsilon. The "
+            "first-order shift nu defines the new expansion parameter alpha (Cheung, Chen and "
+            "Lau), which stays below one however strong the nonlinearity; the higher shifts "
+            "become the coefficients delta.",
+        ),
+        _step(
+            "Transformed equation and expansion",
+            (
+                _eq(
+                    (1 + sp.Add(*(deltas[n] * alpha**n for n in range(2, order + 1))))
+                    * sp.Derivative(osc.x, tau, 2)
+                    + osc.x
+                    + alpha
+                    * (
+                        mu * Omega / nu * sp.Derivative(osc.x, tau)
+                        - osc.x
+                        + gfun(osc.x) / nu
+                        - F / nu * sp.cos(tau)
+                    ),
+                    0,
+                ),
+                _eq(osc.x, sp.Add(*(alpha**n * xf[n](tau) for n in range(order + 1)))),
+            ),
+            "Dividing by the squared frequency at first order, which is omega_0 squared plus "
+            "nu, leaves an equation linear in alpha apart from the deltas; x is expanded in "
+            "powers of alpha.",
+        ),
+        _step(
+            "Order zero in alpha",
+            (
+                _eq(sp.Derivative(xf[0](tau), tau, 2) + xf[0](tau), 0),
+                _eq(xf[0](tau), A * sp.cos(psi)),
+                _eq(psi, tau + phi),
+            ),
+            "The amplitude A is "
+            + (
+                "the initial value x(0)."
+                if amplitude == "initial"
+                else "that of the first harmonic."
+            )
+            + ("" if forced else " The phase of a free oscillation is arbitrary and set to zero."),
+        ),
+    ]
+    g0 = exp.compose(force, 0)
+    g1 = g0.get(1, (_ZERO, _ZERO))[0]
+    ghat = sp.Function("ghat_1")(A)
+    fourier = {f"g_{n}": (2 * c if n == 0 else c).to_sympy() for n, (c, _) in g0.items()}
+    fourier["f_1"] = (w2_lp * A_lp + g1).to_sympy()
+    cf = _closed_form_step(ghat, g1.to_sympy(), "First harmonic of g in closed form")
+    steps.append(
+        _step(
+            "Fourier coefficients of g along the generating solution",
+            (_eq(ghat, _tidy(g1)),),
+            "g(A cos psi) is expanded in cos(n psi); piecewise-linear terms enter through their "
+            "closed-form ramp and step coefficients, never through a Taylor series.",
+        )
+    )
+    if cf is not None:
+        steps.append(cf)
+
+    delta_val: dict[int, _Lp] = {}
+    sines: dict[int, _Lp] = {}
+    first: tuple[_Lp, _Lp] | None = None
+    for n in range(1, order + 1):
+        terms: list[tuple[Any, Series]] = [(1, exp.x[n - 1]), (-inv_nu, exp.compose(force, n - 1))]
+        if damped:
+            terms.append((-damp_lp, _s_deriv(exp.x[n - 1])))
+        for j in range(2, n):
+            terms.append((-delta_val[j], _s_deriv(exp.x[n - j], 2)))
+        if n == 1 and forced is not None:
+            # (F/nu) cos(psi - phi) = (F/nu)(cos phi cos psi + sin phi sin psi)
+            fl = _lift(F) * inv_nu
+            terms.append((fl, {1: (_Lp.atom(cphi), _Lp.atom(sphi))}))
+        rhs = _s_combine(*terms)
+        c1, s1 = rhs.get(1, (_ZERO, _ZERO))
+        shown = _s_sympy(rhs, psi, tidy=True)
+        if n == 1:
+            first = (c1, s1)
+            if forced is None:
+                if s1:
+                    raise ModelError(f"sine secular term {s1.to_sympy()}: not conservative")
+                conditions = (_eq(nu, _tidy(g1 / A_lp)),)
+                note = "No secular term: the coefficient of cos(psi) vanishes, which gives nu."
+            else:
+                conditions = (
+                    _eq(_tidy(c1 * _Lp.atom(nu)), 0),
+                    _eq(_tidy(s1 * _Lp.atom(nu)), 0),
+                )
+                note = "No secular terms: the coefficients of cos(psi) and sin(psi) vanish" + (
+                    ". Times nu, these are Zou and Nagarajaiah's eqs. (54) and (55) for their "
+                    "model, without the bookkeeping parameter."
+                    if model.ramps
+                    else "."
+                )
+        else:
+            # the unknown enters as -delta_n x_0'' = delta_n A cos(psi)
+            delta_val[n] = -c1 / A_lp
+            if s1:
+                sines[n] = s1
+                if forced is None:
+                    raise ModelError(f"sine secular term {s1.to_sympy()}: not conservative")
+            conditions = (_eq(deltas[n], _tidy(delta_val[n])),)
+            note = "No secular term: the coefficient of cos(psi) vanishes, which gives delta" + (
+                "; the coefficient of sin(psi) joins the phase condition." if n in sines else "."
+            )
+        xn = _s_solve(rhs)
+        if amplitude == "initial":
+            at0 = _s_at_zero(xn)
+            if at0:
+                xn = _s_combine((1, xn), (-at0, {1: (_ONE, _ZERO)}))
+        exp.push(xn)
+        shown_delta = deltas[n] * A * sp.cos(psi) if n >= 2 else 0
+        steps.append(
+            _step(
+                f"Order {n} in alpha",
+                (
+                    _eq(sp.Derivative(xf[n](tau), tau, 2) + xf[n](tau), shown + shown_delta),
+                    *conditions,
+                    _eq(xf[n](tau), _s_sympy(xn, psi, tidy=True)),
+                ),
+                note,
+            )
+        )
+
+    assert first is not None
+    # alpha^n x_n = beta^n (nu^n x_n), beta = alpha/nu = 1/(omega_0^2 + nu): nu^n x_n is a
+    # polynomial in nu, so nothing is singular where nu = 0
+    beta = 1 / (w2 + nu)
+    scaled: list[Series] = []
+    for n in range(1, order + 1):
+        nun = _Lp.atom(nu, n)
+        scaled.append({m: (c * nun, s * nun) for m, (c, s) in exp.x[n].items()})
+        assert all(min(v.degree(nu)[0] for v in cs) >= 0 for cs in scaled[-1].values())
+    corr_terms = [beta**n * (delta_val[n] * _Lp.atom(nu, n)).to_sympy() for n in delta_val]
+    freq_factor = 1 + sp.Add(*corr_terms)  # 1 + sum delta_n alpha^n
+
+    def waveform_in(psi_value: sp.Expr, tidy: bool = False) -> sp.Expr:
+        conv = _tidy if tidy else _Lp.to_sympy
+        out = A * sp.cos(psi_value)
+        for n, ser in enumerate(scaled, start=1):
+            for m, (c, s) in sorted(ser.items()):
+                trig = conv(c) * sp.cos(m * psi_value) + conv(s) * sp.sin(m * psi_value)
+                out += beta**n * trig
+        return out
+
+    def shown_wave(psi_value: sp.Expr, reps: dict | None = None) -> sp.Equality:
+        """The waveform for the text: explicit when short, else as the sum of the x_n."""
+        terms = sum(len(c.t) + len(s.t) for ser in scaled for c, s in ser.values())
+        if terms <= 60:
+            explicit = waveform_in(psi_value, tidy=True).xreplace(reps or {})
+            if _is_short(explicit):
+                return _eq(osc.x, explicit)
+        return _eq(osc.x, sp.Add(*(alpha**n * xf[n](tau) for n in range(order + 1))))
+
+    options: dict[str, Any] = {"order": order, "amplitude": amplitude, "omega0": w0}
+    hmax = max([1] + [m for ser in scaled for m in ser])
+    options["harmonics"] = hmax
+    f1 = fourier["f_1"]
+    g1_sym = g1.to_sympy()
+
+    if forced is None:
+        nu_value = g1_sym / A
+        backbone = sp.sqrt((w2 + nu_value) * freq_factor.xreplace({nu: nu_value}))
+        waveform = waveform_in(tau).xreplace({nu: nu_value})
+        alpha_value = nu_value / (w2 + nu_value)
+        shown_deltas = []
+        for n, dv in delta_val.items():
+            value = dv.to_sympy().xreplace({nu: nu_value})
+            if not model.ramps:
+                value = sp.factor(sp.cancel(value))
+            shown_deltas.append(_eq(deltas[n], value))
+        steps.append(
+            _step(
+                "Result",
+                (
+                    _eq(nu, _tidy(g1 / A_lp)),
+                    _eq(alpha, sp.factor(alpha_value) if not model.ramps else alpha_value),
+                    *shown_deltas,
+                    _eq(
+                        Omega,
+                        w0
+                        * sp.sqrt(
+                            (1 + sp.Add(*(deltas[n] * alpha**n for n in delta_val))) / (1 - alpha)
+                        ),
+                    ),
+                    shown_wave(tau),
+                ),
+                "The frequency-amplitude relation (backbone) of the free oscillation and its "
+                "waveform; each alpha-power term is written over powers of omega_0 squared plus "
+                "nu, which keeps it finite where nu vanishes.",
+            )
+        )
+        return Approximation(
+            oscillator=osc,
+            method="mlp",
+            options=MappingProxyType(options),
+            unknowns=(A,),
+            residuals=(Omega - backbone,),
+            waveform=waveform,
+            tau=tau,
+            frequency=Omega,
+            amplitude=A,
+            backbone=backbone,
+            fourier=MappingProxyType(fourier),
+            steps=tuple(steps),
+        )
+
+    c1, s1 = first
+    cos_res = (c1 * _Lp.atom(nu)).to_sympy()  # nu A - ghat_1 + F cos(phi)
+    sin_res = (s1 * _Lp.atom(nu)).to_sympy()  # mu Omega A + F sin(phi)
+    if order == 1:
+        # first order: nu = Omega^2 - omega_0^2 exactly, alpha/nu = 1/Omega^2 (eq. (59))
+        residuals = (sp.expand(cos_res.xreplace({nu: Omega**2 - w2})), sin_res)
+        waveform = waveform_in(tau + phi).xreplace({nu: Omega**2 - w2})
+        W = Omega**2
+        c0p, c1p, c2p = f1**2 - F**2, mu**2 * A**2 - 2 * A * f1, A**2
+        slow_flow = (
+            -(mu * Omega * A + F * sphi) / (2 * Omega),
+            -(F * cphi - f1 + W * A) / (2 * Omega * A),
+        )
+        steps.append(
+            _step(
+                "First-order result",
+                (
+                    _eq(nu, Omega**2 - w2),
+                    *(_eq(r, 0) for r in residuals),
+                    shown_wave(tau + phi, {nu: Omega**2 - w2}),
+                ),
+                "At first order the squared forcing frequency is omega_0 squared plus nu, so "
+                "alpha over nu is one over the squared frequency: the waveform is Zou and "
+                f"Nagarajaiah's eq. (59), here to harmonic {hmax}.",
+            )
+        )
+        steps.append(
+            _step(
+                "Frequency-amplitude equation and slow flow",
+                (
+                    _eq(c2p * W**2 + c1p * W + c0p, 0),
+                    _eq(sp.Derivative(A, osc.t), slow_flow[0]),
+                    _eq(sp.Derivative(phi, osc.t), slow_flow[1]),
+                ),
+                "Eliminating the phase leaves a quadratic in the squared frequency, with f_1 "
+                "the first harmonic of the whole restoring force: the same curve as "
+                "single-harmonic balance. The slow flow comes from averaging the first-order "
+                "ansatz; its fixed points are the two conditions above.",
+            )
+        )
+        return Approximation(
+            oscillator=osc,
+            method="mlp",
+            options=MappingProxyType(options),
+            unknowns=(A, phi),
+            residuals=residuals,
+            waveform=waveform,
+            tau=tau,
+            frequency=Omega,
+            slow_flow=slow_flow,
+            amplitude=A,
+            frequency_polynomial=(c0p, c1p, c2p),
+            phase_from=(f1 - W * A, -mu * Omega * A),
+            fourier=MappingProxyType(fourier),
+            steps=tuple(steps),
+        )
+
+    # order >= 2: nu from the first-order cosine condition, the deltas from the higher ones,
+    # the sine conditions summed into the phase equation
+    nu_value = (g1_sym - F * cphi) / A
+    phase_terms = [
+        beta ** (n - 1) * (sv * _Lp.atom(nu, n)).to_sympy() for n, sv in sorted(sines.items())
+    ]
+    residuals = (
+        ((w2 + nu) * freq_factor - Omega**2).xreplace({nu: nu_value}),
+        (sin_res + sp.Add(*phase_terms)).xreplace({nu: nu_value}),
+    )
+    waveform = waveform_in(tau + phi).xreplace({nu: nu_value})
+    S = {n: sp.Symbol(f"S_{n}") for n in sines}
+    steps.append(
+        _step(
+            f"Order-{order} result",
+            (
+                _eq(nu, nu_value),
+                _eq(alpha, nu / (w2 + nu)),
+                _eq(
+                    Omega**2,
+                    (w2 + nu) * (1 + sp.Add(*(deltas[n] * alpha**n for n in delta_val))),
+                ),
+                _eq(
+                    sin_res + sp.Add(*(alpha ** (n - 1) * nu * S[n] for n in sorted(sines))),
+                    0,
+                ),
+                *(
+                    _eq(S[n], _tidy(sv))
+                    for n, sv in sorted(sines.items())
+                    if _is_short(_tidy(sv), 30)
+                ),
+                shown_wave(tau + phi),
+            ),
+            "nu follows from the first-order cosine condition and the deltas from the higher "
+            "ones; the sine conditions of all orders (S, the coefficient of sin(psi) at each "
+            "order) summed fix the phase. Roots where omega_0 squared plus nu nearly vanishes "
+            "(alpha very large) are artefacts of the truncation.",
+        )
+    )
+    return Approximation(
+        oscillator=osc,
+        method="mlp",
+        options=MappingProxyType(options),
+        unknowns=(A, phi),
+        residuals=residuals,
+        waveform=waveform,
+        tau=tau,
+        frequency=Omega,
+        amplitude=A,
+        fourier=MappingProxyType(fourier),
+        steps=tuple(steps),
+    )
