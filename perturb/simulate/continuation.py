@@ -129,7 +129,13 @@ from ..numeric.floquet import expm2
 from ..progress import Progress
 from ..response import Branch, Response
 from .flow import FlowFamily, ODEFlow
-from .shooting import PeriodicOrbit, ShootingError, multiple_shooting, periodic_orbit
+from .shooting import (
+    PeriodicOrbit,
+    ShootingError,
+    _eigenvalues,
+    multiple_shooting,
+    periodic_orbit,
+)
 from .system import frequency_symbol
 
 __all__ = [
@@ -541,27 +547,6 @@ class _Eval:
     switches: int
     blocks: list[np.ndarray]
     trajs: list[Any] | None
-
-
-def _eigenvalues(M: np.ndarray, det: float | None) -> np.ndarray:
-    r"""Eigenvalues of a 2x2 monodromy by decreasing modulus; with the exact determinant
-    (:math:`e^{-\mu P}` for PWL orbits) the small one of a real pair is :math:`\det/\mu_1`,
-    accurate even when :math:`\mu_1 \sim 10^{20}`."""
-    if not np.all(np.isfinite(M)):
-        return np.array([MAX_MULTIPLIER, 0.0], dtype=complex)
-    if det is None or not math.isfinite(det):
-        mu = np.linalg.eigvals(M).astype(complex)
-    else:
-        tr = float(M[0, 0] + M[1, 1])
-        disc = tr * tr - 4.0 * det
-        if disc >= 0.0:
-            l1 = 0.5 * (tr + math.copysign(math.sqrt(disc), tr))
-            l2 = det / l1 if l1 != 0.0 else 0.0
-            mu = np.array([l1, l2], dtype=complex)
-        else:
-            im = 0.5 * math.sqrt(-disc)
-            mu = np.array([complex(0.5 * tr, im), complex(0.5 * tr, -im)])
-    return mu[np.argsort(-np.abs(mu), kind="stable")]
 
 
 def _node_growth(M: np.ndarray, N: int) -> float:
