@@ -35,17 +35,16 @@ def frequency_response(
     Omega
         ``(low, high)``.
     frequencies
-        Exact frequencies to report instead of a traced curve (approximations only).
+        Exact frequencies to report instead of a traced curve: every solution found at
+        each of them, and no other frequency.
     options
         Passed to the solver.
     """
     if method == "exact":
-        from .simulate.continuation import exact_frequency_response
+        from .simulate.continuation import exact_frequency_response, exact_solutions_at
 
         if frequencies is not None:
-            raise ParameterError(
-                "frequencies= is not supported with method='exact'; give a window Omega=(lo, hi)"
-            )
+            return exact_solutions_at(oscillator, frequencies, **options)
         return exact_frequency_response(oscillator, Omega, **options)
     if method not in METHODS:
         raise ParameterError(

@@ -24,6 +24,7 @@ from perturb.simulate.continuation import (
     continue_orbits,
     exact_branches,
     exact_frequency_response,
+    exact_solutions_at,
     switch_branch,
 )
 from perturb.simulate.flow import FlowFamily
@@ -436,3 +437,28 @@ def test_validation_and_frozen_results():
         builtin_model("nsd", k=1.0, mu=0.05, F=2.0), (0.5, 1.5), progress=False, sweep_points=0
     )
     assert resp.method == "exact" and len(resp.branches) == 1
+
+
+def test_exact_solutions_at_given_frequencies_only():
+    """Every row is at a requested frequency; the in-well saddle orbit is the closed-form
+    linear response of the middle segment; the stable cross-well orbit is what a long DOP853
+    run from a nearby state settles on."""
+    osc = builtin_model("nsd", k=-2.0, mu=0.05, F=2.0)
+    ws = [0.5, 0.55, 0.6, 0.65, 0.7]
+    resp = exact_solutions_at(osc, ws)
+    rows = resp.rows()
+    assert {r["omega"] for r in rows} == set(ws)
+    per_w = {w: sorted((r["amplitude"], r["stable"]) for r in rows if r["omega"] == w) for w in ws}
+    for w, sols in per_w.items():
+        assert [s for _, s in sols] == [False, False, True], (w, sols)
+        assert sols[0][0] == pytest.approx(linear_amplitude(w, -2.0, 0.05, 2.0), rel=1e-9)
+    rhs = nsd_rhs(-2.0, 0.05, 2.0, 0.6)
+    T = 2 * math.pi / 0.6
+    y = integrate(rhs, [9.4, 1.0], 300 * T, rtol=1e-11, atol=1e-11)
+    sol = solve_ivp(
+        rhs, (300 * T, 301 * T), y, method="DOP853", rtol=1e-12, atol=1e-12, dense_output=True
+    )
+    x = sol.sol(np.linspace(300 * T, 301 * T, 20001))[0]
+    assert per_w[0.6][2][0] == pytest.approx(np.max(np.abs(x)), rel=1e-7)
+    with pytest.raises(ParameterError, match="positive finite"):
+        exact_solutions_at(osc, [0.6, -1.0])

@@ -190,6 +190,20 @@ def test_frc_listed_frequencies_appear_exactly_and_solve_the_amplitude_equation(
     assert [s for _, s in at] == [0, 0, 1]
 
 
+def test_frc_exact_with_a_frequency_grid_writes_exactly_those_frequencies(tmp_path):
+    out = tmp_path / "frc.csv"
+    argv = ["frc", "nsd", "--method", "exact", "--param", "k=-2", "--param", "mu=0.05"]
+    argv += ["--param", "F=2", "--omega", "0.5:0.7:5", "--out", str(out)]
+    assert main(argv) == 0
+    with open(out) as fh:
+        rows = list(csv.DictReader(fh))
+    assert tuple(rows[0].keys()) == CSV_COLUMNS
+    assert {r["omega"] for r in rows} == {"0.5", "0.55", "0.6", "0.65", "0.7"}
+    assert {r["method"] for r in rows} == {"exact"}
+    # three orbits at each frequency: in-well saddle, middle unstable, large stable
+    assert sum(r["omega"] == "0.65" for r in rows) == 3
+
+
 def test_frc_errors(capsys):
     assert main(["frc", "nope"]) == 2
     assert "builtin name" in capsys.readouterr().err

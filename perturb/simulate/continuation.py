@@ -147,6 +147,7 @@ __all__ = [
     "switch_branch",
     "exact_branches",
     "exact_frequency_response",
+    "exact_solutions_at",
 ]
 
 #: Largest growth of perturbations per shooting node before another node is added (beyond
@@ -2797,3 +2798,132 @@ def exact_frequency_response(
     options are those of :func:`exact_branches`.  ``notes`` say which branches are closed
     loops and which are mirror images."""
     return exact_branches(oscillator, window, **options).to_response()
+
+
+def _polish_at(branch: ContinuationBranch, j: int, w: float) -> PeriodicOrbit | None:
+    """The orbit of ``branch`` at exactly ``Omega = w`` between points ``j`` and ``j + 1``:
+    the stored states interpolated linearly in the parameter, then shooting at ``w`` (multiple
+    shooting when both points carry nodes, as strongly unstable orbits need)."""
+    a, b = branch.points[j], branch.points[j + 1]
+    dp = b.parameter - a.parameter
+    s = 0.5 if dp == 0.0 else min(1.0, max(0.0, (w - a.parameter) / dp))
+    flow = branch.family.at(w)
+    try:
+        if a.nodes is not None and b.nodes is not None and a.nodes.shape == b.nodes.shape:
+            nodes = (1.0 - s) * a.nodes + s * b.nodes
+            return multiple_shooting(flow, nodes, m=branch.m, t0=branch.t0)
+        y = (1.0 - s) * a.y0 + s * b.y0
+        orbit = periodic_orbit(flow, y, m=branch.m, t0=branch.t0)
+        if orbit.max_multiplier > NODE_GROWTH:
+            # one period from y0 amplifies its rounding by the multiplier: the statistics of a
+            # strongly unstable orbit come from nodes that each grow it by NODE_GROWTH at most
+            n = _nodes_needed(orbit.max_multiplier, branch.m)
+            _, x, v = orbit.sample(n)
+            orbit = multiple_shooting(flow, np.column_stack([x, v]), m=branch.m, t0=branch.t0)
+        return orbit
+    except PerturbError:
+        return None
+
+
+def exact_solutions_at(
+    oscillator: Oscillator,
+    frequencies: Sequence[float],
+    **options: Any,
+) -> Response:
+    """Every exact periodic orbit at exactly the forcing frequencies ``frequencies``.
+
+    With two or more distinct frequencies the branches are traced by :func:`exact_branches`
+    over ``[min, max]`` (``options`` are its options) and every crossing of a branch with a
+    requested frequency is polished by shooting at that frequency, so the output holds the
+    requested values exactly and keeps the branch structure (a branch that folds back meets a
+    frequency more than once).  A single frequency is answered by
+    :func:`~perturb.simulate.orbits.periodic_orbits` (each orbit its own branch).
+
+    Raises
+    ------
+    ParameterError
+        Empty, non-finite or non-positive frequencies.
+    """
+    try:
+        w_all = np.asarray(frequencies, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise ParameterError(
+            f"frequencies = {frequencies!r}: expected a sequence of positive numbers"
+        ) from None
+    if w_all.size == 0 or not np.all(np.isfinite(w_all)) or np.any(w_all <= 0.0):
+        raise ParameterError(
+            f"frequencies = {w_all.tolist()!r}: expected positive finite forcing frequencies"
+        )
+    from .orbits import periodic_orbits
+
+    targets = np.unique(w_all)
+    if targets.size == 1:
+        w = float(targets[0])
+        orbits = periodic_orbits(oscillator, w)
+        family = FlowFamily(oscillator)
+        params = {k: v for k, v in oscillator.params.items() if k != family.parameter}
+        branches = tuple(
+            Branch(
+                omega=[w],
+                amplitude=[o.amplitude],
+                first_harmonic_amplitude=[o.first_harmonic_amplitude],
+                mean=[o.mean],
+                stable=[o.is_stable],
+                max_multiplier=[o.max_multiplier],
+            )
+            for o in orbits
+        )
+        method = "exact" if family.exact else "shooting"
+        return Response(
+            branches,
+            method,
+            oscillator.name,
+            params,
+            notes=(f"{len(orbits)} orbits at Omega = {w!r} from periodic_orbits (one per branch)",),
+        )
+    from .orbits import periodic_orbits
+
+    # a short window gives the sweeps and closed-form seeds few chances to meet every branch,
+    # so the orbits found at the middle frequency (brute force over initial conditions plus
+    # approximation guesses) seed the tracing as well
+    w_mid = float(targets[targets.size // 2])
+    seeds = list(options.pop("seeds", ()))
+    seeds += [(w_mid, o.y0) for o in periodic_orbits(oscillator, w_mid) if o.m == 1]
+    found = exact_branches(
+        oscillator, (float(targets[0]), float(targets[-1])), seeds=seeds, **options
+    )
+    branches = []
+    notes = list(found.to_response().notes)
+    for bi, br in enumerate(found.branches):
+        p = br.parameters
+        rows: list[tuple[float, PeriodicOrbit]] = []
+        for j in range(len(p) - 1):
+            lo, hi = sorted((p[j], p[j + 1]))
+            # half-open on the far end so a frequency hit exactly by a point is polished once
+            inside = targets[(targets >= lo) & (targets <= hi)]
+            for w in inside:
+                if w == p[j + 1] and j + 1 < len(p) - 1:
+                    continue
+                orbit = _polish_at(br, j, float(w))
+                if orbit is None:
+                    notes.append(f"branch {bi}: shooting at Omega = {w!r} failed; row left out")
+                    continue
+                rows.append((float(w), orbit))
+        if rows:
+            branches.append(
+                Branch(
+                    omega=[w for w, _ in rows],
+                    amplitude=[o.amplitude for _, o in rows],
+                    first_harmonic_amplitude=[o.first_harmonic_amplitude for _, o in rows],
+                    mean=[o.mean for _, o in rows],
+                    stable=[o.is_stable for _, o in rows],
+                    max_multiplier=[o.max_multiplier for _, o in rows],
+                )
+            )
+    return Response(
+        tuple(branches),
+        found.method,
+        found.model,
+        dict(found.params),
+        notes=tuple(notes),
+    )
