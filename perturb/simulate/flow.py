@@ -221,6 +221,7 @@ class FlowFamily:
         self.exact = use_exact
         self._pwl = _compile_pwl(osc, parameter) if use_exact else None
         self._rhs = None if use_exact else _compile_rhs(osc, parameter)
+        self._recent: dict[float, Flow] = {}
 
     def __repr__(self) -> str:
         kind = "exact" if self.exact else "ode"
@@ -234,9 +235,21 @@ class FlowFamily:
 
             if self._pwl is None:  # breakpoints could not be ordered symbolically
                 return ExactPWLFlow(self.oscillator.with_params({self.parameter: value}))
-            return ExactPWLFlow(self._pwl(value))
+            # continuation asks for the same few parameter values over and over (corrector
+            # iterations, statistics, branch checks): building and validating a system costs
+            # as much as propagating it over a period, so recent flows are kept
+            flow = self._recent.get(value)
+            if flow is None:
+                flow = ExactPWLFlow(self._pwl(value))
+                if len(self._recent) >= _RECENT_FLOWS:
+                    self._recent.pop(next(iter(self._recent)))
+                self._recent[value] = flow
+            return flow
         assert self._rhs is not None
         return ODEFlow(self.oscillator, rhs=self._rhs(value), rtol=self.rtol, atol=self.atol)
+
+
+_RECENT_FLOWS = 64
 
 
 def _others(osc: Oscillator, parameter: str) -> dict:

@@ -102,6 +102,7 @@ from __future__ import annotations
 
 import cmath
 import math
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -1143,6 +1144,19 @@ class _Model:
         return int(np.searchsorted(self.bp, x, side="right")), None
 
 
+# The segment data depend only on the (immutable) system; continuation and shooting propagate
+# the same system thousands of times, so it is built once per system object.
+_MODELS: weakref.WeakKeyDictionary[PWLSystem, _Model] = weakref.WeakKeyDictionary()
+
+
+def _model_of(system: PWLSystem) -> _Model:
+    model = _MODELS.get(system)
+    if model is None:
+        model = _Model(system)
+        _MODELS[system] = model
+    return model
+
+
 def propagate(
     system: PWLSystem,
     y0: ArrayLike,
@@ -1219,7 +1233,7 @@ def propagate(
                 f"({t0!r}, {t1!r})"
             )
 
-    model = _Model(system)
+    model = _model_of(system)
     counter = _Counter()
     x, v = float(y[0]), float(y[1])
     seg_i, start_bp = model.initial_segment(t0, x, v)
