@@ -20,11 +20,12 @@ import sympy as sp
 
 from ..approximation import Approximation
 from ..errors import ParameterError, PerturbError
+from ..methods.trig import _split_arg
 from ..response import Branch, Response
 from .compile import bind_parameters, lambdify
 from .floquet import hill_exponents, monodromy_multipliers
 
-__all__ = ["frequency_response", "solutions_at"]
+__all__ = ["frequency_response", "solutions_at", "compile_response", "FrequencyResponseSolver"]
 
 _SCAN_POINTS = 6000
 _WAVEFORM_SAMPLES = 128
@@ -105,15 +106,15 @@ def solutions_at(
     ParameterError
         For non-positive or non-finite frequencies.
     """
-    approx = approximation
-    _check_approximation(approx, stability)
+    cp = compile_response(approximation, stability)
+    approx = cp.approx
     w_all = np.asarray(omegas, dtype=float).reshape(-1)
     if w_all.size == 0 or not np.all(np.isfinite(w_all)) or np.any(w_all <= 0):
         raise ParameterError(f"omegas = {list(omegas)!r}: expected positive finite frequencies")
     a_lo, a_hi = (float(a) for a in amplitude_range)
     if not (0 < a_lo < a_hi and np.isfinite(a_hi)):
         raise ParameterError(f"amplitude_range = {amplitude_range!r}: expected 0 < low < high")
-    poly = _polynomial(approx)
+    poly = cp.poly
     grid = np.geomspace(a_lo, a_hi, _SCAN_POINTS)
     c0, c1, c2 = poly(grid)
     W = (w_all**2)[:, None]
@@ -134,7 +135,7 @@ def solutions_at(
     # joins the traced branch passing nearest to it, ordered by position along that branch
     # (nearest-amplitude linking between frequencies fails on coarse grids near folds).
     span = (float(w_all.min()) * 0.95, float(w_all.max()) * 1.05)
-    traced = frequency_response(approx, span, points=2000, stability="slow_flow")
+    traced = frequency_response(cp, span, points=2000, stability="slow_flow")
     branches: list[list[tuple[float, float, float]]] = [[] for _ in traced.branches]
     wr = w_all[iw]
     for w, a in zip(wr, roots, strict=True):
@@ -149,13 +150,11 @@ def solutions_at(
         else:
             branches[best[1]].append((best[2], float(w), float(a)))
     branches = [sorted(pts) for pts in branches if pts]
-    A, Omega = approx.amplitude, approx.frequency
-    phase = approx.unknowns[1]
     out = []
     for pts in branches:
         w_b = np.array([p[1] for p in pts])
         a_b = np.array([p[2] for p in pts])
-        out.append(_branch(approx, a_b, w_b, A, Omega, phase, stability))
+        out.append(_branch(cp, a_b, w_b, stability))
     return Response(tuple(out), approx.label, approx.oscillator.name, _params(approx))
 
 
@@ -199,16 +198,12 @@ def frequency_response(
         If the approximation has no frequency polynomial; ParameterError for bad ranges or
         missing parameter values.
     """
-    approx = approximation
-    _check_approximation(approx, stability)
+    cp = compile_response(approximation, stability)
+    approx = cp.approx
     if int(points) < 10:
         raise ParameterError(f"points = {points}: expected at least 10")
     lo, hi = _check_window(omega_range)
-    A = approx.amplitude
-    Omega = approx.frequency
-    unknowns = approx.unknowns
-    phase = unknowns[1] if len(unknowns) > 1 else sp.Symbol("phi")
-    poly = _polynomial(approx)
+    poly = cp.poly
 
     def valid_mask(a: np.ndarray) -> tuple[np.ndarray, ...]:
         c0, c1, c2 = poly(a)
@@ -265,7 +260,7 @@ def frequency_response(
     branches = []
     folds: list[tuple[float, float]] = []
     for a_br, w_br in branches_pts:
-        branches.append(_branch(approx, a_br, w_br, A, Omega, phase, stability))
+        branches.append(_branch(cp, a_br, w_br, stability))
         folds.extend(_folds(a_br, w_br))
     return Response(
         tuple(branches),
@@ -318,41 +313,184 @@ def _folds(a: np.ndarray, w: np.ndarray) -> list[tuple[float, float]]:
     return out
 
 
-def _branch(
-    approx: Approximation, a: np.ndarray, w: np.ndarray, A, Omega, phase, stability: str
-) -> Branch:
-    keep = (A, Omega, phase, approx.tau)
-    cos_part, sin_part = bind_parameters(approx, list(approx.phase_from or (1, 0)), keep)
-    phase_fn = lambdify((A, Omega), [cos_part, sin_part])
-    pc, ps = phase_fn(a, w)
+class _Waveform:
+    """x(tau) of an approximation as a trigonometric polynomial with coefficients that depend
+    on the unknowns: ``x = sum_n C_n cos(n tau) + S_n sin(n tau)``.
+
+    The coefficients are compiled once and evaluated once per solution; samples, the mean, the
+    first harmonic, the refined maximum and dx/dtau then cost matrix products. Evaluating the
+    expression itself at every sample would recompute every closed-form Fourier coefficient
+    of a PWL force (a dozen per solution) at each of hundreds of samples. A waveform that is
+    not linear in cos/sin(n tau + c) falls back to sampling the compiled expression."""
+
+    def __init__(self, approx: Approximation, A, phase, Omega) -> None:
+        tau = approx.tau
+        keep = (A, Omega, phase, tau)
+        wave = bind_parameters(approx, [approx.waveform], keep)[0]
+        self.args = (A, phase, Omega)
+        self.terms: list[tuple[int, bool]] | None = None
+        atoms = sorted(
+            (f for f in wave.atoms(sp.cos, sp.sin) if f.has(tau)), key=sp.default_sort_key
+        )
+        dummies = [sp.Dummy(f"u{i}") for i in range(len(atoms))]
+        sub = wave.xreplace(dict(zip(atoms, dummies, strict=True)))
+        linear = not sub.has(tau)
+        split: list[tuple[int, sp.Expr]] = []
+        coefs: list[sp.Expr] = []
+        if linear:
+            try:
+                split = [_split_arg(f.args[0], tau) for f in atoms]
+            except PerturbError:
+                linear = False
+        if linear:
+            coefs = [sp.diff(sub, d) for d in dummies]
+            linear = not any(c.has(*dummies) for c in coefs)
+        if linear:
+            const = sub.xreplace({d: 0 for d in dummies})
+            for i, (f, (n, c)) in enumerate(zip(atoms, split, strict=True)):
+                if n < 0:  # cos(-n t + c) = cos(n t - c), sin(-n t + c) = -sin(n t - c)
+                    split[i] = (-n, -c)
+                    if isinstance(f, sp.sin):
+                        coefs[i] = -coefs[i]
+            self.terms = [
+                (n, isinstance(f, sp.sin)) for (n, _), f in zip(split, atoms, strict=True)
+            ]
+            self.order = max([n for n, _ in split] + [1])
+            self.fn = lambdify(self.args, [const, *coefs, *(c for _, c in split)])
+        else:
+            self.fn = lambdify((tau, *self.args), wave)
+            self.dfn = lambdify((tau, *self.args), sp.diff(wave, tau))
+
+    def coefficients(self, a, phi, w) -> tuple[np.ndarray, np.ndarray]:
+        """``C, S`` of shape ``(n, order + 1)``."""
+        assert self.terms is not None
+        out = self.fn(a, phi, w)
+        m = len(self.terms)
+        C = np.zeros((a.size, self.order + 1))
+        S = np.zeros_like(C)
+        C[:, 0] = out[0]
+        for (n, is_sin), coef, c in zip(self.terms, out[1 : 1 + m], out[1 + m :], strict=True):
+            cc, sc = np.cos(c), np.sin(c)
+            # cos(n tau + c) = cos c cos n tau - sin c sin n tau; sin(n tau + c) likewise
+            if is_sin:
+                C[:, n] += coef * sc
+                S[:, n] += coef * cc
+            else:
+                C[:, n] += coef * cc
+                S[:, n] -= coef * sc
+        return C, S
+
+    def samples(self, a, phi, w, count: int, coefs=None) -> tuple[np.ndarray, np.ndarray]:
+        """``x`` and ``dx/dtau`` at ``count`` equally spaced phases, shape ``(n, count)``."""
+        tau = np.linspace(0, 2 * np.pi, count, endpoint=False)
+        if self.terms is None:
+            args = (tau[None, :], a[:, None], phi[:, None], w[:, None])
+            return self.fn(*args), self.dfn(*args)
+        C, S = self.coefficients(a, phi, w) if coefs is None else coefs
+        n = np.arange(C.shape[1])
+        cos_t, sin_t = np.cos(np.outer(n, tau)), np.sin(np.outer(n, tau))
+        x = C @ cos_t + S @ sin_t
+        dx = (S * n) @ cos_t - (C * n) @ sin_t
+        return x, dx
+
+    def max_abs(self, a, phi, w, xs: np.ndarray, coefs=None) -> np.ndarray:
+        """max |x(tau)|: the best of the samples ``xs`` polished by Newton on dx/dtau = 0
+        (sampling alone would be low by up to 1 - cos(pi/N))."""
+        count = xs.shape[1]
+        step = 2 * np.pi / count
+        t = step * np.argmax(np.abs(xs), axis=1)
+        if self.terms is None:
+            return np.max(np.abs(xs), axis=1)
+        C, S = self.coefficients(a, phi, w) if coefs is None else coefs
+        n = np.arange(C.shape[1])
+        for _ in range(8):
+            ct, st = np.cos(np.outer(t, n)), np.sin(np.outer(t, n))
+            g1 = np.sum(n * (S * ct - C * st), axis=1)
+            g2 = -np.sum(n * n * (C * ct + S * st), axis=1)
+            with np.errstate(all="ignore"):
+                dt = np.where(g2 != 0, -g1 / g2, 0.0)
+            t = t + np.clip(np.nan_to_num(dt), -step, step)
+        ct, st = np.cos(np.outer(t, n)), np.sin(np.outer(t, n))
+        x = np.sum(C * ct + S * st, axis=1)
+        return np.maximum(np.abs(x), np.max(np.abs(xs), axis=1))
+
+
+class FrequencyResponseSolver:
+    """An approximation compiled for :func:`frequency_response` and :func:`solutions_at`.
+
+    Compiling (SymPy to numpy, with common subexpressions) costs far more than tracing a
+    response; build one solver with :func:`compile_response` and pass it instead of the
+    approximation when tracing many windows or parameter values' worth of responses.
+    """
+
+    def __init__(self, approx: Approximation) -> None:
+        self.approx = approx
+        self.A, self.Omega = approx.amplitude, approx.frequency
+        self.phase = approx.unknowns[1] if len(approx.unknowns) > 1 else sp.Symbol("phi")
+        keep = (self.A, self.Omega, self.phase, approx.tau)
+        self.poly = _polynomial(approx)
+        cos_part, sin_part = bind_parameters(approx, list(approx.phase_from or (1, 0)), keep)
+        self.phase_fn = lambdify((self.A, self.Omega), [cos_part, sin_part])
+        self.wave = _Waveform(approx, self.A, self.phase, self.Omega)
+        self._jac = None
+
+    def jacobian(self):
+        if self._jac is None:
+            keep = (self.A, self.Omega, self.phase, self.approx.tau)
+            flow = bind_parameters(self.approx, list(self.approx.slow_flow or ()), keep)
+            jac = sp.Matrix(flow).jacobian(sp.Matrix(self.approx.unknowns))
+            self._jac = lambdify((self.A, self.phase, self.Omega), list(jac))
+        return self._jac
+
+
+def compile_response(
+    approximation: Approximation | FrequencyResponseSolver, stability: str = "hill"
+) -> FrequencyResponseSolver:
+    """Compile ``approximation`` for tracing (a solver passes through unchanged).
+
+    Raises
+    ------
+    PerturbError
+        If the approximation has no amplitude equation in ``Omega**2`` of degree <= 2.
+    ParameterError
+        For an unknown ``stability`` or parameters without values.
+    """
+    if isinstance(approximation, FrequencyResponseSolver):
+        _check_approximation(approximation.approx, stability)
+        return approximation
+    if not isinstance(approximation, Approximation):
+        raise ParameterError(
+            f"approximation = {approximation!r}: expected an Approximation (from a method in "
+            "perturb.methods) or a compiled FrequencyResponseSolver"
+        )
+    _check_approximation(approximation, stability)
+    return FrequencyResponseSolver(approximation)
+
+
+def _branch(cp: FrequencyResponseSolver, a: np.ndarray, w: np.ndarray, stability: str) -> Branch:
+    approx = cp.approx
+    pc, ps = cp.phase_fn(a, w)
     phi = np.arctan2(ps, pc)
     phi = np.where(np.isfinite(phi), phi, 0.0)
-
-    # waveform metrics from samples over one period (exact for trigonometric polynomials of
-    # degree < samples/2)
-    wave = bind_parameters(approx, [approx.waveform], keep)[0]
-    wave_fn = lambdify((approx.tau, A, phase, Omega), wave)
-    tau = np.linspace(0, 2 * np.pi, _WAVEFORM_SAMPLES, endpoint=False)
-    xs = wave_fn(tau[None, :], a[:, None], phi[:, None], w[:, None])
-    amplitude = _refined_max_abs(wave, approx.tau, (A, phase, Omega), (a, phi, w), tau, xs)
-    mean = xs.mean(axis=1)
-    spectrum = np.fft.rfft(xs, axis=1)
-    first = 2 * np.abs(spectrum[:, 1]) / _WAVEFORM_SAMPLES
+    wave = cp.wave
+    coefs = wave.coefficients(a, phi, w) if wave.terms is not None else None
+    xs, _ = wave.samples(a, phi, w, _WAVEFORM_SAMPLES, coefs)
+    amplitude = wave.max_abs(a, phi, w, xs, coefs)
+    if coefs is not None:
+        mean = coefs[0][:, 0]
+        first = np.hypot(coefs[0][:, 1], coefs[1][:, 1])
+    else:
+        mean = xs.mean(axis=1)
+        first = 2 * np.abs(np.fft.rfft(xs, axis=1)[:, 1]) / _WAVEFORM_SAMPLES
 
     period = 2 * np.pi / w
     if stability in ("floquet", "hill"):
-        # derivative along the orbit: dx/dt = Omega dx/dtau
-        dwave_fn = lambdify((approx.tau, A, phase, Omega), sp.diff(wave, approx.tau))
-        tau_f = np.linspace(0, 2 * np.pi, _FLOQUET_SAMPLES, endpoint=False)[None, :]
-        xf = wave_fn(tau_f, a[:, None], phi[:, None], w[:, None])
-        vf = w[:, None] * dwave_fn(tau_f, a[:, None], phi[:, None], w[:, None])
-        max_mult = _floquet_in_chunks(approx, xf, vf, period, Omega, w, stability)
+        xf, dxf = wave.samples(a, phi, w, _FLOQUET_SAMPLES, coefs)
+        vf = w[:, None] * dxf  # dx/dt = Omega dx/dtau
+        max_mult = _floquet_in_chunks(approx, xf, vf, period, cp.Omega, w, stability)
         stable = max_mult < 1 - 1e-9
     else:
-        flow = bind_parameters(approx, list(approx.slow_flow or ()), keep)
-        jac = sp.Matrix(flow).jacobian(sp.Matrix(approx.unknowns))
-        jac_fn = lambdify((A, phase, Omega), list(jac))
-        j11, j12, j21, j22 = jac_fn(a, phi, w)
+        j11, j12, j21, j22 = cp.jacobian()(a, phi, w)
         tr = j11 + j22
         det = j11 * j22 - j12 * j21
         disc = tr * tr / 4 - det
@@ -372,7 +510,12 @@ def _branch(
 
 def _floquet_in_chunks(approx, xf, vf, period, Omega, w, stability) -> np.ndarray:
     out = np.empty(period.size)
-    harmonics = int(approx.options.get("harmonics", 1))
+    # amplitude parametrisation applies to single-harmonic amplitude equations (two unknowns,
+    # amplitude and phase): Hill's truncation must match the balanced harmonics, one, for its
+    # singularity to fall on the folds; the waveform's extra harmonics (a method's
+    # ``harmonics`` option, e.g. 15 for modified L-P on a PWL force) enter only through the
+    # linearisation's coefficients
+    harmonics = 1
     for start in range(0, period.size, _CHUNK):
         sl = slice(start, start + _CHUNK)
         if stability == "hill":
@@ -382,20 +525,3 @@ def _floquet_in_chunks(approx, xf, vf, period, Omega, w, stability) -> np.ndarra
         else:
             out[sl] = monodromy_multipliers(approx.oscillator, xf[sl], vf[sl], period[sl], Omega)
     return out
-
-
-def _refined_max_abs(wave, tau_sym, syms, vals, tau, xs) -> np.ndarray:
-    """max |x(tau)| over a period: the best sample, polished by Newton steps on dx/dtau = 0
-    (sampling alone would be low by up to 1 - cos(pi/N))."""
-    d1 = lambdify((tau_sym, *syms), sp.diff(wave, tau_sym))
-    d2 = lambdify((tau_sym, *syms), sp.diff(wave, tau_sym, 2))
-    f = lambdify((tau_sym, *syms), wave)
-    best = np.argmax(np.abs(xs), axis=1)
-    t = tau[best]
-    step = tau[1] - tau[0]
-    for _ in range(8):
-        g1, g2 = d1(t, *vals), d2(t, *vals)
-        with np.errstate(all="ignore"):
-            dt = np.where(g2 != 0, -g1 / g2, 0.0)
-        t = t + np.clip(np.nan_to_num(dt), -step, step)
-    return np.maximum(np.abs(f(t, *vals)), np.max(np.abs(xs), axis=1))
