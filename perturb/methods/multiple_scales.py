@@ -113,7 +113,6 @@ from typing import Any
 
 import numpy as np
 import sympy as sp
-from scipy.optimize import brentq, fsolve
 from sympy import QQ_I
 from sympy.polys.rings import PolyElement, PolyRing
 
@@ -642,6 +641,9 @@ class ModulationEquations:
             For an autonomous system, or a first-order flow that is not linear in
             :math:`\cos\gamma, \sin\gamma`.
         """
+        # scipy.optimize is half the import time of perturb; only the numeric helpers need it
+        from scipy.optimize import brentq, fsolve
+
         if not self.is_forced:
             raise PerturbError("steady_states is for forced models; use limit_cycles")
         subs = self._values(values)
@@ -705,6 +707,8 @@ class ModulationEquations:
         r"""Limit cycles of an autonomous slow flow: roots :math:`a > 0` of :math:`\dot a(a) = 0`,
         with ``frequency`` :math:`\omega_0 + \dot\beta(a)` and stability from
         :math:`d\dot a/da < 0` (the single eigenvalue in ``eigenvalues``)."""
+        from scipy.optimize import brentq
+
         if self.is_forced:
             raise PerturbError("limit_cycles is for autonomous models; use steady_states")
         subs = self._values(values)
