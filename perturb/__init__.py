@@ -33,6 +33,14 @@ def __getattr__(name: str):
         from .simulate.orbits import periodic_orbits
 
         return periodic_orbits
+    if name in ("compare", "relative_errors"):
+        from .numeric import compare as _compare
+
+        return getattr(_compare, name)
+    if name == "sweep":
+        from .sweep import sweep
+
+        return sweep
     if name == "time_history":
         from .simulate.time_history import time_history
 
@@ -60,6 +68,9 @@ __all__ = [
     "Branch",
     "periodic_orbits",
     "time_history",
+    "compare",
+    "relative_errors",
+    "sweep",
     "PerturbError",
     "ParseError",
     "ModelError",

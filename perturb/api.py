@@ -15,7 +15,11 @@ from .methods import METHODS
 from .model import Oscillator
 from .response import Response
 
-__all__ = ["frequency_response"]
+__all__ = ["frequency_response", "ALIASES"]
+
+
+#: Names the command line also accepts (issue 5 spells them this way).
+ALIASES = {"mms": "ms", "avg": "kb"}
 
 
 def frequency_response(
@@ -24,6 +28,8 @@ def frequency_response(
     Omega: Sequence[float] = (0.2, 2.0),
     *,
     frequencies: Sequence[float] | None = None,
+    order: int | None = None,
+    harmonics: int | None = None,
     **options: Any,
 ) -> Response:
     """The frequency response of ``oscillator`` by ``method``.
@@ -31,29 +37,70 @@ def frequency_response(
     Parameters
     ----------
     method
-        ``"exact"`` or a name in :data:`perturb.methods.METHODS`.
+        ``"exact"`` (continuation of exact periodic orbits), ``"hb"`` (numeric multi-harmonic
+        balance, ``harmonics`` harmonics, exact Galerkin projection for PWL forces) or a
+        symbolic method of :data:`perturb.methods.METHODS` (``"mms"`` and ``"avg"`` are
+        accepted for ``"ms"`` and ``"kb"``).
     Omega
         ``(low, high)``.
     frequencies
         Exact frequencies to report instead of a traced curve: every solution found at
-        each of them, and no other frequency.
+        each of them, and no other frequency (not with ``"hb"``).
+    order
+        Expansion order of the symbolic method (``mlp``, ``ms``, ``lp``).
+    harmonics
+        Harmonics of ``"hb"`` (default 15).
     options
         Passed to the solver.
+
+    Notes
+    -----
+    A symbolic approximation whose amplitude equation is a polynomial of degree <= 2 in
+    ``Omega**2`` is traced by amplitude parametrisation; any other (second-order modified
+    L-P, for instance) by seeding and continuation of its residuals
+    (:func:`perturb.numeric.residual_response.residual_response`).
     """
+    method = ALIASES.get(method, method)
     if method == "exact":
         from .simulate.continuation import exact_frequency_response, exact_solutions_at
 
         if frequencies is not None:
             return exact_solutions_at(oscillator, frequencies, **options)
         return exact_frequency_response(oscillator, Omega, **options)
+    if method == "hb" and order is None:
+        from .numeric.harmonic_balance import harmonic_balance_response
+
+        if frequencies is not None:
+            raise ParameterError(
+                "method 'hb' traces a branch by continuation: give a window Omega=(lo, hi), "
+                "not frequencies="
+            )
+        return harmonic_balance_response(
+            oscillator, Omega, harmonics=15 if harmonics is None else int(harmonics), **options
+        )
     if method not in METHODS:
         raise ParameterError(
-            f"method = {method!r}: expected 'exact' or one of {', '.join(METHODS)}"
+            f"method = {method!r}: expected 'exact', 'hb' or one of {', '.join(METHODS)} "
+            f"(aliases {', '.join(ALIASES)})"
         )
     from .numeric.frequency_response import frequency_response as traced
     from .numeric.frequency_response import solutions_at
+    from .numeric.residual_response import residual_response
 
-    approx = METHODS[method](oscillator)
+    method_options: dict[str, Any] = {}
+    if order is not None:
+        method_options["order"] = int(order)
+    approx = METHODS[method](oscillator, **method_options)
+    poly = approx.frequency_polynomial
+    if poly is None or len(poly) > 3 or approx.slow_flow is None:
+        if frequencies is not None:
+            raise ParameterError(
+                f"{approx.label} is traced by continuation of its residuals: give a window "
+                "Omega=(lo, hi), not frequencies="
+            )
+        # the curve's resolution is set by the continuation step, not by a point count
+        options.pop("points", None)
+        return residual_response(approx, Omega, **options)
     if frequencies is not None:
         return solutions_at(approx, frequencies, **options)
     return traced(approx, Omega, **options)

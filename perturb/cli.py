@@ -165,26 +165,40 @@ def _model_from_arg(text: str, params: dict[str, float]):
 
 
 def _cmd_frc(args: argparse.Namespace) -> int:
-    from .api import frequency_response
+    from .api import ALIASES, frequency_response
     from .methods import METHODS
     from .report.figures import plot_frequency_response
 
     params = dict(parse_param(p) for p in args.param or ())
     osc = _model_from_arg(args.model, params)
-    if args.method != "exact" and args.method not in METHODS:
-        raise PerturbError(
-            f"--method {args.method!r}: expected exact or one of {', '.join(METHODS)} (more "
-            "methods arrive with the symbolic engines)"
-        )
+    method = ALIASES.get(args.method, args.method)
+    if method not in ("exact", "hb") and method not in METHODS:
+        names = ["exact", *ALIASES, *METHODS]
+        raise PerturbError(f"--method {args.method!r}: expected one of {', '.join(names)}")
+    if args.compare not in (None, "exact"):
+        raise PerturbError(f"--compare {args.compare!r}: expected exact")
     kind, omegas = parse_omega(args.omega)
-    if kind == "range" and args.method == "exact":
-        resp = frequency_response(osc, "exact", omegas)
+    extra = {"harmonics": args.harmonics} if method == "hb" else {"order": args.order}
+    if method == "exact":
+        extra = {}
+    if kind == "range" and method in ("exact", "hb"):
+        resp = frequency_response(osc, method, omegas, **extra)
     elif kind == "range":
-        resp = frequency_response(osc, args.method, omegas, points=args.points)
+        resp = frequency_response(osc, method, omegas, points=args.points, **extra)
     else:
-        resp = frequency_response(osc, args.method, frequencies=omegas)
+        resp = frequency_response(osc, method, frequencies=omegas, **extra)
     print(repr(resp), file=sys.stderr)
-    text = resp.to_csv(args.out)
+    rel = None
+    if args.compare == "exact":
+        from .numeric.compare import compare, relative_errors
+
+        if kind == "range":
+            ref = frequency_response(osc, "exact", omegas)
+        else:
+            ref = frequency_response(osc, "exact", frequencies=omegas)
+        rel = relative_errors(resp, ref)
+        print(str(compare(resp, ref)), file=sys.stderr)
+    text = resp.to_csv(args.out, extra=None if rel is None else {"rel_error": rel})
     if args.out is None:
         sys.stdout.write(text)
     if args.plot:
@@ -313,7 +327,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("frc", help="frequency response of a model (CSV, optional PNG)")
     p.add_argument("model", help="builtin model name or an equation string")
-    p.add_argument("--method", default="hb1", help="method (default hb1)")
+    p.add_argument(
+        "--method",
+        default="hb1",
+        help="hb1 (default), hb, mlp, mms (ms), avg (kb), vdp, lp or exact",
+    )
     p.add_argument("--param", action="append", metavar="NAME=VALUE", help="parameter value")
     p.add_argument(
         "--omega",
@@ -321,6 +339,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="start:stop (traced curve), start:stop:count or w1,w2,... (exact frequencies)",
     )
     p.add_argument("--points", type=int, default=2000, help="curve resolution for start:stop")
+    p.add_argument("--order", type=int, help="expansion order of the method (mlp, mms, lp)")
+    p.add_argument("--harmonics", type=int, help="harmonics of --method hb (default 15)")
+    p.add_argument("--compare", help="exact: add a rel_error column against the exact solution")
     p.add_argument("--out", help="CSV file (default: standard output)")
     p.add_argument("--plot", help="PNG file")
     p.set_defaults(func=_cmd_frc)
@@ -359,6 +380,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", nargs="?", help="scene TOML file")
     p.add_argument("--out", default="out", help="output directory (default ./out)")
     p.set_defaults(func=_cmd_run)
+
+    from .sweep_cli import add_parser as add_sweep_parser
+
+    add_sweep_parser(sub)
     return parser
 
 

@@ -11,7 +11,7 @@ import pytest
 from perturb import PerturbError, __version__
 from perturb.cli import main, parse_param
 from perturb.errors import ParameterError
-from perturb.model import BUILTIN_MODELS
+from perturb.model import BUILTIN_MODELS, builtin_model
 from perturb.response import CSV_COLUMNS
 from perturb.scene import default_scene, parse_scene, run_scene
 
@@ -224,3 +224,30 @@ def test_front_door_dispatches_methods():
     assert callable(perturb.periodic_orbits) and callable(perturb.time_history)
     with pytest.raises(AttributeError):
         perturb.no_such_thing  # noqa: B018
+
+
+def test_frc_compare_exact_adds_rel_error_against_exact_orbits(tmp_path):
+    out = tmp_path / "frc.csv"
+    argv = ["frc", "nsd", "--method", "mlp", "--order", "1", "--param", "k=-0.5"]
+    argv += ["--param", "mu=0.05", "--param", "F=2", "--omega", "0.6,0.9"]
+    argv += ["--compare", "exact", "--out", str(out)]
+    assert main(argv) == 0
+    with open(out) as fh:
+        rows = list(csv.DictReader(fh))
+    assert tuple(rows[0].keys()) == (*CSV_COLUMNS, "rel_error")
+    from perturb.simulate.orbits import periodic_orbits
+
+    osc = builtin_model("nsd", k=-0.5, mu=0.05, F=2.0)
+    for r in rows:
+        exact = periodic_orbits(osc, float(r["omega"]))
+        ref = min(abs(float(r["amplitude"]) / o.amplitude - 1) for o in exact)
+        assert float(r["rel_error"]) == pytest.approx(ref, rel=1e-6, abs=1e-12)
+
+
+def test_frc_method_aliases_and_numeric_hb(tmp_path):
+    out = tmp_path / "a.csv"
+    base = ["frc", "nsd", "--param", "k=-0.5", "--param", "mu=0.05", "--param", "F=2"]
+    assert main([*base, "--method", "avg", "--omega", "0.6,0.9", "--out", str(out)]) == 0
+    assert "kb" in out.read_text().splitlines()[1]
+    assert main([*base, "--method", "hb", "--harmonics", "5", "--omega", "0.8:1.2"]) == 0
+    assert main([*base, "--method", "hb", "--omega", "0.6,0.9"]) == 2
