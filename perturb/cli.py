@@ -23,6 +23,7 @@ import math
 import re
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 from . import __version__
 from .errors import ParameterError, PerturbError
@@ -297,9 +298,25 @@ def _cmd_derive(args: argparse.Namespace) -> int:
 def _cmd_run(args: argparse.Namespace) -> int:
     from .scene import default_scene, load_scene, run_scene
 
+    if args.scene and _is_sweep_scene(args.scene):
+        # a scene with a [sweep] table asks for a map: answer it as `perturb sweep` would,
+        # into the output directory
+        from .sweep_cli import build_args, cmd_sweep
+
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        return cmd_sweep(build_args(args.scene, str(Path(args.out) / "map.nc")))
     scene = load_scene(args.scene) if args.scene else default_scene()
     run_scene(scene, args.out)
     return 0
+
+
+def _is_sweep_scene(path: str) -> bool:
+    import tomllib
+
+    try:
+        return "sweep" in tomllib.loads(Path(path).read_text())
+    except (OSError, tomllib.TOMLDecodeError):
+        return False  # load_scene reports the problem
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -156,6 +156,14 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def build_args(scene: str, out: str) -> argparse.Namespace:
+    """The arguments of ``perturb sweep SCENE --out OUT`` with every default (for ``perturb
+    run`` on a sweep scene)."""
+    parser = argparse.ArgumentParser(prog="perturb")
+    add_parser(parser.add_subparsers(dest="command"))
+    return parser.parse_args(["sweep", scene, "--out", out])
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m perturb.sweep_cli SCENE ...`` (the same as ``perturb sweep SCENE ...``)."""
     parser = argparse.ArgumentParser(prog="perturb")

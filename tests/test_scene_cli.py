@@ -251,3 +251,18 @@ def test_frc_method_aliases_and_numeric_hb(tmp_path):
     assert "kb" in out.read_text().splitlines()[1]
     assert main([*base, "--method", "hb", "--harmonics", "5", "--omega", "0.8:1.2"]) == 0
     assert main([*base, "--method", "hb", "--omega", "0.6,0.9"]) == 2
+
+
+def test_run_on_a_sweep_scene_writes_the_map(tmp_path):
+    scene = tmp_path / "map.toml"
+    scene.write_text(
+        '[model]\nname = "nsd"\n[params]\nF = 2.0\nmu = 0.05\nk = -2.0\n[ask]\n'
+        'omega = [0.2, 2.0]\n[method]\nname = "hb1"\n[sweep]\nquantity = "peak_amplitude"\n'
+        'solver = "approximation"\n[sweep.params]\nmu = "0.05:0.1:2"\nk = "-2:-1:2"\n'
+    )
+    assert main(["run", str(scene), "--out", str(tmp_path / "out")]) == 0
+    from perturb.sweep import load_dataset
+
+    ds = load_dataset(tmp_path / "out" / "map.nc")
+    assert dict(ds.sizes)["mu"] == 2 and dict(ds.sizes)["k"] == 2
+    assert (tmp_path / "out" / "map.png").read_bytes()[:4] == b"\x89PNG"
