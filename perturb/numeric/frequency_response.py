@@ -13,6 +13,7 @@ Stability comes from the eigenvalues of the slow-flow Jacobian; ``max_multiplier
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -32,6 +33,11 @@ _WAVEFORM_SAMPLES = 128
 _FLOQUET_SAMPLES = 512
 _CHUNK = 512
 _STABILITY = ("hill", "floquet", "slow_flow")
+#: a branch moves by at most 1/_WINDOW_RESOLUTION of the window (in Omega and in log Omega)
+#: between two points inside it
+_WINDOW_RESOLUTION = 128
+#: bisection passes of that refinement (each halves the offending amplitude steps)
+_REFINE_PASSES = 40
 
 
 def _check_window(omega_range: Sequence[float]) -> tuple[float, float]:
@@ -97,9 +103,10 @@ def solutions_at(
     """Every solution of ``approximation`` at exactly the forcing frequencies ``omegas``.
 
     All roots ``A`` of the amplitude equation at each frequency are bracketed on a
-    logarithmic scan and refined by bisection; solutions at consecutive frequencies are
-    linked into branches by nearest amplitude. Use this when the output must contain given
-    frequencies; :func:`frequency_response` traces smoother curves.
+    logarithmic scan (pairs closer than its spacing, near a double root, by a search for the
+    minimum between the scan points) and refined by bisection; solutions at consecutive
+    frequencies are linked into branches by nearest amplitude. Use this when the output must
+    contain given frequencies; :func:`frequency_response` traces smoother curves.
 
     Raises
     ------
@@ -123,6 +130,14 @@ def solutions_at(
     lo_a, hi_a = grid[ia], grid[ia + 1]
     f_lo = vals[iw, ia]
     Wr = W[iw, 0]
+    hidden = _hidden_root_pairs(poly, grid, vals, W)
+    if hidden[0].size:
+        iw = np.concatenate([iw, hidden[0], hidden[0]])
+        lo_a = np.concatenate([lo_a, hidden[1], hidden[2]])
+        hi_a = np.concatenate([hi_a, hidden[2], hidden[3]])
+        Wr = W[iw, 0]
+        d0, d1, d2 = poly(lo_a)
+        f_lo = d0 + d1 * Wr + d2 * Wr * Wr
     for _ in range(80):  # bisection to full precision, all roots at once
         mid = 0.5 * (lo_a + hi_a)
         d0, d1, d2 = poly(mid)
@@ -156,6 +171,52 @@ def solutions_at(
         a_b = np.array([p[2] for p in pts])
         out.append(_branch(cp, a_b, w_b, stability))
     return Response(tuple(out), approx.label, approx.oscillator.name, _params(approx))
+
+
+def _hidden_root_pairs(poly, grid: np.ndarray, vals: np.ndarray, W: np.ndarray):
+    """Pairs of roots in ``A`` that fall between two scan points without a sign change.
+
+    Near a double root (where a detached branch meets another, or shrinks to a point as a
+    parameter varies) the two roots are closer than the scan spacing and the sign test misses
+    both.  Every interior local minimum of ``|P|`` on the scan (``P`` keeping its sign) is
+    followed by golden-section search on ``sign * P`` over its two neighbouring intervals; a
+    minimum of the other sign brackets two roots.  Returns the frequency indices and the
+    brackets ``(left, minimum, right)``."""
+    v = vals
+    sg = np.sign(v[:, 1:-1])
+    with np.errstate(invalid="ignore"):
+        dip = (sg != 0) & (np.sign(v[:, :-2]) == sg) & (np.sign(v[:, 2:]) == sg)
+        dip &= (sg * v[:, 1:-1] < sg * v[:, :-2]) & (sg * v[:, 1:-1] <= sg * v[:, 2:])
+    iw, ic = np.nonzero(dip)
+    ic = ic + 1
+    empty = np.empty(0)
+    if iw.size == 0:
+        return np.empty(0, int), empty, empty, empty
+    sgn = sg[iw, ic - 1]
+    Wr = W[iw, 0]
+
+    def f(a: np.ndarray) -> np.ndarray:
+        c0, c1, c2 = poly(a)
+        return sgn * (c0 + c1 * Wr + c2 * Wr * Wr)
+
+    a, b = grid[ic - 1].copy(), grid[ic + 1].copy()
+    g = 0.5 * (math.sqrt(5.0) - 1.0)
+    x1, x2 = b - g * (b - a), a + g * (b - a)
+    f1, f2 = f(x1), f(x2)
+    for _ in range(90):
+        left = f1 < f2  # the minimum lies in [a, x2]
+        a, b = np.where(left, a, x1), np.where(left, x2, b)
+        xn = np.where(left, b - g * (b - a), a + g * (b - a))
+        fn = f(xn)
+        x1, x2, f1, f2 = (
+            np.where(left, xn, x2),
+            np.where(left, x1, xn),
+            np.where(left, fn, f2),
+            np.where(left, f1, fn),
+        )
+    x_min = np.where(f1 < f2, x1, x2)
+    found = np.minimum(f1, f2) < 0.0
+    return iw[found], grid[ic - 1][found], x_min[found], grid[ic + 1][found]
 
 
 def frequency_response(
@@ -214,8 +275,12 @@ def frequency_response(
 
     if amplitude_range is None:
         scan = np.geomspace(1e-8, 1e8, _SCAN_POINTS)
-        _, _, _, in_lo, in_hi = valid_mask(scan)
-        hits = np.nonzero(in_lo | in_hi)[0]
+        wlo, whi, _, in_lo, in_hi = valid_mask(scan)
+        # a root may also cross the window between two scan points without landing in it
+        # (a narrow window, or Omega -> 0 where W = Omega**2 is tiny)
+        through = _passes_window(wlo, whi, lo * lo, hi * hi)
+        near = np.append(through, False) | np.insert(through, 0, False)
+        hits = np.nonzero(in_lo | in_hi | near)[0]
         if hits.size == 0:
             return Response(
                 (),
@@ -238,6 +303,7 @@ def frequency_response(
         )
     )
     grid = _insert_peaks(grid, poly)
+    grid = _refine_in_window(grid, valid_mask, lo, hi)
     wlo, whi, disc, in_lo, in_hi = valid_mask(grid)
 
     # Walk each interval where real roots exist: W_- upwards in A, then W_+ back down.
@@ -299,6 +365,45 @@ def _insert_peaks(grid: np.ndarray, poly) -> np.ndarray:
     da = c1 * c1 - 4 * c2 * c0
     peaks = np.where(da >= 0, a, b)
     return np.unique(np.concatenate([grid, peaks]))
+
+
+def _passes_window(wlo: np.ndarray, whi: np.ndarray, lo2: float, hi2: float) -> np.ndarray:
+    """Per grid interval: does a root ``W`` meet ``[lo2, hi2]`` between its two ends?"""
+    out = np.zeros(max(wlo.size - 1, 0), bool)
+    for r in (wlo, whi):
+        a, b = r[:-1], r[1:]
+        with np.errstate(invalid="ignore"):
+            out |= np.isfinite(a) & np.isfinite(b) & (np.fmin(a, b) <= hi2) & (np.fmax(a, b) >= lo2)
+    return out
+
+
+def _refine_in_window(grid: np.ndarray, valid_mask, lo: float, hi: float) -> np.ndarray:
+    """Bisect the amplitude intervals over which a root's frequency moves by more than the
+    window's resolution while inside it.
+
+    The amplitude grid alone resolves the curve in ``A`` only: where ``Omega`` changes fast
+    with ``A`` (a window narrow compared with that change, or ``Omega -> 0``, where a small
+    step in ``A`` sweeps all of ``W = Omega**2 < lo**2 .. hi**2``) it would step over the
+    window, and branches would be lost or start far inside it."""
+    lin = (hi - lo) / _WINDOW_RESOLUTION
+    log = math.log(hi / lo) / _WINDOW_RESOLUTION
+    lo2, hi2 = lo * lo, hi * hi
+    for _ in range(_REFINE_PASSES):
+        wlo, whi = valid_mask(grid)[:2]
+        need = np.zeros(grid.size - 1, bool)
+        for r in (wlo, whi):
+            a, b = r[:-1], r[1:]
+            with np.errstate(invalid="ignore"):
+                meets = np.isfinite(a) & np.isfinite(b) & (np.fmin(a, b) <= hi2)
+                meets &= np.fmax(a, b) >= lo2
+            # the part of the move that lies inside the window
+            wa = np.sqrt(np.clip(np.where(meets, a, lo2), lo2, hi2))
+            wb = np.sqrt(np.clip(np.where(meets, b, lo2), lo2, hi2))
+            need |= meets & ((np.abs(wb - wa) > lin) | (np.abs(np.log(wb / wa)) > log))
+        if not need.any():
+            break
+        grid = np.unique(np.concatenate([grid, 0.5 * (grid[:-1] + grid[1:])[need]]))
+    return grid
 
 
 def _folds(a: np.ndarray, w: np.ndarray) -> list[tuple[float, float]]:

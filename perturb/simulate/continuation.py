@@ -2868,7 +2868,9 @@ def exact_solutions_at(
                 amplitude=[o.amplitude],
                 first_harmonic_amplitude=[o.first_harmonic_amplitude],
                 mean=[o.mean],
-                stable=[o.is_stable],
+                # max |mu| < 1, as on traced branches: is_stable is False within unit_tol of
+                # the unit circle, which every lightly damped orbit is (mu -> 0)
+                stable=[o.max_multiplier < 1.0],
                 max_multiplier=[o.max_multiplier],
             )
             for o in orbits
@@ -2916,7 +2918,7 @@ def exact_solutions_at(
                     amplitude=[o.amplitude for _, o in rows],
                     first_harmonic_amplitude=[o.first_harmonic_amplitude for _, o in rows],
                     mean=[o.mean for _, o in rows],
-                    stable=[o.is_stable for _, o in rows],
+                    stable=[o.max_multiplier < 1.0 for _, o in rows],
                     max_multiplier=[o.max_multiplier for _, o in rows],
                 )
             )

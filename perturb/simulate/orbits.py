@@ -27,6 +27,10 @@ from .shooting import PeriodicOrbit, ShootingError, multiple_shooting, periodic_
 __all__ = ["periodic_orbits", "linear_segment_orbits"]
 
 _NODES = 16
+#: growth of a perturbation per multiple-shooting sub-interval of a closed-form segment orbit
+_NODE_GROWTH = 100.0
+#: beyond this many nodes (a multiplier above 100**160 = 1e320) the monodromy overflows anyway
+_MAX_SEGMENT_NODES = 160
 
 
 def linear_segment_orbits(flow: Flow) -> list[np.ndarray]:
@@ -38,10 +42,20 @@ def linear_segment_orbits(flow: Flow) -> list[np.ndarray]:
     ``x = (c - o_i)/s_i + Re(F e^{i(w t + p)} / (s_i - w^2 + i mu w))`` — an orbit of the
     whole system when it never leaves the segment.
     """
+    return [nodes[0] for nodes in _linear_segment_nodes(flow, 1)]
+
+
+def _linear_segment_nodes(flow: Flow, max_nodes: int) -> list[np.ndarray]:
+    """The orbits of :func:`linear_segment_orbits` sampled at ``N`` equally spaced times of
+    one forcing period, ``N`` (at most ``max_nodes``) chosen so that a perturbation grows by
+    at most ``_NODE_GROWTH`` per sub-interval: the saddle orbit of a negative-stiffness
+    segment grows like ``exp(lambda T)``, beyond what single shooting can correct (a factor
+    1e76 at Omega = 0.05 for nsd, k = -2), while its nodes are known in closed form."""
     system = getattr(flow, "system", None)
     if system is None or len(system.forcing) != 1:
         return []
     (F, w, ph), mu = system.forcing[0], system.damping
+    T = 2.0 * np.pi / w
     edges = np.concatenate([[-np.inf], system.breakpoints, [np.inf]])
     out = []
     for i, (s, o) in enumerate(zip(system.slopes, system.offsets, strict=True)):
@@ -50,9 +64,10 @@ def linear_segment_orbits(flow: Flow) -> list[np.ndarray]:
         Z = F / complex(s - w * w, mu * w)
         xc = (system.static_force - o) / s
         if edges[i] < xc - abs(Z) and xc + abs(Z) < edges[i + 1]:
-            out.append(
-                np.array([xc + (Z * np.exp(1j * ph)).real, (1j * w * Z * np.exp(1j * ph)).real])
-            )
+            rate = -0.5 * mu + np.sqrt(complex(0.25 * mu * mu - s)).real
+            n = int(np.clip(np.ceil(rate * T / np.log(_NODE_GROWTH)), 1, max_nodes))
+            phase = Z * np.exp(1j * (w * T * np.arange(n) / n + ph))
+            out.append(np.column_stack([xc + phase.real, (1j * w * phase).real]))
     return out
 
 
@@ -138,6 +153,12 @@ def periodic_orbits(
         bps = getattr(getattr(flow, "system", None), "breakpoints", np.array([]))
         extent = 3.0 * max(1.0, float(np.max(np.abs(bps)))) if len(bps) else 3.0
     T = flow.period
+    if T is None:  # e.g. F = 0: the harmonic load vanishes and the flow is autonomous
+        raise ParameterError(
+            f"the flow of {oscillator.name!r} at {name} = {Omega!r} has no forcing period (a "
+            "zero forcing amplitude?): periodic_orbits needs a periodic forcing; use "
+            "perturb.simulate.shooting.limit_cycle for autonomous systems"
+        )
     candidates: list[tuple[str, np.ndarray]] = []
     for x0 in np.linspace(-extent, extent, grid):
         for v0 in np.linspace(-extent, extent, grid):
@@ -147,7 +168,10 @@ def periodic_orbits(
                 continue
             candidates.append(("single", y))
     if m == 1:
-        candidates += [("single", y) for y in linear_segment_orbits(flow)]
+        candidates += [
+            ("single", nodes[0]) if len(nodes) == 1 else ("multiple", nodes)
+            for nodes in _linear_segment_nodes(flow, _MAX_SEGMENT_NODES)
+        ]
         candidates += [("multiple", g) for g in _approximation_guesses(osc, float(Omega))]
     candidates += [("single", np.asarray(g, float)) for g in guesses]
     found: list[PeriodicOrbit] = []

@@ -704,7 +704,9 @@ class _Piece:
         "seg", "t0", "x0", "v0", "w0", "w1", "n0", "n1", "th_std", "th_list", "res", "tol",
     )  # fmt: skip
 
-    def __init__(self, seg: _Segment, t0: float, x0: float, v0: float) -> None:
+    def __init__(
+        self, seg: _Segment, t0: float, x0: float, v0: float, horizon: float = math.inf
+    ) -> None:
         self.seg, self.t0, self.x0, self.v0 = seg, t0, x0, v0
         # phases reduced mod 2 pi once per piece (the closed form then uses small arguments)
         th = [math.fmod(om * t0 + ph, _TWO_PI) for _, om, ph, _, _ in seg.std]
@@ -727,16 +729,21 @@ class _Piece:
             res.append((amp * cmath.exp(1j * th0), om, th0, nu_p, nu_m, bc))
             mag_res += abs(amp) / (om * om)
         self.res = res
-        # rounding scale of the terms that make up x(tau)
-        rate = seg.rate if seg.rate > 0.0 else 1e-300
+        # rounding scale of the terms that make up x(tau), tau <= horizon: the velocity and
+        # constant-load terms grow like tau and tau**2 up to the segment's time scale 1/rate,
+        # which is unbounded for s -> 0, mu = 0 without forcing (free flight), where only the
+        # horizon bounds them
+        scale_t = min(1.0 / seg.rate if seg.rate > 0.0 else math.inf, horizon)
+        if not math.isfinite(scale_t):
+            scale_t = 1.0
         mag = (
             abs(x0)
             + abs(w0)
-            + abs(self.n0) / rate
+            + abs(self.n0) * scale_t
             + abs(seg.xc)
             + seg.p_mag
             + mag_res
-            + (abs(seg.g) / (rate * rate) if seg.const_mode == "zic" else 0.0)
+            + (abs(seg.g) * scale_t * scale_t if seg.const_mode == "zic" else 0.0)
         )
         for d in (seg.lo, seg.hi):
             if math.isfinite(d):
@@ -1030,11 +1037,12 @@ def _scan_piece(
             X[0], V[0] = piece.x0, piece.v0
             A[0] = seg.accel_at(piece.t0, piece.x0, piece.v0)
             first = False
-        if not np.isfinite(X + V).all():
-            bad = int(np.argmin(np.isfinite(X + V)))
+        finite = np.isfinite(X) & np.isfinite(V)
+        if not finite.all():
+            bad = int(np.argmin(finite))
             raise PerturbError(
                 f"the orbit escapes to infinity in segment {seg.idx} (slope {seg.s!r}) near "
-                f"t = {piece.t0 + grid[bad]!r}: floating-point overflow; shorten t_span"
+                f"t = {float(piece.t0 + grid[bad])!r}: floating-point overflow; shorten t_span"
             )
         dt = grid[1:] - grid[:-1]
         absa = np.abs(A)
@@ -1245,7 +1253,7 @@ def propagate(
     recent: list[float] = []
     while True:
         seg = model.segments[seg_i]
-        piece = _Piece(seg, t, x, v)
+        piece = _Piece(seg, t, x, v, t1 - t)
         pieces.append(piece)
         exit_, tangs = _scan_piece(piece, t1 - t, start_bp, counter)
         for tau, bp, xt, vt in tangs:
@@ -1283,7 +1291,7 @@ def propagate(
             inward = 1.0 if new_i > seg_i else -1.0
             if a_new * inward < 0.0:
                 depth = v_new * v_new / (2.0 * abs(a_new))
-                probe = _Piece(nseg, t_new, d, v_new)
+                probe = _Piece(nseg, t_new, d, v_new, t1 - t_new)
                 if depth <= _CHATTER_TOLS * probe.tol:
                     raise PerturbError(
                         f"chattering at the discontinuity x = {d!r} near t = {t_new!r}: the "
@@ -1294,7 +1302,9 @@ def propagate(
         recent.append(t_new)
         if len(recent) > 64:
             recent.pop(0)
-            if recent[-1] - recent[0] < 1e-9 * model.t_ref:
+            # (1 + |t| bounds the reference for systems without a time scale of their own:
+            # zero slopes, no damping and no forcing give t_ref = inf)
+            if recent[-1] - recent[0] < 1e-9 * min(model.t_ref, 1.0 + abs(t_new)):
                 raise PerturbError(
                     f"64 switches within {recent[-1] - recent[0]:.3g} time units near t = "
                     f"{t_new!r} (Zeno behaviour / sliding); {EVENT_DRIVEN_HINT}"

@@ -445,15 +445,18 @@ def _eigenvalues(M: np.ndarray, det: float | None = None) -> np.ndarray:
     if det is None or not math.isfinite(det):
         mu = np.linalg.eigvals(M).astype(complex)
     else:
-        tr = float(M[0, 0] + M[1, 1])
-        disc = tr * tr - 4.0 * det
-        if disc >= 0.0:
-            l1 = 0.5 * (tr + math.copysign(math.sqrt(disc), tr))
+        half = 0.5 * float(M[0, 0] + M[1, 1])
+        # (half/s)**2 - det/s**2 with s >= |half|, sqrt|det|: tr**2 itself overflows once the
+        # multiplier passes 1e154, which a saddle orbit at low forcing frequency does
+        s = max(abs(half), math.sqrt(abs(det)))
+        q = (half / s) ** 2 - (det / s) / s if s > 0.0 else 0.0
+        if q >= 0.0:
+            l1 = half + math.copysign(s * math.sqrt(q), half)
             l2 = det / l1 if l1 != 0.0 else 0.0
             mu = np.array([l1, l2], dtype=complex)
         else:
-            im = 0.5 * math.sqrt(-disc)
-            mu = np.array([complex(0.5 * tr, im), complex(0.5 * tr, -im)])
+            im = s * math.sqrt(-q)
+            mu = np.array([complex(half, im), complex(half, -im)])
     return mu[np.argsort(-np.abs(mu), kind="stable")]
 
 

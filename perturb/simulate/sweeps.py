@@ -657,13 +657,16 @@ class SweepBranch:
         return out
 
     def to_branch(self) -> Branch:
+        """The periodic steady states as a :class:`~perturb.response.Branch` (a response that
+        is not periodic, chaotic or quasi-periodic, is no periodic solution: it is left out)."""
+        keep = self.period > 0
         return Branch(
-            omega=self.omega,
-            amplitude=self.amplitude,
-            first_harmonic_amplitude=self.first_harmonic_amplitude,
-            mean=self.mean,
-            stable=np.ones(len(self.states), bool),
-            max_multiplier=self.max_multiplier,
+            omega=self.omega[keep],
+            amplitude=self.amplitude[keep],
+            first_harmonic_amplitude=self.first_harmonic_amplitude[keep],
+            mean=self.mean[keep],
+            stable=np.ones(int(keep.sum()), bool),
+            max_multiplier=self.max_multiplier[keep],
         )
 
     def __len__(self) -> int:
@@ -712,7 +715,9 @@ class SweepResult:
         branch; ``None`` gives the only direction, or for a two-way sweep method
         ``"sweep-both"`` with branch 0 the up sweep and branch 1 the down sweep.  Every point
         is ``stable`` (simulation only finds attractors); ``max_multiplier`` is the growth per
-        forcing period described in :class:`SteadyState`.
+        forcing period described in :class:`SteadyState`.  Frequencies where the response is
+        not periodic are left out of the branches and listed in ``notes``, as are subharmonic
+        responses.
         """
         if direction is None and len(self.branches) == 1:
             direction = self.branches[0].direction
@@ -724,6 +729,19 @@ class SweepResult:
             method = f"sweep-{direction}"
         notes = tuple(f"branch {i}: sweep-{b.direction}" for i, b in enumerate(chosen))
         notes += ("stable = found by simulation (attracting); max_multiplier per forcing period",)
+        for i, b in enumerate(chosen):
+            per = b.period
+            if np.any(per == 0):
+                ws = ", ".join(f"{w:.6g}" for w in b.omega[per == 0])
+                notes += (
+                    f"branch {i}: no periodic response (period <= max_period) at Omega = {ws}; "
+                    "those points are left out (chaotic or quasi-periodic motion: see the "
+                    "sweep's period column, or lyapunov_exponent)",
+                )
+            if np.any(per > 1):
+                sub = [(w, m) for w, m in zip(b.omega, per, strict=True) if m > 1]
+                ws = ", ".join(f"{w:.6g} ({m}T)" for w, m in sub)
+                notes += (f"branch {i}: subharmonic response at Omega = {ws}",)
         return Response(
             branches=tuple(b.to_branch() for b in chosen),
             method=method,
