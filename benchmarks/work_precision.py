@@ -1,0 +1,20 @@
+"""Work-precision benchmark of every frequency-response method (issue 7 item 1).
+
+Reproduce with::
+
+    cd /work/main && python benchmarks/work_precision.py --fast --out out/bench
+
+(the same as ``perturb bench --fast --out out/bench``).  Writes ``work_precision.md``,
+``work_precision.csv`` and one log-log work-precision PNG per problem into ``--out``; see
+:mod:`perturb.bench` for the problems, methods and what is timed.  ``--problems`` and
+``--methods`` (fnmatch patterns such as ``hb-exact-*``) select a subset.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from perturb.bench import main
+
+if __name__ == "__main__":
+    sys.exit(main())
