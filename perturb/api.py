@@ -89,6 +89,10 @@ def frequency_response(
 
     method_options: dict[str, Any] = {}
     if order is not None:
+        import inspect
+
+        if "order" not in inspect.signature(METHODS[method]).parameters:
+            raise ParameterError(f"order = {order!r}: method {method!r} has no expansion order")
         method_options["order"] = int(order)
     approx = METHODS[method](oscillator, **method_options)
     poly = approx.frequency_polynomial

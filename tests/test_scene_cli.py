@@ -266,3 +266,8 @@ def test_run_on_a_sweep_scene_writes_the_map(tmp_path):
     ds = load_dataset(tmp_path / "out" / "map.nc")
     assert dict(ds.sizes)["mu"] == 2 and dict(ds.sizes)["k"] == 2
     assert (tmp_path / "out" / "map.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_frc_order_for_a_method_without_one_is_a_clear_error(capsys):
+    assert main(["frc", "nsd", "--method", "hb1", "--order", "2"]) == 2
+    assert "has no expansion order" in capsys.readouterr().err
