@@ -20,6 +20,7 @@ import sympy as sp
 from .approximation import Approximation, Step
 from .errors import PerturbError
 from .fourier_symbols import DiracCoefficient, RampCoefficient, StepCoefficient
+from .methods.lindstedt import _Continued
 
 __all__ = ["expr_to_text", "expr_from_text", "approximation_to_dict", "approximation_from_dict"]
 
@@ -55,6 +56,9 @@ _CONSTRUCTORS.update(
         "false": lambda: sp.false,
         "ExprCondPair": sp.functions.elementary.piecewise.ExprCondPair,
         "AppliedUndef": None,
+        "Order": sp.Order,
+        # the engines' "continued on the next line" rows of long derivation steps
+        "_Continued": _Continued,
     }
 )
 # bare names srepr writes for singletons
@@ -136,12 +140,37 @@ def _build(node: ast.AST, depth: int = 0) -> Any:
     return _literal(node)
 
 
+_SYMPY_TAG = "__sympy__"
+
+
 def _maybe(expr: Any) -> str | None:
     return None if expr is None else expr_to_text(expr)
 
 
 def _exprs(items: Any) -> list[str] | None:
     return None if items is None else [expr_to_text(e) for e in items]
+
+
+def _option_to_json(value: Any) -> Any:
+    # Options may hold SymPy numbers or symbols (``omega0 = 1`` is a SymPy One); JSON gets them
+    # as tagged srepr text so they come back as the same objects, not as floats or strings.
+    if isinstance(value, sp.Basic):
+        return {_SYMPY_TAG: expr_to_text(value)}
+    if isinstance(value, list | tuple):
+        return [_option_to_json(v) for v in value]
+    if isinstance(value, Mapping):
+        return {str(k): _option_to_json(v) for k, v in value.items()}
+    return value
+
+
+def _option_from_json(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        if set(value) == {_SYMPY_TAG}:
+            return expr_from_text(value[_SYMPY_TAG])
+        return {k: _option_from_json(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return tuple(_option_from_json(v) for v in value)
+    return value
 
 
 def approximation_to_dict(approx: Approximation) -> dict[str, Any]:
@@ -155,7 +184,7 @@ def approximation_to_dict(approx: Approximation) -> dict[str, Any]:
             "params": dict(osc.params),
         },
         "method": approx.method,
-        "options": {k: v for k, v in approx.options.items()},
+        "options": {k: _option_to_json(v) for k, v in approx.options.items()},
         "unknowns": _exprs(approx.unknowns),
         "residuals": _exprs(approx.residuals),
         "waveform": expr_to_text(approx.waveform),
@@ -196,7 +225,9 @@ def approximation_from_dict(data: Mapping[str, Any], oscillator) -> Approximatio
     return Approximation(
         oscillator=oscillator,
         method=str(data["method"]),
-        options=MappingProxyType(dict(data.get("options", {}))),
+        options=MappingProxyType(
+            {k: _option_from_json(v) for k, v in data.get("options", {}).items()}
+        ),
         unknowns=many("unknowns") or (),
         residuals=many("residuals") or (),
         waveform=one("waveform"),

@@ -103,3 +103,22 @@ def test_derive_command_writes_latex_and_json(tmp_path, monkeypatch, capsys):
     assert main(["derive", "hb1", "nsd", "--order", "2"]) == 2
     assert "no --order" in capsys.readouterr().err
     assert main(["derive", "nope", "nsd"]) == 2
+
+
+def test_json_round_trip_keeps_sympy_options(tmp_path, monkeypatch):
+    # modified L-P stores omega0 as a SymPy number; `perturb derive mlp nsd --json` used to
+    # crash on it.  The file must read back to the same options and expressions.
+    monkeypatch.setenv("PERTURB_CACHE_DIR", str(tmp_path / "cache"))
+    js = tmp_path / "mlp.json"
+    assert main(["derive", "mlp", "nsd", "--order", "1", "--json", str(js)]) == 0
+    data = json.loads(js.read_text())
+    osc = builtin_model("nsd")
+    back = approximation_from_dict(data, osc)
+    assert back.options["omega0"] == sp.Integer(1)
+    assert isinstance(back.options["omega0"], sp.Basic)
+    assert back.options["order"] == 1
+    from perturb.methods import modified_lindstedt
+
+    fresh = modified_lindstedt(osc, 1)
+    assert back.frequency_polynomial == fresh.frequency_polynomial
+    assert dict(back.options) == dict(fresh.options)
