@@ -508,9 +508,8 @@ def test_tiny_damping_propagation_matches_oracle():
 def test_tiny_damping_orbits_and_their_stability():
     """mu = 1e-6, Omega = 10: the saddle orbit (|x| < 1) and the two well orbits are linear
     segment orbits (closed form).  The well orbits are stable with |multipliers| =
-    exp(-mu T/2) = 1 - 3e-7: within unit_tol of the unit circle, so shooting labels them
-    'neimark-sacker'; the response must still call them stable (max |mu| < 1), as traced
-    branches do.  Regression: exact_solutions_at reported them unstable."""
+    exp(-mu T/2) = 1 - 3e-7: within unit_tol of the unit circle, yet stable (max |mu| < 1),
+    as traced branches say.  Regression: exact_solutions_at reported them unstable."""
     k, mu, F, W = -2.0, 1e-6, 2.0, 10.0
     T = TWO_PI / W
     osc = builtin_model("nsd", k=k, mu=mu, F=F)

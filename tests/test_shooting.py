@@ -508,6 +508,9 @@ def test_orbit_is_frozen_printable_and_serialisable(nsd_flow):
         ([1.0 + 1e-8, 0.3], False, "fold"),
         ([-1.0 + 1e-9, 0.3], False, "period-doubling"),
         ([np.exp(0.7j), np.exp(-0.7j)], False, "neimark-sacker"),
+        ([(1 + 1e-8) * np.exp(0.7j), (1 + 1e-8) * np.exp(-0.7j)], False, "neimark-sacker"),
+        # lightly damped forced orbit: |mu| = exp(-mu T/2) = 1 - 3e-7, within unit_tol, stable
+        ([(1 - 3e-7) * np.exp(0.7j), (1 - 3e-7) * np.exp(-0.7j)], False, "stable"),
         ([1.0, 0.4], True, "stable"),
         ([1.0, 3.0], True, "unstable"),
         ([1.0, -1.0], True, "period-doubling"),
@@ -591,3 +594,20 @@ def test_shooting_never_returns_nan(nsd_flow, x, v):
     # the flow closes the orbit: re-propagate independently of the solver's bookkeeping
     end = propagate(nsd_flow.system, orb.y0, (0.0, orb.period))
     assert abs(end.x[-1] - orb.y0[0]) + abs(end.v[-1] - orb.y0[1]) <= 1e-6 * scale
+
+
+def test_two_by_two_newton_direction_matches_lapack():
+    # single shooting solves 2x2 systems by Cramer's rule with the exact condition number;
+    # oracle: LAPACK (np.linalg.solve), and lstsq for an exactly singular matrix
+    from perturb.simulate.shooting import _solve
+
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        J = rng.normal(size=(2, 2)) * 10.0 ** rng.uniform(-3, 3)
+        r = rng.normal(size=2)
+        cond = np.linalg.cond(J)
+        # both are backward stable: they differ by ~cond * eps
+        np.testing.assert_allclose(_solve(J, r), np.linalg.solve(J, r), rtol=1e-13 * cond, atol=0)
+    S = np.array([[1.0, 2.0], [2.0, 4.0]])
+    r = np.array([1.0, 0.5])
+    np.testing.assert_allclose(_solve(S, r), np.linalg.lstsq(S, r, rcond=None)[0], rtol=1e-12)

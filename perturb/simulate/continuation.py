@@ -110,6 +110,7 @@ Exact frequency response
 
 from __future__ import annotations
 
+import cmath
 import math
 import time
 from collections import OrderedDict
@@ -125,7 +126,6 @@ from scipy.optimize import brentq
 
 from ..errors import ParameterError, PerturbError
 from ..model import Oscillator
-from ..numeric.floquet import expm2
 from ..progress import Progress
 from ..response import Branch, Response
 from .flow import FlowFamily, ODEFlow
@@ -752,48 +752,57 @@ class _Engine:
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """Sensitivity ``d y(tb) / d y(ta)`` (continuous force) and, on request, the exact
         parameter rate ``d phi / dp`` at fixed times (frequency parameter), from the
-        trajectory's pieces; see the module docstring."""
+        trajectory's pieces; see the module docstring.  Scalar arithmetic throughout: a node
+        interval has a handful of pieces, where array code is mostly call overhead."""
         sys_ = flow.system
-        mu = sys_.damping
+        mu = float(sys_.damping)
         pieces = traj.pieces
         n = len(pieces)
-        a = np.fromiter((q.t0 for q in pieces), float, n)
-        b = np.append(a[1:], tb)
-        segs = np.fromiter((q.segment for q in pieces), int, n)
-        s = sys_.slopes[segs]
-        E = expm2(mu, s, b - a)
-        M = E[0]
-        for k in range(1, n):
-            M = E[k] @ M
+        E = traj.transition_matrices()
+        m00, m01, m10, m11 = E[0]
+        for e00, e01, e10, e11 in E[1:]:
+            m00, m01, m10, m11 = (
+                e00 * m00 + e01 * m10,
+                e00 * m01 + e01 * m11,
+                e10 * m00 + e11 * m10,
+                e10 * m01 + e11 * m11,
+            )
+        M = np.array([[m00, m01], [m10, m11]])
         if not want_rate:
             return M, None
-        inc0 = np.zeros(n)
-        inc1 = np.zeros(n)
+        a = [q.t0 for q in pieces]
+        b = a[1:] + [float(tb)]
+        slopes = [float(sys_.slopes[q.segment]) for q in pieces]
+        inc0 = [0.0] * n
+        inc1 = [0.0] * n
         for (F, w, ph), dw in zip(sys_.forcing, self._dw, strict=True):
             if F == 0.0:
                 continue
-            det = s - w * w + 1j * mu * w
-            if np.any(np.abs(det) < 1e-12 * (np.abs(s) + w * w)):
-                return M, None  # undamped resonance in a segment: no particular solution
-            c = 1j * F * dw * np.exp(1j * ph) / det
-            # zeta_p(t) = Re[(R t - R^2) e2 c' e^{iwt}], R e2 = (1, iw)/det,
-            # R^2 e2 = (2iw + mu, -s - w^2)/det^2  (c' = c det)
-            ea, eb = np.exp(1j * w * a), np.exp(1j * w * b)
-            q0 = (2j * w + mu) / det
-            q1 = (-s - w * w) / det
-            za0 = c * (a - q0) * ea
-            za1 = c * (1j * w * a - q1) * ea
-            zb0 = c * (b - q0) * eb
-            zb1 = c * (1j * w * b - q1) * eb
-            inc0 += (zb0 - E[:, 0, 0] * za0 - E[:, 0, 1] * za1).real
-            inc1 += (zb1 - E[:, 1, 0] * za0 - E[:, 1, 1] * za1).real
+            cF = 1j * F * float(dw) * cmath.exp(1j * ph)
+            ww = w * w
+            for k in range(n):
+                sk = slopes[k]
+                det = complex(sk - ww, mu * w)
+                if abs(det) < 1e-12 * (abs(sk) + ww):
+                    return M, None  # undamped resonance in a segment: no particular solution
+                c = cF / det
+                # zeta_p(t) = Re[(R t - R^2) e2 c' e^{iwt}], R e2 = (1, iw)/det,
+                # R^2 e2 = (2iw + mu, -s - w^2)/det^2  (c' = c det)
+                ak, bk = a[k], b[k]
+                ea, eb = cmath.exp(1j * w * ak), cmath.exp(1j * w * bk)
+                q0 = (2j * w + mu) / det
+                q1 = (-sk - ww) / det
+                za0 = c * (ak - q0) * ea
+                za1 = c * (1j * w * ak - q1) * ea
+                zb0 = c * (bk - q0) * eb
+                zb1 = c * (1j * w * bk - q1) * eb
+                e00, e01, e10, e11 = E[k]
+                inc0[k] += (zb0 - e00 * za0 - e01 * za1).real
+                inc1[k] += (zb1 - e10 * za0 - e11 * za1).real
         z0 = z1 = 0.0
         for k in range(n):
-            Ek = E[k]
-            z0, z1 = (
-                Ek[0, 0] * z0 + Ek[0, 1] * z1 + inc0[k],
-                Ek[1, 0] * z0 + Ek[1, 1] * z1 + inc1[k],
-            )
+            e00, e01, e10, e11 = E[k]
+            z0, z1 = e00 * z0 + e01 * z1 + inc0[k], e10 * z0 + e11 * z1 + inc1[k]
         if not (math.isfinite(z0) and math.isfinite(z1)):
             return M, None
         return M, np.array([z0, z1])
@@ -859,12 +868,8 @@ class _Engine:
                 h = tb - ta
                 ya, yb = X[:, a_i], X[:, b_i]
                 if system is not None:
-                    acc = (
-                        system.load(np.array([ta, tb]))
-                        - system.damping * np.array([ya[1], yb[1]])
-                        - system.force(np.array([ya[0], yb[0]]))
-                    )
-                    aa, ab = float(acc[0]), float(acc[1])
+                    aa = float(system.rhs(float(ta), ya)[1])
+                    ab = float(system.rhs(float(tb), yb)[1])
                 else:
                     aa = float(flow.vector_field(ta, ya)[1])
                     ab = float(flow.vector_field(tb, yb)[1])

@@ -8,7 +8,7 @@ Sensitivity
 Inside segment :math:`i` the variational equation is linear with constant coefficients,
 :math:`\dot{\delta y} = A_i\,\delta y`, :math:`A_i = \begin{pmatrix}0 & 1\\ -s_i & -\mu
 \end{pmatrix}` (the forcing does not enter), so a piece of duration :math:`h` contributes the
-exact matrix exponential :math:`e^{A_i h}` (:func:`perturb.numeric.floquet.expm2`).  Where the
+exact matrix exponential :math:`e^{A_i h}` (the propagator's closed form).  Where the
 orbit crosses a breakpoint :math:`x = d` transversally (:math:`v \ne 0`) from segment :math:`i`
 into segment :math:`j`, the perturbed orbit crosses at a slightly different time, and the
 sensitivity picks up the saltation matrix
@@ -42,7 +42,6 @@ from numpy.typing import ArrayLike
 
 from ..errors import ParameterError, PerturbError
 from ..model import Oscillator
-from ..numeric.floquet import expm2
 from .flow import FlowResult
 from .piecewise_exact import PWLSystem, Trajectory, propagate
 from .system import to_pwl_system
@@ -204,13 +203,12 @@ class ExactPWLFlow:
     def _sensitivity(self, traj: Trajectory) -> np.ndarray:
         sys_ = self.system
         pieces = traj.pieces
-        starts = np.array([p.t0 for p in pieces] + [traj.t_span[1]])
-        segs = np.array([p.segment for p in pieces])
-        # all piece propagators in one vectorised closed-form call
-        steps = expm2(sys_.damping, sys_.slopes[segs], np.diff(starts))
-        M = steps[0]
+        steps = traj.transition_matrices()
+        # 2x2 products in scalar arithmetic: a period has a handful of pieces, for which
+        # numpy's per-call overhead would dominate
+        m00, m01, m10, m11 = steps[0]
         for k in range(1, len(pieces)):
-            before, after = int(segs[k - 1]), int(segs[k])
+            before, after = pieces[k - 1].segment, pieces[k].segment
             if before != after:
                 # a switch (a "touch" that starts a new piece in the same segment is not)
                 b = min(before, after)  # breakpoint index between adjacent segments
@@ -226,9 +224,17 @@ class ExactPWLFlow:
                     da = (sys_.slopes[before] - sys_.slopes[after]) * d + (
                         sys_.offsets[before] - sys_.offsets[after]
                     )
-                    S = np.array([[1.0, 0.0], [da / v, 1.0]])
-                    M = S @ M
-            M = steps[k] @ M
+                    # S = [[1, 0], [da / v, 1]]
+                    g = float(da) / v
+                    m10, m11 = m10 + g * m00, m11 + g * m01
+            e00, e01, e10, e11 = steps[k]
+            m00, m01, m10, m11 = (
+                e00 * m00 + e01 * m10,
+                e00 * m01 + e01 * m11,
+                e10 * m00 + e11 * m10,
+                e10 * m01 + e11 * m11,
+            )
+        M = np.array([[m00, m01], [m10, m11]])
         if not np.all(np.isfinite(M)):
             raise PerturbError(
                 f"the sensitivity over {traj.t_span!r} overflows (non-finite monodromy): "

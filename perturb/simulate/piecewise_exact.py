@@ -61,10 +61,18 @@ divided difference otherwise.  This reproduces :math:`x = g\tau/\mu + \dots` for
 
 Switching
 ---------
-In a segment the orbit is scanned on a uniform grid of ``16`` steps per shortest time scale
-(forcing periods, damped period, :math:`1/|\lambda|`), evaluated with numpy in one shot per
-chunk.  A step is examined in detail only if the boundary could be reached inside it: with
-:math:`\hat g = \pm(x - d) > 0` inside, a step is flagged when
+In a segment the orbit is scanned with steps of at most ``h`` = 1/16 of the shortest time
+scale (forcing periods, damped period, :math:`1/|\lambda|`), in scalar closed-form
+evaluations.  From each node an *exclusion step* comes first: with the distance
+:math:`\hat g` to a boundary, its rate :math:`\hat g'` and a rigorous bound :math:`A` of
+:math:`|a|` ahead (the damped-cosine amplitude of the homogeneous part times
+:math:`e^{p\tau}` plus :math:`\sum\omega_j^2|Z_j|`; monotone exponentials for real roots),
+:math:`\hat g(\tau + s) \ge \hat g + \hat g' s - A s^2/2`, so no crossing and no tangency
+lies where that stays above ``2 tol``; when this stretch is longer than ``h`` the scan jumps
+over it (quasi-static motion deep inside a segment costs a few evaluations instead of a
+grid).  Otherwise one grid step is taken.  A step is examined in detail only if the
+boundary could be reached inside it: with :math:`\hat g = \pm(x - d) > 0` inside, a step is
+flagged when
 :math:`\min(\hat g_k, \hat g_{k+1}) \le \max(|a_k|, |a_{k+1}|) h^2/4 + \text{tol}`
 (an interior minimum :math:`\le 0` forces :math:`\min \le A h^2/8`).  In a flagged step the
 extrema of :math:`x` (roots of :math:`v`; two of them when the acceleration changes sign and
@@ -100,9 +108,9 @@ Limitations
 
 from __future__ import annotations
 
+import bisect
 import cmath
 import math
-import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -130,8 +138,6 @@ _SERIES_TERMS = 22
 _CONST_COND = 1.0e3
 #: a harmonic is treated as resonant when a root lies within this fraction of omega of i*omega
 _RESONANCE_BAND = 0.25
-#: first and largest number of grid steps evaluated at once
-_CHUNK_FIRST, _CHUNK_MAX = 32, 1024
 #: tangency tolerance, in rounding units of the magnitude of the terms of x(t)
 _TOL_ULPS = 32.0
 #: an excursion across a discontinuity shallower than this many tol is treated as chattering
@@ -167,6 +173,18 @@ def _finite_vector(name: str, value: ArrayLike) -> np.ndarray:
         raise ParameterError(f"{name} = {arr.tolist()!r}: expected finite values")
     arr.setflags(write=False)
     return arr
+
+
+def _pair(value: object) -> tuple[float, float]:
+    """Two floats from a length-2 sequence or array (NaN when it is not one: the caller then
+    validates the value properly, with a message)."""
+    if isinstance(value, np.ndarray) and value.shape != (2,):
+        return math.nan, math.nan
+    try:
+        a, b = value  # type: ignore[misc]
+        return float(a), float(b)
+    except (TypeError, ValueError):
+        return math.nan, math.nan
 
 
 # --------------------------------------------------------------------------------------------
@@ -288,6 +306,34 @@ class PWLSystem:
             off.append(off[-1] + (sl[i] - sl[i + 1]) * d)
         return cls(bp, sl, np.array(off), **kwargs)  # type: ignore[arg-type]
 
+    def with_forcing(self, forcing: Sequence[tuple[float, float, float]]) -> PWLSystem:
+        """The same force, damping and static load with other harmonic loads.
+
+        Frequency sweeps and continuation build thousands of systems that differ only in the
+        forcing; this skips re-validating the (already validated, read-only) force arrays."""
+        out = object.__new__(PWLSystem)
+        for name in ("breakpoints", "slopes", "offsets", "damping", "static_force"):
+            object.__setattr__(out, name, getattr(self, name))
+        terms = []
+        for term in forcing:
+            try:
+                amp, om, ph = (float(z) for z in term)
+            except (TypeError, ValueError):
+                amp = om = ph = math.nan
+            if not (math.isfinite(amp) and math.isfinite(om) and math.isfinite(ph) and om > 0):
+                # the full constructor names the bad value
+                return PWLSystem(
+                    self.breakpoints,
+                    self.slopes,
+                    self.offsets,
+                    damping=self.damping,
+                    forcing=tuple(forcing),
+                    static_force=self.static_force,
+                )
+            terms.append((amp, om, ph))
+        object.__setattr__(out, "forcing", tuple(terms))
+        return out
+
     # -- queries -------------------------------------------------------------------------------
     @property
     def n_segments(self) -> int:
@@ -328,6 +374,12 @@ class PWLSystem:
     def rhs(self, t: float, y: ArrayLike) -> np.ndarray:
         r"""First-order right-hand side :math:`(v,\ c + \text{forcing} - \mu v - f(x))`."""
         x, v = np.asarray(y, dtype=float)[:2]
+        if np.ndim(t) == 0 and np.ndim(x) == 0:
+            # one state (shooting, root refinement): the segment's scalar field
+            model = _model_of(self)
+            x, v, tt = float(x), float(v), float(t)
+            seg = model.segments[bisect.bisect_right(model.bp_list, x)]
+            return np.array([v, seg.accel_at(tt, x, v)])
         return np.array([v, self.load(t) - self.damping * v - self.force(x)], dtype=float)
 
     # -- identity -------------------------------------------------------------------------------
@@ -468,16 +520,50 @@ class Trajectory:
             or np.any(ta > t1 + 1e-12 * span)
         ):
             raise ParameterError(f"t outside t_span = {self.t_span!r}: expected t0 <= t <= t1")
-        starts = np.array([p.t0 for p in self._evaluators])
+        pieces = self._evaluators
+        starts = self.__dict__.get("_starts")
+        if starts is None:
+            starts = np.array([p.t0 for p in pieces])
+            object.__setattr__(self, "_starts", starts)
         idx = np.clip(np.searchsorted(starts, ta, side="right") - 1, 0, len(starts) - 1)
         out = np.empty((2, ta.size))
-        for k in np.unique(idx):
-            sel = idx == k
-            piece = self._evaluators[k]
-            xk, vk = piece.eval(ta[sel] - piece.t0)
-            out[0, sel] = xk
-            out[1, sel] = vk
+        if ta.size == 1:
+            # a single time (root refinement of extrema): scalar closed form, no array work
+            piece = pieces[int(idx[0])]
+            out[0, 0], out[1, 0] = piece.eval1(float(ta[0]) - piece.t0)[:2]
+        elif ta.size and np.all(idx[1:] >= idx[:-1]):
+            # sorted times: each piece owns one contiguous slice
+            cuts = np.flatnonzero(idx[1:] != idx[:-1]) + 1
+            lo_ = 0
+            for hi_ in (*cuts.tolist(), ta.size):
+                piece = pieces[int(idx[lo_])]
+                out[0, lo_:hi_], out[1, lo_:hi_] = piece.eval(ta[lo_:hi_] - piece.t0)
+                lo_ = hi_
+        else:
+            for k in np.unique(idx):
+                sel = idx == k
+                piece = pieces[k]
+                xk, vk = piece.eval(ta[sel] - piece.t0)
+                out[0, sel] = xk
+                out[1, sel] = vk
         return out[:, 0] if scalar else out
+
+    def transition_matrices(self) -> list[tuple[float, float, float, float]]:
+        r"""The exact :math:`e^{A_k h_k}` of every piece, row-major ``(m00, m01, m10, m11)``.
+
+        :math:`e^{A h} = e^{ph}(C I + S N)` with the closed-form ``(C, S)`` of the propagator
+        (module docstring), evaluated in scalar arithmetic: for the handful of pieces of one
+        forcing period this is several times cheaper than array code."""
+        pieces = self._evaluators
+        ends = [p.t0 for p in pieces[1:]]
+        ends.append(self.t_span[1])
+        out = []
+        for p, t_end in zip(pieces, ends, strict=True):
+            seg = p.seg
+            ec, es = seg.ecs1(t_end - p.t0)
+            hm = seg.half_mu * es
+            out.append((ec + hm, es, -seg.s * es, ec - hm))
+        return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -520,7 +606,7 @@ class _Segment:
     __slots__ = (
         "idx", "s", "o", "mu", "half_mu", "g", "p", "q", "kind", "beta", "lam1", "lam2",
         "lam_bound", "const_mode", "xc", "std", "res", "harm", "h", "lo", "hi", "lo_bp",
-        "hi_bp", "std_F", "std_om", "std_phi", "std_P", "std_Q", "rate", "p_mag",
+        "hi_bp", "rate", "p_mag", "a_part", "bounded",
     )  # fmt: skip
 
     def __init__(
@@ -577,11 +663,11 @@ class _Segment:
                 den = dr * dr + di * di
                 self.std.append((amp, om, ph, amp * dr / den, amp * di / den))
         self.harm = tuple(forcing)
-        self.std_F = np.array([t[0] for t in self.std])
-        self.std_om = np.array([t[1] for t in self.std])
-        self.std_phi = np.array([t[2] for t in self.std])
-        self.std_P = np.array([t[3] for t in self.std])
-        self.std_Q = np.array([t[4] for t in self.std])
+        # |x_p''| <= sum omega^2 |Z| over the standard harmonics (resonant ones: per piece);
+        # with the zero-IC constant load there is no cheap bound on |a| and the scan uses its
+        # grid
+        self.a_part = sum(om * om * math.hypot(P, Q) for _, om, _, P, Q in self.std)
+        self.bounded = self.const_mode != "zic"
 
         rates = [om for _, om, _ in forcing]
         rates.append(self.lam_bound)
@@ -701,16 +787,19 @@ class _Piece:
     """Closed-form solution in one segment from (x0, v0) at t0 (internal)."""
 
     __slots__ = (
-        "seg", "t0", "x0", "v0", "w0", "w1", "n0", "n1", "th_std", "th_list", "res", "tol",
+        "seg", "t0", "x0", "v0", "w0", "w1", "n0", "n1", "th_list", "res", "tol", "al", "ga",
+        "a_hom", "a_extra", "bounded", "memo",
     )  # fmt: skip
 
     def __init__(
         self, seg: _Segment, t0: float, x0: float, v0: float, horizon: float = math.inf
     ) -> None:
         self.seg, self.t0, self.x0, self.v0 = seg, t0, x0, v0
+        # the last scalar evaluation: a root is evaluated again by the caller (state at the
+        # switch, grazing depth)
+        self.memo: tuple[float, tuple[float, float, float, float]] = (math.nan, (0.0,) * 4)
         # phases reduced mod 2 pi once per piece (the closed form then uses small arguments)
         th = [math.fmod(om * t0 + ph, _TWO_PI) for _, om, ph, _, _ in seg.std]
-        self.th_std = np.array(th)
         self.th_list = th
         xp = vp = 0.0
         for (_, om, _, P, Q), thk in zip(seg.std, th, strict=True):
@@ -722,12 +811,35 @@ class _Piece:
         self.w0, self.w1 = w0, w1
         self.n0 = seg.half_mu * w0 + w1
         self.n1 = -seg.s * w0 - seg.half_mu * w1
+        # homogeneous acceleration a_h = ec * al + es * ga (x_h'' = -s x_h - mu v_h); for
+        # complex roots |a_h| <= e^{p tau} a_hom, the amplitude of the damped cosine
+        self.al = -seg.s * w0 - seg.mu * w1
+        self.ga = -seg.s * self.n0 - seg.mu * self.n1
+        self.a_hom = math.hypot(self.al, self.ga / seg.beta) if seg.kind < 0 else math.inf
         res = []
         mag_res = 0.0
+        self.a_extra = 0.0
+        self.bounded = seg.bounded
         for amp, om, ph, nu_p, nu_m, bc in seg.res:
             th0 = math.fmod(om * t0 + ph, _TWO_PI)
-            res.append((amp * cmath.exp(1j * th0), om, th0, nu_p, nu_m, bc))
+            G = amp * cmath.exp(1j * th0)
+            res.append((G, om, th0, nu_p, nu_m, bc))
             mag_res += abs(amp) / (om * om)
+            # for the bound on |a| only: the zero-IC response is the steady state Re(Z e^{iwt})
+            # minus the free motion from its initial state (exact whenever delta != 0; the
+            # closed form above avoids its cancellation, the bound need not)
+            delta = complex(seg.s - om * om, seg.mu * om)
+            if delta == 0.0:
+                self.bounded = False
+                continue
+            Z = G / delta
+            u0, u1 = Z.real, (1j * om * Z).real
+            m0 = seg.half_mu * u0 + u1
+            m1 = -seg.s * u0 - seg.half_mu * u1
+            self.a_hom += math.hypot(
+                -seg.s * u0 - seg.mu * u1, (-seg.s * m0 - seg.mu * m1) / seg.beta
+            )
+            self.a_extra += om * om * abs(Z)
         self.res = res
         # rounding scale of the terms that make up x(tau), tau <= horizon: the velocity and
         # constant-load terms grow like tau and tau**2 up to the segment's time scale 1/rate,
@@ -789,6 +901,9 @@ class _Piece:
 
     def eval1(self, tau: float) -> tuple[float, float, float, float]:
         """Scalar x, v, a, da/dt at local time tau (pure Python math: fast in root finders)."""
+        memo = self.memo
+        if memo[0] == tau:
+            return memo[1]
         seg = self.seg
         ec, es = seg.ecs1(tau)
         x = ec * self.w0 + es * self.n0
@@ -819,7 +934,9 @@ class _Piece:
             force += z.real
             dforce -= om * z.imag
         a = force - seg.mu * v - seg.s * x
-        return x, v, a, dforce - seg.mu * a - seg.s * v
+        out = (x, v, a, dforce - seg.mu * a - seg.s * v)
+        self.memo = (tau, out)
+        return out
 
     def x1(self, tau: float) -> float:
         return self.eval1(tau)[0]
@@ -827,11 +944,12 @@ class _Piece:
     def v1(self, tau: float) -> float:
         return self.eval1(tau)[1]
 
-    def va1(self, tau: float) -> tuple[float, float]:
-        return self.eval1(tau)[1:3]
+    def va1(self, tau: float) -> tuple[float, float, float]:
+        return self.eval1(tau)[1:4]
 
-    def aj1(self, tau: float) -> tuple[float, float]:
-        return self.eval1(tau)[2:4]
+    def aj1(self, tau: float) -> tuple[float, float, float]:
+        _, _, a, j = self.eval1(tau)
+        return a, j, math.nan
 
 
 # --------------------------------------------------------------------------------------------
@@ -852,12 +970,14 @@ class _Counter:
 def _root_newton(fdf, a: float, b: float, sa: int, fa: float, fb: float, counter: _Counter):
     """Safeguarded Newton–bisection root of ``f`` in the bracket (a, b), ``f' `` exact.
 
-    ``fdf(t)`` returns ``(f, f')``; ``sa`` is the sign of f just after ``a`` (f changes sign
-    in the bracket).  Each Newton step that would leave the current bracket, or not halve the
-    step before last, is replaced by bisection, so the iteration never leaves the bracket and
-    converges at least linearly; near the root it is quadratic (closed-form derivative), which
-    needs about half the closed-form evaluations of brentq.  Stops when the step is below
-    ``4 eps |t|`` (full double precision of the local time).
+    ``fdf(t)`` returns ``(f, f', f'')`` (``f''`` may be NaN: unknown); ``sa`` is the sign
+    of f just after ``a`` (f changes sign in the bracket).  Each Newton step that would leave
+    the current bracket, or not halve the step before last, is replaced by bisection, so the
+    iteration never leaves the bracket and converges at least linearly; near the root it is
+    quadratic (closed-form derivative), which needs about half the closed-form evaluations of
+    brentq.  Stops when the step is below
+    ``4 eps |t|`` (full double precision of the local time), or when the quadratic error
+    estimate ``|f''/(2f')| dx^2`` of the new iterate is (saves the confirming evaluation).
     """
     counter.roots += 1
     lo, hi = (a, b) if sa < 0 else (b, a)  # f(lo) < 0 < f(hi)
@@ -870,7 +990,7 @@ def _root_newton(fdf, a: float, b: float, sa: int, fa: float, fb: float, counter
     width = abs(b - a)
     dx_old = dx = width
     for _ in range(200):
-        f, df = fdf(t)
+        f, df, d2f = fdf(t)
         if f == 0.0:
             return t
         if f < 0.0:
@@ -887,6 +1007,10 @@ def _root_newton(fdf, a: float, b: float, sa: int, fa: float, fb: float, counter
             t_new = lo_ + dx
         else:
             dx_old, dx = dx, t - t_new
+            # quadratic convergence: the error of t_new is ~ |f''/(2 f')| dx^2; below the
+            # resolution of t (with a safety factor 10) no further evaluation is needed
+            if 10.0 * abs(d2f) * dx * dx <= 2.0 * tol * abs(df):
+                return t_new
         if abs(dx) <= tol or hi_ - lo_ <= tol:
             return t_new
         t = t_new
@@ -962,9 +1086,9 @@ def _analyze_step(
     for d, sig, bp in bounds:
         G = [sig * (xx - d) for xx in xs]
 
-        def ghat(t: float, d: float = d, sig: int = sig) -> tuple[float, float]:
-            xt, vt, _, _ = piece.eval1(t)
-            return sig * (xt - d), sig * vt
+        def ghat(t: float, d: float = d, sig: int = sig) -> tuple[float, float, float]:
+            xt, vt, at, _ = piece.eval1(t)
+            return sig * (xt - d), sig * vt, sig * at
 
         for j in range(n_last):
             u, w, gu, gw = nodes[j], nodes[j + 1], G[j], G[j + 1]
@@ -1000,13 +1124,63 @@ def _analyze_step(
     return best, tangs
 
 
+def _accel_bound(piece: _Piece, ta: float, tb: float) -> float:
+    """An upper bound of ``|a(tau)|`` for ``ta <= tau <= tb`` (``inf`` when none is known).
+
+    ``a = a_h + a_p``: the particular part is bounded by ``seg.a_part``; the homogeneous part
+    ``ec(tau) al + es(tau) ga`` by the closed forms of ``ec``, ``es`` (``p <= 0`` always):
+    ``e^{p tau}`` times the damped-cosine amplitude for complex roots, the monotone
+    exponentials at the ends of the interval otherwise (with ``sinh(x)/x <= cosh(x)``)."""
+    seg = piece.seg
+    if seg.kind < 0:
+        return math.exp(seg.p * ta) * piece.a_hom + seg.a_part + piece.a_extra
+    al, ga = abs(piece.al), abs(piece.ga)
+    if seg.kind == 0:
+        return math.exp(seg.p * ta) * (al + ga * tb) + seg.a_part
+    lam1 = seg.lam1
+    try:
+        e1 = math.exp(lam1 * (tb if lam1 > 0.0 else ta))
+    except OverflowError:
+        return math.inf
+    ec = 0.5 * (e1 + math.exp(seg.lam2 * ta))
+    es = min(tb * ec, e1 / (2.0 * seg.beta))
+    return ec * al + es * ga + seg.a_part
+
+
+def _safe_length(g: float, gp: float, amax: float, margin: float) -> float:
+    """A stretch ``(0, L]`` on which the distance ``g(h) >= g + gp h - amax h^2 / 2`` to a
+    boundary can neither reach it nor have a minimum within ``margin`` of it (0 if none).
+
+    Normally the quadratic bound stays above ``margin`` there.  Leaving the boundary
+    (``0 <= g <= margin``, ``gp > 0``), ``g`` increases while ``h < gp / amax`` (``|g''| <=
+    amax``), so the stretch reaches the larger root even though it starts below ``margin``.
+    """
+    c = g - margin
+    if c <= 0.0 and not (gp > 0.0 and g >= 0.0):
+        return 0.0
+    if amax <= 0.0:
+        return math.inf if gp >= 0.0 else c / -gp
+    disc2 = gp * gp + 2.0 * amax * c
+    if disc2 <= 0.0:
+        return 0.0
+    disc = math.sqrt(disc2)
+    # the two forms of the positive root avoid cancellation for either sign of gp
+    return (gp + disc) / amax if gp >= 0.0 else 2.0 * c / (disc - gp)
+
+
 def _scan_piece(
     piece: _Piece,
     tau_end: float,
     start_bp: int | None,
     counter: _Counter,
 ) -> tuple[tuple[float, int] | None, list[tuple[float, int, float, float]]]:
-    """First exit of the piece before ``tau_end`` and the tangencies on the way."""
+    """First exit of the piece before ``tau_end`` and the tangencies on the way.
+
+    From every node the distance to each boundary, its rate and a bound ``amax`` of
+    ``|a|`` give a stretch on which the distance provably stays above ``2 tol``
+    (Taylor with the remainder bounded by ``amax``): no crossing and no tangency can lie
+    there, and the scan jumps over it.  Otherwise it takes one grid step (``seg.h``) and
+    examines it as described in the module docstring."""
     seg = piece.seg
     bounds: list[tuple[float, int, int]] = []
     if math.isfinite(seg.lo):
@@ -1020,64 +1194,75 @@ def _scan_piece(
     # a piece that starts on a boundary has "just touched" it: suppress a tangency at tau = 0
     last_tan: dict[int, float] = {} if start_bp is None else {start_bp: 0.0}
     tangs_all: list[tuple[float, int, float, float]] = []
-    tau0 = 0.0
-    chunk = _CHUNK_FIRST
-    first = True
-    while tau0 < tau_end:
-        n = chunk
-        grid = tau0 + h * np.arange(n + 1, dtype=float)
-        if grid[-1] >= tau_end:
-            grid = grid[grid < tau_end]
-            grid = np.append(grid, tau_end)
-        with np.errstate(over="ignore", invalid="ignore"):
-            X, V, A = piece.eval(grid, accel=True)
-        counter.grid += grid.size
-        if first:
-            # the exact initial state, not its re-evaluation (rounding could flip signs)
-            X[0], V[0] = piece.x0, piece.v0
-            A[0] = seg.accel_at(piece.t0, piece.x0, piece.v0)
-            first = False
-        finite = np.isfinite(X) & np.isfinite(V)
-        if not finite.all():
-            bad = int(np.argmin(finite))
-            raise PerturbError(
-                f"the orbit escapes to infinity in segment {seg.idx} (slope {seg.s!r}) near "
-                f"t = {float(piece.t0 + grid[bad])!r}: floating-point overflow; shorten t_span"
-            )
-        dt = grid[1:] - grid[:-1]
-        absa = np.abs(A)
-        bound = 0.25 * np.maximum(absa[:-1], absa[1:]) * dt * dt + piece.tol
-        flagged = None
+    tol = piece.tol
+    margin = 2.0 * tol
+    bounded = piece.bounded
+    # over [tau, tau + reach] for the real-root bounds (they grow with the interval)
+    reach = 8.0 * h
+    eval1 = piece.eval1
+    # the exact initial state, not its re-evaluation (rounding could flip signs)
+    tau, x, v = 0.0, piece.x0, piece.v0
+    a = seg.accel_at(piece.t0, x, v)
+    counter.grid += 1
+    while tau < tau_end:
+        if bounded:
+            tb = min(tau_end, tau + reach)
+            amax = _accel_bound(piece, tau, tb) * (1.0 + 1e-12)
+            if amax < math.inf:
+                safe = tb - tau if seg.kind >= 0 else tau_end - tau
+                for d, sig, _bp in bounds:
+                    safe = min(safe, _safe_length(sig * (x - d), sig * v, amax, margin))
+                if safe > h:
+                    tau = tau + safe
+                    if tau >= tau_end:
+                        return None, tangs_all
+                    x, v, a, _ = eval1(tau)
+                    counter.grid += 1
+                    if not (math.isfinite(x) and math.isfinite(v)):
+                        _escape(piece, tau)
+                    continue
+        w = tau + h
+        if w >= tau_end:
+            w = tau_end
+        xw, vw, aw, _ = eval1(w)
+        counter.grid += 1
+        if not (math.isfinite(xw) and math.isfinite(vw)):
+            _escape(piece, w)
+        dt = w - tau
+        bound = 0.25 * max(abs(a), abs(aw)) * dt * dt + tol
+        flagged = False
         for d, sig, _bp in bounds:
-            G = sig * (X - d)
-            hit = np.minimum(G[:-1], G[1:]) <= bound
+            gu, gw = sig * (x - d), sig * (xw - d)
+            if min(gu, gw) > bound:
+                continue
             # ... unless x moves inwards all through the step (v inwards at both ends and no
             # dip of |v| in between: then x is monotone there) and ends inside
-            sv, sa = sig * V, sig * A
-            inward = (sv[:-1] > 0.0) & (sv[1:] > 0.0) & ~((sa[:-1] < 0.0) & (sa[1:] > 0.0))
-            hit &= ~(inward & (G[1:] > 0.0))
-            flagged = hit if flagged is None else flagged | hit
-        for k in np.flatnonzero(flagged):
+            if (
+                sig * v > 0.0
+                and sig * vw > 0.0
+                and not (sig * a < 0.0 and sig * aw > 0.0)
+                and gw > 0.0
+            ):
+                continue
+            flagged = True
+            break
+        if flagged:
             exit_, tangs = _analyze_step(
-                piece,
-                float(grid[k]),
-                float(grid[k + 1]),
-                float(X[k]),
-                float(V[k]),
-                float(A[k]),
-                float(X[k + 1]),
-                float(V[k + 1]),
-                float(A[k + 1]),
-                bounds,
-                last_tan,
-                counter,
+                piece, tau, w, x, v, a, xw, vw, aw, bounds, last_tan, counter
             )
             tangs_all.extend(tangs)
             if exit_ is not None and exit_[0] < tau_end:
                 return exit_, tangs_all
-        tau0 = float(grid[-1])
-        chunk = min(2 * chunk, _CHUNK_MAX)
+        tau, x, v, a = w, xw, vw, aw
     return None, tangs_all
+
+
+def _escape(piece: _Piece, tau: float) -> None:
+    seg = piece.seg
+    raise PerturbError(
+        f"the orbit escapes to infinity in segment {seg.idx} (slope {seg.s!r}) near "
+        f"t = {float(piece.t0 + tau)!r}: floating-point overflow; shorten t_span"
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -1090,6 +1275,7 @@ class _Model:
         bp = system.breakpoints
         self.system = system
         self.bp = bp
+        self.bp_list = [float(d) for d in bp]
         scale = 1.0 + (float(np.max(np.abs(bp))) if bp.size else 0.0)
         edges = np.concatenate(([-np.inf], bp, [np.inf]))
         self.segments = [
@@ -1153,15 +1339,13 @@ class _Model:
 
 
 # The segment data depend only on the (immutable) system; continuation and shooting propagate
-# the same system thousands of times, so it is built once per system object.
-_MODELS: weakref.WeakKeyDictionary[PWLSystem, _Model] = weakref.WeakKeyDictionary()
-
-
+# the same system thousands of times, so it is built once per system object and kept on it
+# (a dictionary keyed by the system would hash its arrays on every call).
 def _model_of(system: PWLSystem) -> _Model:
-    model = _MODELS.get(system)
+    model = system.__dict__.get("_model")
     if model is None:
         model = _Model(system)
-        _MODELS[system] = model
+        object.__setattr__(system, "_model", model)
     return model
 
 
@@ -1219,19 +1403,22 @@ def propagate(
     """
     if not isinstance(system, PWLSystem):
         raise ParameterError(f"system = {system!r}: expected a PWLSystem")
-    y = _finite_vector("y0", y0)
-    if y.size != 2:
-        raise ParameterError(f"y0 = {y.tolist()!r}: expected two values (x, v)")
-    ts = _finite_vector("t_span", t_span)
-    if ts.size != 2 or not ts[1] > ts[0]:
-        raise ParameterError(f"t_span = {ts.tolist()!r}: expected (t0, t1) with t1 > t0")
+    x, v = _pair(y0)
+    if not (math.isfinite(x) and math.isfinite(v)):
+        y = _finite_vector("y0", y0)
+        if y.size != 2:
+            raise ParameterError(f"y0 = {y.tolist()!r}: expected two values (x, v)")
+    t0, t1 = _pair(t_span)
+    if not (math.isfinite(t0) and math.isfinite(t1) and t1 > t0):
+        ts = _finite_vector("t_span", t_span)
+        if ts.size != 2 or not ts[1] > ts[0]:
+            raise ParameterError(f"t_span = {ts.tolist()!r}: expected (t0, t1) with t1 > t0")
     if (
         isinstance(max_events, bool)
         or not isinstance(max_events, int | np.integer)
         or (max_events < 0)
     ):
         raise ParameterError(f"max_events = {max_events!r}: expected a non-negative integer")
-    t0, t1 = float(ts[0]), float(ts[1])
     te = None
     if t_eval is not None:
         te = _finite_vector("t_eval", t_eval)
@@ -1243,7 +1430,6 @@ def propagate(
 
     model = _model_of(system)
     counter = _Counter()
-    x, v = float(y[0]), float(y[1])
     seg_i, start_bp = model.initial_segment(t0, x, v)
     t = t0
     pieces: list[_Piece] = []
