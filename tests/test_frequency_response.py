@@ -139,3 +139,125 @@ def test_hill_stability_changes_exactly_at_the_folds():
         assert abs(br.first_harmonic_amplitude[j] - a_fold) / a_fold < 1e-2
     floquet = frequency_response(approx, (0.5, 2.5), points=3000, stability="floquet")
     assert not np.array_equal(floquet.branches[0].stable, br.stable)
+
+
+def test_vectorised_bracketed_roots_match_scalar_brentq():
+    """The all-brackets-at-once root refinement (regula falsi / Illinois with bisection
+    safeguard) against scipy's scalar brentq, one bracket at a time, on functions with
+    simple, steep, flat (cubic) and exactly representable roots."""
+    from perturb.numeric.frequency_response import _bracketed_roots
+
+    shifts = np.array([0.3, 1.7, 2.5, 1e-3, 4.0])
+    funcs = [
+        lambda x, s: np.tanh(50 * (x - s)),
+        lambda x, s: (x - s) ** 3,
+        lambda x, s: np.exp(x) - np.exp(s),
+        lambda x, s: x - s,
+        lambda x, s: np.sin(x - s) + 0.5 * (x - s),
+    ]
+    for g in funcs:
+        a, b = shifts - 0.29, shifts + 0.61
+
+        def f(x, idx, g=g):
+            return g(x, shifts[idx])
+
+        lo, hi, _, _ = _bracketed_roots(f, a, b, f(a, np.arange(5)), f(b, np.arange(5)))
+        for i, s in enumerate(shifts):
+            ref = brentq(lambda x, i=i, g=g: g(x, shifts[i]), a[i], b[i], xtol=1e-16, maxiter=2000)
+            assert lo[i] <= hi[i]
+            assert abs(0.5 * (lo[i] + hi[i]) - ref) <= 8e-15 * max(1.0, abs(ref)), (g, s)
+
+
+def test_safeguarded_newton_matches_brentq():
+    from perturb.numeric.frequency_response import _safe_newton
+
+    # exp(x) + 0.2 sin(4 (x - s)) is increasing for x > log(0.8): one root per bracket
+    s = np.array([0.9, 1.4, 2.2, 3.0])
+    lo, hi = s - 0.5, s + 0.3
+
+    def fdf(x, idx):
+        d = x - s[idx]
+        return np.exp(x) - np.exp(s[idx]) + 0.2 * np.sin(4 * d), np.exp(x) + 0.8 * np.cos(4 * d)
+
+    f_lo, f_hi = fdf(lo, np.arange(4))[0], fdf(hi, np.arange(4))[0]
+    ok = f_lo * f_hi < 0
+    x = _safe_newton(fdf, lo[ok], hi[ok], f_lo[ok], f_hi[ok], 0.5 * (lo + hi)[ok], 1e-14)
+    idx = np.nonzero(ok)[0]
+    assert idx.size == 4
+    for k, i in enumerate(idx):
+
+        def f(t, i=i):
+            return fdf(np.array([t]), np.array([i]))[0][0]
+
+        ref = brentq(f, lo[i], hi[i], xtol=1e-15)
+        assert abs(x[k] - ref) < 1e-12
+
+
+def test_critical_points_give_max_abs_of_trigonometric_polynomials():
+    """max |x| from the critical points (first-harmonic-dominated rows by the bracketing
+    argument, the others by sampling) against brute force on 2**16 samples plus a scalar
+    bounded minimiser; rows include a pure cosine, strong higher harmonics and a mean."""
+    from scipy.optimize import minimize_scalar
+
+    from perturb.numeric.frequency_response import _extrema, _max_abs_at
+
+    rng = np.random.default_rng(5)
+    n_rows, K = 40, 16
+    C = rng.normal(size=(n_rows, K)) * np.exp(-0.4 * np.arange(K))
+    S = rng.normal(size=(n_rows, K)) * np.exp(-0.4 * np.arange(K))
+    C[:10, 2:] *= 1e-3  # first harmonic dominates
+    C[10:20, 1] = 0.05  # higher harmonics dominate
+    C[20, :], S[20, :] = 0, 0
+    C[20, 1] = 2.0  # a pure cosine: max |x| = 2
+    C[21, 0] = 5.0  # a mean
+    rows, tau, xe = _extrema(C, S)
+    got = _max_abs_at(rows, xe, n_rows, C[:, 0])
+    t = np.linspace(0, 2 * np.pi, 1 << 16, endpoint=False)
+    n = np.arange(K)
+    for i in range(n_rows):
+
+        def x(s, i=i):
+            return np.sum(C[i] * np.cos(n * s) + S[i] * np.sin(n * s))
+
+        xs = C[i] @ np.cos(np.outer(n, t)) + S[i] @ np.sin(np.outer(n, t))
+        j = int(np.argmax(np.abs(xs)))
+        sign = np.sign(xs[j])
+        res = minimize_scalar(
+            lambda s, i=i, sign=sign: -sign * x(s),
+            bounds=(t[j] - 1e-3, t[j] + 1e-3),
+            method="bounded",
+            options={"xatol": 1e-12},
+        )
+        ref = max(abs(xs[j]), abs(res.fun))
+        assert abs(got[i] - ref) <= 1e-12 * ref, i
+    assert abs(got[20] - 2.0) < 1e-15
+
+
+@pytest.mark.parametrize("k", [-3.0, -0.5])
+def test_exact_pwl_hill_matches_sampled_hill_exponents(k):
+    """Hill's method with the stiffness's Fourier coefficients from the exact crossing instants
+    (the fast path of frequency_response) against floquet.hill_exponents, which integrates
+    them over the orbit sampled at N instants with a cubic crossing estimate; the latter
+    converges to the former as N grows."""
+    from perturb.methods import modified_lindstedt
+    from perturb.numeric.floquet import hill_exponents
+    from perturb.numeric.frequency_response import _Waveform, compile_response
+
+    osc = builtin_model("nsd", k=k, mu=0.05, F=2.0)
+    approx = modified_lindstedt(osc, 1)
+    cp = compile_response(approx)
+    assert cp.hill is not None
+    resp = frequency_response(cp, (0.3, 2.0), points=200)
+    w = np.concatenate([br.omega for br in resp.branches])[::7]
+    A = np.concatenate([br.first_harmonic_amplitude for br in resp.branches])[::7]
+    pc, ps = cp.phase_u(cp.atoms.evaluate(A, cp.phase_u.rows), A, w)
+    phi = np.arctan2(ps, pc)
+    wave = _Waveform(approx, cp.A, cp.phase, cp.Omega)
+    coefs = wave.coefficients(A, phi, w)
+    from perturb.numeric.frequency_response import _extrema
+
+    fast = cp.hill.max_multiplier(coefs, _extrema(*coefs), w)
+    xf, dxf = wave.samples(A, phi, w, 8192, coefs)
+    lam = hill_exponents(osc, xf, w[:, None] * dxf, 2 * np.pi / w, 1, cp.Omega)
+    sampled = np.exp(np.max(lam.real, axis=1) * 2 * np.pi / w)
+    np.testing.assert_allclose(fast, sampled, rtol=1e-7)
