@@ -26,7 +26,13 @@ passed, not turned back from). At the start, :math:`F_u z = -F_\lambda` (SVD nul
 Newton iterate of the point's correction, which differs from the point by the last (accepted
 as negligible) correction: no extra evaluation per point.
 
-*Predictor*: :math:`\hat w_{pred} = \hat w_i + \Delta s\, t_i`.
+*Predictor*: :math:`\hat w_{pred} = \hat w_i + \Delta s\, t_i`, or with ``predictor="hermite"``
+the cubic Hermite arc through the last two points and their tangents, extrapolated by
+:math:`\Delta s` (error :math:`O(h^2 \Delta s^2)` for points :math:`h` apart, against
+:math:`O(\Delta s^2)`); the corrector then works on the hyperplane through the predicted point
+orthogonal to :math:`t_i`. With ``early_accept`` a point whose first correction is small
+enough, by the quadratic-convergence constant measured on recent points, is accepted after
+that one correction: about one evaluation per point on a smooth curve.
 
 *Corrector*: Newton on :math:`F(w) = 0,\ t_i\cdot(\hat w - \hat w_{pred}) = 0` (bordered
 system): every correction is orthogonal to the tangent, so the corrector moves across the
@@ -324,6 +330,7 @@ class _Tracer:
         self.fun, self.su, self.sl = fun, su, sl
         self.tol, self.max_newton = tol, max_newton
         self.n = su.size
+        self.last_ratio: float | None = None
 
     def scaled(self, u: np.ndarray, lam: float) -> np.ndarray:
         return np.append(u / self.su, lam / self.sl)
@@ -331,14 +338,24 @@ class _Tracer:
     def unscaled(self, w: np.ndarray) -> tuple[np.ndarray, float]:
         return w[: self.n] * self.su, float(w[self.n] * self.sl)
 
-    def correct(self, w_pred: np.ndarray, row: np.ndarray, target: float) -> _Corrected | None:
+    def correct(
+        self,
+        w_pred: np.ndarray,
+        row: np.ndarray,
+        target: float,
+        contraction: float | None = None,
+    ) -> _Corrected | None:
         """Newton on ``F = 0, row . w = target`` from ``w_pred`` (scaled coordinates).
 
         Converged when the correction is at most ``tol``, or when the next one, estimated
         from the quadratic convergence as ``|dw_k|^2 / |dw_(k-1)|``, is (then the corrected
-        iterate is accepted without another evaluation). The Jacobian of the last evaluated
+        iterate is accepted without another evaluation); with ``contraction`` (a bound on
+        ``|dw_(k+1)| / |dw_k|^2`` measured on earlier points) already after the first
+        correction when ``contraction |dw_1|^2 <= tol``. The Jacobian of the last evaluated
         iterate is returned with it: it differs from the Jacobian at the accepted point by
-        the last correction only."""
+        the last correction only. :attr:`last_ratio` is the largest ``|dw_(k+1)| / |dw_k|^2``
+        seen in this correction (None with a single iteration)."""
+        self.last_ratio = None
         n = self.n
         w = w_pred.copy()
         a = np.empty((n + 1, n + 1))
@@ -365,8 +382,13 @@ class _Tracer:
             if not math.isfinite(size) or (it > 2 and size > 0.5 * prev):
                 return None  # diverging, or converging too slowly to trust the step
             w = w + dw
-            if size <= self.tol or (
-                it > 1 and size < 0.5 * prev and size * size <= self.tol * prev
+            if it > 1 and prev > 0.0:
+                ratio = size / (prev * prev)
+                self.last_ratio = max(ratio, self.last_ratio or 0.0)
+            if (
+                size <= self.tol
+                or (it > 1 and size < 0.5 * prev and size * size <= self.tol * prev)
+                or (it == 1 and contraction is not None and contraction * size * size <= self.tol)
             ):
                 return _Corrected(w, it, ju, jl, row, sol[:, 1])
             prev = size
@@ -412,6 +434,23 @@ def _hermite_fold(
     return h00 * w0 + h10 * ds * t0 + h01 * w1 + h11 * ds * t1
 
 
+def _hermite_predict(
+    w0: np.ndarray, t0: np.ndarray, w1: np.ndarray, t1: np.ndarray, step: float
+) -> np.ndarray | None:
+    """The cubic Hermite arc through the last two points (parametrised by the chord length
+    ``h`` between them) extrapolated ``step`` beyond the last one: error ``O(h^2 step^2)``
+    against ``O(step^2)`` for the tangent predictor, so the first Newton correction is
+    small enough to be the last one. None when the points coincide."""
+    h = float(np.linalg.norm(w1 - w0))
+    if not math.isfinite(h) or h <= 0.0:
+        return None
+    s = 1.0 + step / h
+    s2, s3 = s * s, s * s * s
+    h00, h10 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s
+    h01, h11 = -2 * s3 + 3 * s2, s3 - s2
+    return h00 * w0 + h10 * h * t0 + h01 * w1 + h11 * h * t1
+
+
 def _check_window(window: Sequence[float]) -> tuple[float, float]:
     try:
         lo, hi = (float(v) for v in window)
@@ -452,6 +491,8 @@ def continue_curve(
     refine_folds: bool = True,
     store_jacobians: bool = False,
     callback: Callable[[np.ndarray, float, np.ndarray, np.ndarray], Any] | None = None,
+    predictor: str = "tangent",
+    early_accept: bool = False,
 ) -> ContinuationCurve:
     """Trace the solution curve of :math:`F(u, \\lambda) = 0` through a window of
     :math:`\\lambda` by pseudo-arclength continuation.
@@ -507,6 +548,17 @@ def continue_curve(
         with the Jacobian of the point's last Newton iterate; its return values are kept in
         :attr:`ContinuationCurve.callback_values`. Stability or test functions go here,
         while the caller's own cache still holds that iterate.
+    predictor : {'tangent', 'hermite'}
+        ``'tangent'``: the Euler predictor along the unit tangent. ``'hermite'``: the cubic
+        Hermite arc through the last two points and their tangents, extrapolated by the
+        step (the tangent predictor for the first step and after a rescaling); a fourth-order
+        predictor, whose first Newton correction is typically ``1e-6`` of the step.
+    early_accept : bool
+        Accept a point after one Newton correction when ``K |dw_1|^2 <= tol``, with ``K``
+        four times the largest quadratic-convergence ratio ``|dw_(k+1)| / |dw_k|^2``
+        measured in the corrections of the last eight points (a point is corrected to the
+        end whenever no such measurement is at hand, which refreshes it). With the Hermite
+        predictor this makes about one residual and Jacobian evaluation per point.
 
     Returns
     -------
@@ -541,6 +593,8 @@ def continue_curve(
     tol = _positive("tol", tol)
     if int(max_points) < 1:
         raise ParameterError(f"max_points = {max_points!r}: expected at least 1")
+    if predictor not in ("tangent", "hermite"):
+        raise ParameterError(f"predictor = {predictor!r}: expected 'tangent' or 'hermite'")
 
     fun = _Counted(residual, jacobian, n)
 
@@ -579,8 +633,24 @@ def continue_curve(
         if extras is not None:
             extras.append(callback(u_new, lam_new, c.ju, c.jl))
 
+    # the point before the last one in the current scaling (Hermite predictor) and the
+    # quadratic-convergence ratios measured recently, as (point count, ratio)
+    prev_wt: tuple[np.ndarray, np.ndarray] | None = None
+    ratios: list[tuple[int, float]] = []
     while len(us) < int(max_points):
-        c = tr.correct(w + step * t, t, float(t @ w) + step)
+        w_pred = None
+        if predictor == "hermite" and prev_wt is not None:
+            w_pred = _hermite_predict(prev_wt[0], prev_wt[1], w, t, step)
+        if w_pred is None or not np.all(np.isfinite(w_pred)):
+            w_pred = w + step * t
+        contraction = None
+        if early_accept:
+            recent = [r for k, r in ratios if k >= len(us) - 8]
+            contraction = 4.0 * max(recent) if recent else None
+        c = tr.correct(w_pred, t, float(t @ w_pred), contraction)
+        if tr.last_ratio is not None and c is not None:
+            ratios.append((len(us), tr.last_ratio))
+            del ratios[:-16]
         t_new = None if c is None else tr.tangent(c, t)
         if c is None or t_new is None or float(t_new @ t) < cos_turn:
             step *= 0.5
@@ -603,7 +673,8 @@ def continue_curve(
             stop = "window"
             break
         accept(c, t_new)
-        _record_fold(tr, folds, len(us) - 2, w, t, c.w, t_new, refine_folds, step)
+        _record_fold(tr, folds, len(us) - 2, w, t, c.w, t_new, refine_folds, float(t @ (c.w - w)))
+        prev_wt = (w, t)
         w, t = c.w, t_new
         travelled += step
         # a closed curve: back at the start, moving the way it started
@@ -627,6 +698,9 @@ def continue_curve(
                 # the same point and direction in the new coordinates
                 t = np.append(t[:n] * tr.su / new_su, t[n])
                 t /= np.linalg.norm(t)
+                if prev_wt is not None:
+                    tp = np.append(prev_wt[1][:n] * tr.su / new_su, prev_wt[1][n])
+                    prev_wt = (np.append(us[-2] / new_su, lams[-2] / sl), tp / np.linalg.norm(tp))
                 tr.su = new_su
                 w = tr.scaled(us[-1], lams[-1])
 

@@ -100,6 +100,27 @@ nonlinear inverse iteration from the monodromy's exponent; the full eigenproblem
 fallback. Single orbits (:func:`harmonic_balance_orbit`) use the full eigenproblem.
 ``max_multiplier`` is :math:`\max|e^{\lambda T}|`, :math:`T = 2\pi m/\Omega`.
 
+Cost per Newton step
+--------------------
+Assembling the residual and its Jacobian is O(H^2) (plus O(H) per crossing): the Toeplitz
+Jacobian is gathered from the ``4H + 1`` spectra ``Q_n`` and combined two columns per
+harmonic (no dense matrix product), the crossings are isolated on ``4H`` grid intervals with
+O(H) work each. The dense solves (Newton's LU, Hill's pencil) are O(H^3) with a small
+constant; ``benchmarks/bench_scaling_hb.py`` measures both.
+
+Frequency responses are continued with the Hermite predictor of
+:func:`perturb.numeric.continuation.continue_curve` and acceptance after one Newton
+correction when the measured quadratic convergence allows it: about 1.3 residual and
+Jacobian evaluations per point instead of 2.3, every point still solved to ``tol``.
+
+Every branch
+------------
+:func:`harmonic_balance_branches` (and ``harmonic_balance_response(..., all_branches=True)``)
+adds the branches that continuation from the start cannot reach, detached loops included:
+it seeds Newton from points of every branch of the single-harmonic balance response, which
+amplitude parametrisation traces without continuation, and traces each seed that lies on no
+branch found so far.
+
 Starting without a guess
 ------------------------
 At one frequency the first of: the closed-form steady state of a linear segment of a PWL
@@ -137,6 +158,7 @@ __all__ = [
     "HarmonicBalanceBranch",
     "harmonic_balance_orbit",
     "harmonic_balance_branch",
+    "harmonic_balance_branches",
     "harmonic_balance_response",
 ]
 
@@ -152,6 +174,7 @@ _MAX_DEPTH = 40
 #: Grid points per highest harmonic for the extrema of x (refined by Newton afterwards).
 _EXTREMA_PER_HARMONIC = 8
 _TWO_PI = 2.0 * math.pi
+_EPS = float(np.finfo(float).eps)
 
 
 # =============================================================================================
@@ -328,13 +351,18 @@ class _Series:
         self.B = self.grid.k_pow @ np.abs(self.c)
         self.scale = abs(self.a0) + float(self.B[0])
 
+    @cached_property
+    def _derivative_coefficients(self) -> np.ndarray:
+        # column j: the complex coefficients of the j-th derivative, c_k (i k)^j, j = 0..3
+        return self.c[:, None] * (1j * self.ks[:, None]) ** np.arange(4)
+
     def values(self, theta: np.ndarray, orders: Sequence[int] = (0,)) -> list[np.ndarray]:
         e = np.exp(1j * np.multiply.outer(theta, self.ks))
+        # one matrix product for every order asked (the root polishing asks for three)
+        vals = (e @ self._derivative_coefficients[:, list(orders)]).real
         out = []
-        for j in orders:
-            coef = self.c * (1j * self.ks) ** j if j else self.c
-            val = (e @ coef).real
-            out.append(val + self.a0 if j == 0 else val)
+        for col, j in enumerate(orders):
+            out.append(vals[..., col] + self.a0 if j == 0 else vals[..., col])
         return out
 
 
@@ -393,7 +421,7 @@ def _isolate_hard(
         d1a, d1b = (float(v) for v in series.values(np.array([a, b]), (1,))[0])
         # an x' within rounding of zero at an end is an extremum there (grid points on an
         # exact tangency: x'(2 pi) comes out as +-1e-16)
-        flat = 64 * np.finfo(float).eps * float(series.B[1])
+        flat = 64 * _EPS * float(series.B[1])
         if abs(d1a) <= flat:
             te = a
         elif abs(d1b) <= flat:
@@ -446,7 +474,7 @@ def _polish(
 
 def _residual_floor(series: _Series, d: np.ndarray) -> float:
     """``|x - d|`` at rounding level: the evaluation's own error bound."""
-    return 64.0 * np.finfo(float).eps * (series.scale + float(np.abs(d).max(initial=0.0)))
+    return 64.0 * _EPS * (series.scale + float(np.abs(d).max(initial=0.0)))
 
 
 def _polish_safe(series: _Series, lo: np.ndarray, hi: np.ndarray, elo: np.ndarray, d: np.ndarray):
@@ -488,7 +516,7 @@ def _crossings(series: _Series, levels: np.ndarray) -> tuple[np.ndarray, np.ndar
     u = series.u
     xe = grid.end @ u
     xm, x1m, x2m, x3m = grid.mid @ u
-    slack = 64 * np.finfo(float).eps * (series.scale + float(np.abs(levels).max(initial=0.0)))
+    slack = 64 * _EPS * (series.scale + float(np.abs(levels).max(initial=0.0)))
     lv = levels[:, None]
     e_end = xe[None, :] - lv  # (L, N)
     excluded, monotone, _ = _taylor_tests(xm[None, :] - lv, x1m, x2m, x3m, r, series.B, slack)
@@ -610,6 +638,12 @@ class _ExactProjector:
         if basis.bias:
             P[nh, 0] = 1.0
         self.P = P
+        # P has two entries per column (a_k and b_k feed X_{+k} and X_{-k}), so the product
+        # Toeplitz(Q) P is two gathered columns per harmonic: O(H^2), not a dense O(H^3)
+        # matrix product
+        self._diff_plus = self.diff[:, off + np.arange(nh)]
+        self._diff_minus = self.diff[:, nh - 1 - np.arange(nh)]
+        self._diff_bias = self.diff[:, nh] if basis.bias else None
         self.n_freq = np.arange(1, 2 * K + 1)
         # real rows from complex ones: [Re G_0], 2 Re G_k, -2 Im G_k, as one gather from
         # the stacked [Re G; Im G]
@@ -658,6 +692,17 @@ class _ExactProjector:
         full = np.concatenate([np.conj(Q[:0:-1]), Q])  # n = -2K .. 2K
         return full[self.diff]
 
+    def _toeplitz_times_P(self, Q: np.ndarray) -> np.ndarray:
+        """``Toeplitz(Q) @ P`` assembled column by column in O(H^2)."""
+        full = np.concatenate([np.conj(Q[:0:-1]), Q])  # n = -2K .. 2K
+        plus, minus = full[self._diff_plus], full[self._diff_minus]
+        out = np.empty((self.diff.shape[0], self.basis.size), dtype=complex)
+        out[:, self.basis.a_index] = 0.5 * (plus + minus)
+        out[:, self.basis.b_index] = 0.5j * (minus - plus)
+        if self._diff_bias is not None:
+            out[:, 0] = full[self._diff_bias]
+        return out
+
     def _real(self, G: np.ndarray) -> np.ndarray:
         """Real residual rows from complex projections ``G_j`` (a vector or matrix rows)."""
         stacked = np.concatenate([G.real, G.imag])[self.rows]
@@ -671,12 +716,12 @@ class _ExactProjector:
         Q, C, Z = self._spectra(pc, jacobian)
         # f(x(theta)) = q x + c exactly, so proj = (Toeplitz(Q) P) u + C: the matrix is the
         # Jacobian of a continuous force
-        TP = self._real(self._toeplitz(Q) @ self.P)
+        TP = self._real(self._toeplitz_times_P(Q))
         proj = TP @ u + self._real(C[self.j_idx])
         if not jacobian:
             return proj, None, pc
         if Z is not None:
-            TP = TP + self._real(self._toeplitz(Z) @ self.P)
+            TP = TP + self._real(self._toeplitz_times_P(Z))
         return proj, TP, pc
 
 
@@ -1178,13 +1223,15 @@ def _ruhe(C: np.ndarray, K: np.ndarray, seed: complex, w: float) -> complex | No
     (Ruhe 1973): ``y = A(lam)^-1 A'(lam) x``, ``lam <- lam - 1/(v^H y)``."""
     n = K.shape[0]
     eye = np.eye(n)
-    lam = complex(seed)
+    # a real seed (a real pair of exponents, the case that needs refining) stays real: the
+    # pencil is real, and real LU solves cost a quarter of complex ones
+    lam: float | complex = float(seed.real) if seed.imag == 0.0 else complex(seed)
     try:
         x = np.linalg.solve(lam * lam * eye + lam * C + K, np.ones(n))
     except np.linalg.LinAlgError:
         # exactly singular: the seed is an eigenvalue (an orbit inside one linear segment,
         # whose exact and Hill exponents coincide)
-        return lam
+        return complex(lam)
     x = x / np.linalg.norm(x)
     v = x.conj()
     for _ in range(12):
@@ -1192,8 +1239,8 @@ def _ruhe(C: np.ndarray, K: np.ndarray, seed: complex, w: float) -> complex | No
         try:
             y = np.linalg.solve(A, (2.0 * lam * eye + C) @ x)
         except np.linalg.LinAlgError:
-            return lam  # exactly singular: lam is the eigenvalue
-        vy = complex(v @ y)
+            return complex(lam)  # exactly singular: lam is the eigenvalue
+        vy = v @ y
         if vy == 0 or not np.isfinite(vy):
             return None
         step = 1.0 / vy
@@ -1201,7 +1248,7 @@ def _ruhe(C: np.ndarray, K: np.ndarray, seed: complex, w: float) -> complex | No
         x = y / vy
         if abs(step) <= 1e-13 * (abs(lam) + w):
             # trust it only if it stayed in the strip of the seed (not a copy lam + i k w)
-            return lam if abs(lam - seed) < 0.25 * w else None
+            return complex(lam) if abs(lam - seed) < 0.25 * w else None
     return None
 
 
@@ -1660,7 +1707,7 @@ def harmonic_balance_orbit(
     fh, fs, _ = system.forcing_vector(W)
     # a residual at rounding level is a solution even where Newton's steps are meaningless
     # (a fold: singular Jacobian)
-    floor = 64 * np.finfo(float).eps * max(1.0, float(np.abs(fh).max() + np.abs(fs).max()))
+    floor = 64 * _EPS * max(1.0, float(np.abs(fh).max() + np.abs(fs).max()))
     u, its = newton_fixed(
         system.residual, system.jacobian, u, W, u_scale=scale, tol=tol, residual_tol=floor
     )
@@ -1725,10 +1772,10 @@ class HarmonicBalanceBranch:
         sub = f" m={s.m}" if s.m != 1 else ""
         return f"numeric HB H={s.harmonics}{odd}{sub} {proj}"
 
-    def to_response(self) -> Response:
-        """The :class:`~perturb.response.Response` (one branch, the project's CSV columns)."""
+    def to_branch(self) -> Branch:
+        """The :class:`~perturb.response.Branch` (``max_multiplier`` -1 without stability)."""
         max_mult = np.where(np.isfinite(self.max_multiplier), self.max_multiplier, -1.0)
-        branch = Branch(
+        return Branch(
             omega=self.omega,
             amplitude=self.amplitude,
             first_harmonic_amplitude=self.first_harmonic_amplitude,
@@ -1736,6 +1783,10 @@ class HarmonicBalanceBranch:
             stable=self.stable,
             max_multiplier=max_mult,
         )
+
+    def to_response(self) -> Response:
+        """The :class:`~perturb.response.Response` (one branch, the project's CSV columns)."""
+        branch = self.to_branch()
         notes = (
             f"continuation stopped: {self.curve.stop_reason}; {len(self)} points, "
             f"{self.curve.residual_evaluations} residual evaluations",
@@ -1840,6 +1891,23 @@ def harmonic_balance_branch(
         raise ParameterError(f"direction = {direction!r}: expected 1 or -1")
     W0 = lo if direction == 1 else hi
     u0 = _start_solution(system, W0, tol) if start is None else _guess_vector(system, start)
+    curve = _trace(system, u0, W0, (lo, hi), direction, stability, ds_max, tol, max_points)
+    return _assemble(system, [(curve, direction == -1)], stability)
+
+
+def _trace(
+    system: HarmonicBalanceSystem,
+    u0: np.ndarray,
+    W0: float,
+    window: tuple[float, float],
+    direction: int,
+    stability: str,
+    ds_max: float,
+    tol: float,
+    max_points: int,
+) -> ContinuationCurve:
+    """One continuation run from ``(u0, W0)``, with Hill exponents at every point."""
+    lo, hi = window
     scale = max(1e-10, float(np.abs(u0).max()))
     full = stability == "hill_full"
 
@@ -1848,7 +1916,7 @@ def harmonic_balance_branch(
         # intervals for the monodromy seed come for free
         return system.hill_exponents(u, W, J_u, full=full, refine_complex=False)
 
-    curve = continue_curve(
+    return continue_curve(
         system.residual,
         system.jacobian,
         u0,
@@ -1862,8 +1930,36 @@ def harmonic_balance_branch(
         tol=tol,
         max_points=max_points,
         callback=None if stability == "none" else point_stability,
+        # fourth-order predictor and acceptance after one correction when the measured
+        # quadratic convergence allows it: about one evaluation per point instead of 2.3
+        predictor="hermite",
+        early_accept=True,
     )
-    U, W = curve.u, curve.lam
+
+
+def _assemble(
+    system: HarmonicBalanceSystem,
+    parts: Sequence[tuple[ContinuationCurve, bool]],
+    stability: str,
+) -> HarmonicBalanceBranch:
+    """A branch from continuation runs ``(curve, reversed)`` that share their end points
+    (the second run starts where the first one did, traced the other way)."""
+    Us, Ws, lams = [], [], []
+    for i, (curve, rev) in enumerate(parts):
+        U, W = curve.u, curve.lam
+        lam = (
+            np.array(curve.callback_values)
+            if stability != "none" and curve.callback_values is not None
+            else np.empty((W.size, 0), dtype=complex)
+        )
+        if rev:
+            U, W, lam = U[::-1], W[::-1], lam[::-1]
+        if i > 0:
+            U, W, lam = U[1:], W[1:], lam[1:]  # the shared starting point
+        Us.append(U)
+        Ws.append(W)
+        lams.append(lam)
+    U, W, lam = np.concatenate(Us), np.concatenate(Ws), np.concatenate(lams)
     stats = system.statistics(U)
     n_pts = W.size
     if stability == "none":
@@ -1871,17 +1967,14 @@ def harmonic_balance_branch(
         mm = np.full(n_pts, np.nan)
         stable = np.zeros(n_pts, dtype=bool)
     else:
-        assert curve.callback_values is not None
-        lam = np.array(curve.callback_values)
         T = _TWO_PI * system.m / W
         mm = np.minimum(np.exp(np.minimum(700.0, lam.real.max(axis=1) * T)), 1e300)
         stable = mm < 1.0
-    if direction == -1:
-        U, W, lam, mm, stable = U[::-1], W[::-1], lam[::-1], mm[::-1], stable[::-1]
-        stats = {k: v[::-1] for k, v in stats.items()}
-    fold_u = tuple(f.u for f in curve.folds)
+    fold_pts = [f for curve, _ in parts for f in curve.folds]
+    fold_u = tuple(f.u for f in fold_pts)
     fold_amp = system.statistics(np.array(fold_u))["amplitude"] if fold_u else np.empty(0)
-    folds = tuple((float(f.lam), float(a)) for f, a in zip(curve.folds, fold_amp, strict=True))
+    folds = tuple((float(f.lam), float(a)) for f, a in zip(fold_pts, fold_amp, strict=True))
+    oscillator = system.oscillator
     params = {
         k: v for k, v in oscillator.params.items() if v is not None and k != system.frequency.name
     }
@@ -1896,10 +1989,186 @@ def harmonic_balance_branch(
         exponents=lam,
         folds=folds,
         fold_coefficients=fold_u,
-        curve=curve,
+        curve=parts[0][0],
         system=system,
         params=MappingProxyType(params),
     )
+
+
+def _single_harmonic_seeds(
+    system: HarmonicBalanceSystem, window: tuple[float, float], per_branch: int
+) -> list[tuple[float, np.ndarray]]:
+    """Starting guesses ``(Omega, u)`` on every branch of the single-harmonic balance
+    response (amplitude parametrisation: detached loops included, no continuation), at
+    ``per_branch`` points spread along each branch. Empty when the method does not apply.
+
+    Only the response's public columns are used: the mean ``a0`` and the first-harmonic
+    amplitude ``A``. The phase follows from this system's own residual: the equation of
+    motion is time-invariant, so shifting ``x = a0 + A cos theta`` in time turns the
+    first-harmonic part ``Z = R_a1 - i R_b1`` of its unforced residual by the same angle,
+    and the shift that turns ``Z`` onto the forcing's ``F_a1 - i F_b1`` balances it."""
+    from ..methods import single_harmonic_balance
+    from .frequency_response import frequency_response
+
+    basis = system.basis
+    pos = basis.index_of(system.m)
+    if pos is None:
+        return []
+    try:
+        resp = frequency_response(
+            single_harmonic_balance(system.oscillator), window, points=400, stability="slow_flow"
+        )
+    except PerturbError:
+        return []
+    seeds = []
+    for br in resp.branches:
+        n = br.omega.size
+        idx = np.unique(np.linspace(0, n - 1, per_branch + 2).round().astype(int)[1:-1])
+        for j in idx:
+            W, A = float(br.omega[j]), float(br.first_harmonic_amplitude[j])
+            if not (math.isfinite(W) and math.isfinite(A) and A > 0):
+                continue
+            u = np.zeros(basis.size)
+            if basis.bias:
+                u[0] = float(br.mean[j])
+            u[pos] = A
+            fh, fs, _ = system.forcing_vector(W)
+            R = system.evaluate(u, W, jacobian=False)[0] + fh
+            Z = complex(R[pos], -R[pos + 1])
+            target = complex(fh[pos], -fh[pos + 1])
+            if Z == 0 or target == 0:
+                continue
+            turn = (target / Z) / abs(target / Z)
+            u[pos], u[pos + 1] = (A * turn).real, -(A * turn).imag
+            seeds.append((W, u))
+    return seeds
+
+
+def _on_branch(branch: HarmonicBalanceBranch, u: np.ndarray, W: float, rtol: float) -> bool:
+    """Whether the solution ``u`` at ``W`` lies on ``branch``: within ``rtol`` (relative to
+    its largest coefficient) of the chord of a segment that brackets ``W``. The chords are
+    ``ds_max`` apart along the curve, so they deviate from it by ``~ds_max^2/8``, far below
+    the distance between two different solutions at one frequency."""
+    Wb, Ub = branch.omega, branch.coefficients
+    seg = np.nonzero((Wb[:-1] - W) * (Wb[1:] - W) <= 0.0)[0]
+    scale = max(1e-12, float(np.abs(u).max()))
+    for i in seg:
+        dw = Wb[i + 1] - Wb[i]
+        f = 0.5 if dw == 0 else (W - Wb[i]) / dw
+        chord = (1 - f) * Ub[i] + f * Ub[i + 1]
+        if float(np.abs(chord - u).max()) <= rtol * scale:
+            return True
+    return False
+
+
+def harmonic_balance_branches(
+    oscillator: Oscillator,
+    Omega_window: Sequence[float],
+    *,
+    harmonics: int = 15,
+    m: int = 1,
+    odd_only: bool = False,
+    projection: Projection = "auto",
+    samples: int | None = None,
+    stability: Stability = "hill",
+    start: ArrayLike | HarmonicBalanceSolution | None = None,
+    direction: int = -1,
+    ds_max: float = 0.05,
+    max_points: int = 5000,
+    tol: float = 1e-10,
+    seeds_per_branch: int = 3,
+) -> tuple[HarmonicBalanceBranch, ...]:
+    """Every harmonic-balance branch that continuation reaches from the automatic start and
+    from the branches of the single-harmonic balance response.
+
+    The first branch is :func:`harmonic_balance_branch` from the window's edge. The others
+    start from the single-harmonic balance (``perturb.methods.single_harmonic_balance``)
+    response, traced by amplitude parametrisation
+    (:func:`perturb.numeric.frequency_response.frequency_response`), which returns every one
+    of its branches, detached loops included, without continuation: ``seeds_per_branch``
+    points along each of its branches are corrected by Newton into ``H``-harmonic solutions,
+    and a solution that lies on no branch found so far (:func:`_on_branch`, 5 % of the
+    largest coefficient) starts a new one, traced both ways until it closes or leaves the
+    window. Branches that no single-harmonic branch comes near (e.g. ones with strong
+    higher harmonics, or symmetry-broken ones for a symmetric ansatz) can still be missed.
+
+    Costs the symbolic single-harmonic balance and its compilation (about 1-2 s the first
+    time in a process; SymPy caches make repeats cheaper) on top of the continuation.
+
+    Parameters
+    ----------
+    oscillator, Omega_window, harmonics, m, odd_only, projection, samples, stability
+        See :func:`harmonic_balance_branch`.
+    start, direction, ds_max, max_points, tol
+        See :func:`harmonic_balance_branch` (``start`` and ``direction`` for the first branch
+        only).
+    seeds_per_branch : int
+        Seeds taken on each single-harmonic branch.
+
+    Returns
+    -------
+    tuple of HarmonicBalanceBranch
+        The connected branch first, then the seeded ones (for a branch traced both ways from
+        its seed, ``curve`` is the first run only).
+
+    Raises
+    ------
+    ParameterError
+        Bad input (the message names it).
+    PerturbError
+        When no starting solution is found for the first branch.
+    """
+    if isinstance(seeds_per_branch, bool) or not isinstance(seeds_per_branch, int | np.integer):
+        raise ParameterError(f"seeds_per_branch = {seeds_per_branch!r}: expected an integer >= 1")
+    if seeds_per_branch < 1:
+        raise ParameterError(f"seeds_per_branch = {seeds_per_branch!r}: expected an integer >= 1")
+    first = harmonic_balance_branch(
+        oscillator,
+        Omega_window,
+        harmonics=harmonics,
+        m=m,
+        odd_only=odd_only,
+        projection=projection,
+        samples=samples,
+        stability=stability,
+        start=start,
+        direction=direction,
+        ds_max=ds_max,
+        max_points=max_points,
+        tol=tol,
+    )
+    system = first.system
+    stability = _check_stability(stability)
+    tol = _positive_tol(tol)
+    window = _check_window(Omega_window)
+    found = [first]
+    for W, guess in _single_harmonic_seeds(system, window, int(seeds_per_branch)):
+        if any(_on_branch(b, guess, W, 0.05) for b in found):
+            continue  # the seed is already near a traced branch: save the Newton solve
+        try:
+            u, _ = newton_fixed(
+                system.residual,
+                system.jacobian,
+                guess,
+                W,
+                u_scale=max(1.0, float(np.abs(guess).max())),
+                tol=tol,
+                max_iterations=30,
+            )
+        except ContinuationError:
+            continue
+        if any(_on_branch(b, u, W, 0.05) for b in found):
+            continue
+        try:
+            down = _trace(system, u, W, window, -1, stability, ds_max, tol, max_points)
+            parts = [(down, True)]
+            if down.stop_reason != "closed":
+                up = _trace(system, u, W, window, 1, stability, ds_max, tol, max_points)
+                parts.append((up, False))
+        except ContinuationError:
+            continue
+        found.append(_assemble(system, parts, stability))
+    return tuple(found)
 
 
 def harmonic_balance_response(
@@ -1917,6 +2186,7 @@ def harmonic_balance_response(
     ds_max: float = 0.05,
     max_points: int = 5000,
     tol: float = 1e-10,
+    all_branches: bool = False,
 ) -> Response:
     """Frequency response by numeric harmonic balance as a :class:`~perturb.response.Response`.
 
@@ -1924,7 +2194,42 @@ def harmonic_balance_response(
     period (refined extrema of the Fourier series), ``first_harmonic_amplitude`` the component
     at the forcing frequency, ``mean`` the bias ``a0``, ``max_multiplier`` ``max |exp(lambda
     T)|`` over the two Hill exponents (``-1`` when ``stability='none'``).
+
+    With ``all_branches``, every branch of :func:`harmonic_balance_branches` (the connected
+    one plus those seeded from the single-harmonic balance response: detached loops), at the
+    cost of the symbolic single-harmonic balance; otherwise the connected branch only.
     """
+    if all_branches:
+        found = harmonic_balance_branches(
+            oscillator,
+            Omega_window,
+            harmonics=harmonics,
+            m=m,
+            odd_only=odd_only,
+            projection=projection,
+            samples=samples,
+            stability=stability,
+            start=start,
+            direction=direction,
+            ds_max=ds_max,
+            max_points=max_points,
+            tol=tol,
+        )
+        first = found[0]
+        notes = (
+            f"{len(found)} branches: the connected one and {len(found) - 1} seeded from the "
+            "single-harmonic balance response",
+        )
+        if not np.all(np.isfinite(first.max_multiplier)):
+            notes += ("stability not computed: max_multiplier = -1",)
+        return Response(
+            tuple(b.to_branch() for b in found),
+            first.method,
+            first.system.oscillator.name,
+            dict(first.params),
+            folds=tuple(f for b in found for f in b.folds),
+            notes=notes,
+        )
     return harmonic_balance_branch(
         oscillator,
         Omega_window,
