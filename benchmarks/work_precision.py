@@ -2,9 +2,11 @@
 
 Reproduce with::
 
-    cd /work/main && python benchmarks/work_precision.py --fast --out out/bench
+    cd /work/main && python benchmarks/work_precision.py --out out/bench
 
-(the same as ``perturb bench --fast --out out/bench``).  Writes ``work_precision.md``,
+(the same as ``perturb bench --out out/bench``; measured 231 s wall, 246 s CPU at load
+1.1-1.6 on 2 cores, 697 s wall / 285 s CPU at load 3-10; ``--fast`` for one run per method
+and a 10 s timeout).  Writes ``work_precision.md``,
 ``work_precision.csv`` and one log-log work-precision PNG per problem into ``--out``; see
 :mod:`perturb.bench` for the problems, methods and what is timed.  ``--problems`` and
 ``--methods`` (fnmatch patterns such as ``hb-exact-*``) select a subset.

@@ -401,3 +401,69 @@ def test_branch_errors_are_against_the_matched_branch_and_skip_points_beyond_its
     e = c.rel_errors
     np.testing.assert_allclose(e[19:22], (2 + s2[19:22]) / 0.1 - 1)  # nearest: the far branch
     assert c.max_error == b.max_error and c.rms_error == b.rms_error
+
+
+def test_overshooting_fold_tip_of_an_s_shaped_branch_is_not_covered(duffing_reference):
+    # the approximation is the closed-form curve with its frequencies 0.2 % too high: the tip
+    # of its upper fold lies beyond the reference's fold, where the same (S-shaped) reference
+    # branch has only its lower part -- a relative error of ~10 that says nothing about the
+    # approximation; everywhere else the error is that of the frequency shift
+    w, a = duffing_curve(np.geomspace(0.05, 3, 3000))
+    shifted = response(branch(1.002 * w, a))
+    c = compare(shifted, duffing_reference)
+    (b,) = c.branches
+    assert b.matched == 0
+
+    # oracle: the root of the closed-form cubic at each point's own frequency nearest on a
+    # log scale (compare's rule), and the relative error to it
+    def nearest_error(v, x):
+        r = duffing_roots(v)
+        if not r.size:
+            return np.nan
+        r = r[np.argmin(np.abs(np.log(r / x)))]
+        return abs(x - r) / r
+
+    oracle = np.array([nearest_error(v, x) for v, x in zip(1.002 * w, a, strict=True)])
+    inside = np.isfinite(c.rel_errors)  # within the reference's frequency span
+    tip = inside & ~(oracle <= 0.2)
+    assert 0 < tip.sum() < 0.01 * w.size and b.covered == inside.sum() - tip.sum()
+    assert b.max_error == pytest.approx(np.max(oracle[inside & ~tip]), rel=1e-3)
+    # without the fold rule the tip is charged with the distance to the lower part
+    bare = compare(shifted, duffing_reference, fold_overshoot=1e-12)
+    assert bare.branches[0].covered == inside.sum()
+    assert bare.max_error > 5
+    with pytest.raises(ParameterError, match="fold_overshoot"):
+        compare(shifted, duffing_reference, fold_overshoot=-1)
+
+
+def test_reference_folds_are_interpolated_along_the_amplitude():
+    # a coarse reference (120 amplitudes) against the exact curve sampled finely, near its
+    # folds: there the amplitude goes like sqrt(omega distance), and straight segments
+    # through the extreme sample are off (and leave no solution between that sample and the
+    # true fold); compare models omega(a) by the parabola through the fold vertex and its
+    # neighbours, exact up to O(h^3)
+    cw, ca = duffing_curve(np.linspace(0.05, 3, 120))
+    coarse = response(branch(cw, ca), method="coarse")
+    w, a = duffing_curve(np.geomspace(0.05, 3, 20000))
+    # the lower fold (the upper one of this closed form is the join of its two roots at one
+    # amplitude, where the amplitude turns too: left as sampled)
+    for v in turning_points(cw)[1:]:
+        near = (np.abs(w / cw[v] - 1) < 5e-3) & (np.abs(a / ca[v] - 1) < 0.05)
+        fine = response(branch(w[near], a[near]))
+        err = relative_errors(fine, coarse)
+        # oracle for the fine curve: the exact roots at its own frequencies (it is exact),
+        # and for the chord: linear interpolation of the coarse samples on each side
+        chord = []
+        for x, y in zip(w[near], a[near], strict=True):
+            sides = [(cw[v - 1 : v + 1], ca[v - 1 : v + 1]), (cw[v : v + 2], ca[v : v + 2])]
+            cand = [
+                np.interp(x, *(sw[::-1], sa[::-1]) if sw[0] > sw[1] else (sw, sa))
+                for sw, sa in sides
+                if min(sw) <= x <= max(sw)
+            ]
+            chord.append(min((abs(y - r) / r for r in cand), default=np.nan))
+        chord = np.array(chord)
+        assert np.nanmax(chord) > 2e-3  # what straight segments would charge
+        assert np.all(np.isfinite(err))  # every point has a counterpart, beyond the sample too
+        assert np.max(err) < 0.1 * np.nanmax(chord)
+        assert np.isnan(chord).sum() > 0  # the chord leaves points beyond the extreme sample

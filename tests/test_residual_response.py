@@ -69,3 +69,42 @@ def test_bad_input(mlp1):
         residual_response(mlp1, (0.5, 1.0), seed_phases=0)
     with pytest.raises(ParameterError, match="stability"):
         residual_response(mlp1, (0.5, 1.0), stability="magic")
+
+
+def test_cartesian_averaging_is_traced_in_polar_unknowns():
+    # van der Pol's averaging has unknowns (p, q) and no amplitude symbol; traced in
+    # A = |(p, q)| it must give the Krylov-Bogoliubov curve (the same first-order equations
+    # in polar form), which the amplitude parametrisation solves at the same frequencies
+    from perturb.methods import krylov_bogoliubov, van_der_pol_averaging
+
+    osc = builtin_model("nsd", **NSD)
+    window = (0.5, 1.2)
+    cont = residual_response(van_der_pol_averaging(osc), window, seed_frequencies=3)
+    w = np.array([r["omega"] for r in cont.rows()])
+    inside = w[(w > window[0]) & (w < window[1])]
+    quad = solutions_at(krylov_bogoliubov(osc), inside)
+    err = relative_errors(cont, quad, quantity="first_harmonic_amplitude")
+    assert np.isfinite(err).sum() >= inside.size
+    assert np.nanmax(err) < 1e-8
+
+
+def test_second_order_low_frequency_artefacts_are_left_out():
+    # below Omega ~ 0.26 a small divisor of the second-order mLP correction vanishes and its
+    # waveform grows without bound (max|x| ~ 5e5); the exact orbits there stay small
+    osc = builtin_model("nsd", **NSD)
+    exact = max(o.amplitude for o in periodic_orbits(osc, 0.25))
+    approx = modified_lindstedt(osc, 2)
+    kept = residual_response(approx, (0.2, 0.4), seed_frequencies=2)
+    assert kept.branches and any("left out" in n for n in kept.notes)
+    assert max(b.amplitude.max() for b in kept.branches) < 3 * exact
+    for b in kept.branches:
+        assert np.all(b.amplitude <= 2 * b.first_harmonic_amplitude)
+    every = residual_response(approx, (0.2, 0.4), seed_frequencies=2, max_correction=np.inf)
+    assert max(b.amplitude.max() for b in every.branches) > 10 * exact
+
+
+def test_bad_refinement_options(mlp1):
+    with pytest.raises(ParameterError, match="refine"):
+        residual_response(mlp1, (0.5, 1.0), refine=0)
+    with pytest.raises(ParameterError, match="max_correction"):
+        residual_response(mlp1, (0.5, 1.0), max_correction=0.0)

@@ -21,6 +21,8 @@ amplitude-parametrised solver, or the slow flow's Jacobian when the method gives
 
 from __future__ import annotations
 
+import dataclasses
+import inspect
 import math
 from collections.abc import Sequence
 
@@ -37,6 +39,15 @@ from .frequency_response import _FLOQUET_SAMPLES, _WAVEFORM_SAMPLES, _floquet_in
 __all__ = ["residual_response", "ResidualSystem"]
 
 _STABILITY = ("hill", "slow_flow")
+
+# Each evaluation of compiled PWL residuals costs tens of milliseconds however few points it
+# gets, so the continuation should evaluate about once per point: the Hermite predictor with
+# early acceptance does (options of newer versions of continue_curve only).
+_FAST_CONTINUATION = (
+    {"predictor": "hermite", "early_accept": True}
+    if "early_accept" in inspect.signature(continue_curve).parameters
+    else {}
+)
 
 
 class ResidualSystem:
@@ -65,14 +76,17 @@ class ResidualSystem:
             self.unknowns.index(approx.amplitude) if approx.amplitude in self.unknowns else 0
         )
 
-    def evaluate(self, U: np.ndarray, W: np.ndarray):
+    def evaluate(self, U: np.ndarray, W: np.ndarray, amplitude_max: float = math.inf):
         """Residuals and Jacobians; NaN rows where the amplitude is negative (outside the
-        domain of the closed-form Fourier coefficients)."""
+        domain of the closed-form Fourier coefficients) or above ``amplitude_max`` (NaN makes
+        a continuation step fail, so a branch running away to infinite amplitude stops
+        there without evaluating the expressions)."""
         n, m = self.n, W.shape[0]
         R = np.full((m, n), np.nan)
         J = np.full((m, n, n), np.nan)
         Rw = np.full((m, n), np.nan)
-        ok = U[:, self.amplitude_index] >= 0
+        amp = U[:, self.amplitude_index]
+        ok = (amp >= 0) & (amp <= amplitude_max)
         if np.any(ok):
             out = self._fn(*(U[ok, i] for i in range(n)), W[ok])
             k = int(np.count_nonzero(ok))
@@ -122,6 +136,96 @@ def _unique(U: np.ndarray, W: np.ndarray, amp: int, tol: float = 1e-6):
     return U[keep], W[keep]
 
 
+def _densify(
+    sys_: ResidualSystem,
+    U: np.ndarray,
+    W: np.ndarray,
+    sub: int,
+    lam_scale: float,
+    amplitude_max: float,
+    iters: int = 8,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Insert ``sub - 1`` points between consecutive points of a traced curve.
+
+    Each new point starts on the chord between its neighbours and is corrected by Newton on
+    ``R(u, Omega) = 0`` plus the condition that it stays on the hyperplane through its start
+    orthogonal to the chord (so it works across folds, like a pseudo-arclength corrector).
+    All points are corrected at once: one evaluation of the compiled residuals for a whole
+    batch costs about as much as for a single point, whereas the continuation that traced the
+    curve evaluates point after point.  A point that does not converge, or converges farther
+    from its start than half the chord, is left out.
+    """
+    n = sys_.n
+    m = W.size - 1
+    if sub < 2 or m < 1:
+        return U, W
+    t = np.arange(1, sub) / sub
+    u0, u1, w0, w1 = U[:-1], U[1:], W[:-1], W[1:]
+    # scaled coordinates, as in the continuation: unknowns relative to their size
+    su = np.maximum(1.0, np.maximum(np.abs(u0), np.abs(u1)))
+    d = np.concatenate([(u1 - u0) / su, ((w1 - w0) / lam_scale)[:, None]], axis=1)
+    rep = np.repeat(np.arange(m), sub - 1)
+    tt = np.tile(t, m)[:, None]
+    Zg = np.concatenate([u0[rep] / su[rep], (w0[rep] / lam_scale)[:, None]], axis=1)
+    Zg = Zg + tt * d[rep]
+    Z = Zg.copy()
+    D, S = d[rep], su[rep]
+    A = np.zeros((Z.shape[0], n + 1, n + 1))
+    rhs = np.zeros((Z.shape[0], n + 1))
+    for _ in range(iters):
+        R, J, Rw = sys_.evaluate(Z[:, :n] * S, Z[:, n] * lam_scale, amplitude_max)
+        A[:, :n, :n] = J * S[:, None, :]
+        A[:, :n, n] = Rw * lam_scale
+        A[:, n] = D
+        rhs[:, :n] = -R
+        rhs[:, n] = -np.einsum("ij,ij->i", D, Z - Zg)
+        with np.errstate(all="ignore"):
+            try:
+                dZ = np.linalg.solve(A, rhs[..., None])[..., 0]
+            except np.linalg.LinAlgError:
+                # a singular row would spoil the batch: solve row by row, NaN where singular
+                dZ = np.full_like(Z, np.nan)
+                for i in range(Z.shape[0]):
+                    try:
+                        dZ[i] = np.linalg.solve(A[i], rhs[i])
+                    except np.linalg.LinAlgError:
+                        pass
+        Z = Z + dZ
+    R, _, _ = sys_.evaluate(Z[:, :n] * S, Z[:, n] * lam_scale, amplitude_max)
+    chord = np.linalg.norm(D, axis=1)
+    ok = (
+        np.all(np.isfinite(Z), axis=1)
+        & (np.max(np.abs(R), axis=1) < 1e-9)
+        & (np.linalg.norm(Z - Zg, axis=1) <= 0.5 * chord)
+    )
+    Un, Wn = Z[:, :n] * S, Z[:, n] * lam_scale
+    out_u, out_w = [U[:1]], [W[:1]]
+    for j in range(m):
+        sel = np.arange(j * (sub - 1), (j + 1) * (sub - 1))
+        sel = sel[ok[sel]]
+        out_u += [Un[sel], U[j + 1 : j + 2]]
+        out_w += [Wn[sel], W[j + 1 : j + 2]]
+    return np.concatenate(out_u), np.concatenate(out_w)
+
+
+def _slice(b: Branch, i: int, j: int) -> Branch:
+    return Branch(
+        omega=b.omega[i:j],
+        amplitude=b.amplitude[i:j],
+        first_harmonic_amplitude=b.first_harmonic_amplitude[i:j],
+        mean=b.mean[i:j],
+        stable=b.stable[i:j],
+        max_multiplier=b.max_multiplier[i:j],
+    )
+
+
+def _valid_runs(ok: np.ndarray) -> list[tuple[int, int]]:
+    """``(start, stop)`` of the runs of True in ``ok`` that have at least two points."""
+    edges = np.diff(np.concatenate([[0], ok.astype(int), [0]]))
+    starts, stops = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
+    return [(a, b) for a, b in zip(starts, stops, strict=True) if b - a >= 2]
+
+
 def residual_response(
     approximation: Approximation,
     omega_range: Sequence[float] = (0.2, 2.0),
@@ -131,6 +235,8 @@ def residual_response(
     seed_amplitudes: int = 24,
     seed_phases: int = 6,
     ds_max: float = 0.02,
+    refine: int = 4,
+    max_correction: float = 1.0,
     stability: str = "hill",
 ) -> Response:
     """Every branch of ``approximation``'s residuals ``R(u, Omega) = 0`` over ``omega_range``.
@@ -142,13 +248,29 @@ def residual_response(
     omega_range
         ``(low, high)`` forcing frequencies.
     amplitude_range
-        Amplitudes of the seeding grid (logarithmic).
+        Amplitudes of the seeding grid (logarithmic); a branch is followed up to the upper
+        end (a higher-order expansion can have branches running away to infinite amplitude,
+        far outside its range of validity).
     seed_frequencies, seed_amplitudes, seed_phases
         Size of the seeding grid: frequencies across the window, amplitudes, and values of
         every other unknown over ``[-pi, pi)``.
     ds_max
-        Largest continuation step (scaled arclength: about the output spacing relative to the
-        window and to the amplitude).
+        Output spacing along a branch (scaled arclength, relative to the window and to the
+        amplitude).
+    refine
+        The continuation steps up to ``refine * ds_max``; ``refine - 1`` points are inserted
+        between consecutive continuation points by one vectorised Newton correction of all of
+        them (1: plain continuation at ``ds_max``).  Each continuation point costs one
+        evaluation of the compiled residuals, a batch of any size about the same.
+    max_correction
+        Validity bound: points whose waveform ``x(tau)`` departs from its first harmonic by
+        more than ``max_correction`` times that harmonic's amplitude
+        (``max|x| > (1 + max_correction) * first-harmonic amplitude``) are left out, and a
+        branch is split there.  A higher-order expansion whose correction terms outgrow the
+        leading term is outside its range of validity (second-order mLP of ``nsd`` at low
+        frequency, where a small divisor of the correction vanishes, for instance); its
+        solutions there are artefacts of the truncation.  ``inf``: keep every point.  No
+        effect on a first-order waveform.
     stability
         ``"hill"`` or ``"slow_flow"`` (when the method gives a slow flow).
 
@@ -183,10 +305,19 @@ def residual_response(
     ):
         if isinstance(v, bool) or not isinstance(v, int) or v < 1:
             raise ParameterError(f"{name} = {v!r}: expected a positive integer")
+    if isinstance(refine, bool) or not isinstance(refine, int) or refine < 1:
+        raise ParameterError(f"refine = {refine!r}: expected a positive integer")
+    try:
+        max_correction = float(max_correction)
+    except (TypeError, ValueError):
+        max_correction = float("nan")
+    if not max_correction > 0:
+        raise ParameterError(f"max_correction = {max_correction!r}: expected a number > 0")
     if stability not in _STABILITY:
         raise ParameterError(f"stability = {stability!r}: expected one of {', '.join(_STABILITY)}")
     if stability == "slow_flow" and approx.slow_flow is None:
         raise PerturbError(f"{approx.label} has no slow flow: use stability='hill'")
+    approx = _polar(approx)
     sys_ = ResidualSystem(approx)
     n, amp = sys_.n, sys_.amplitude_index
 
@@ -209,11 +340,21 @@ def residual_response(
         U[:, other] = np.angle(np.exp(1j * U[:, other]))
     U, W = _unique(U, W, amp)
 
+    # continue_curve asks for the Jacobian right after the residual at the same point, and
+    # one evaluation of the compiled expressions gives both: evaluate once per point
+    last: list = [None, None, None]
+
+    def point(u, lam):
+        if last[0] is None or last[1] != lam or not np.array_equal(last[0], u):
+            last[0], last[1] = u.copy(), lam
+            last[2] = sys_.evaluate(u[None, :], np.array([lam]), a_hi)
+        return last[2]
+
     def residual(u, lam):
-        return sys_.evaluate(u[None, :], np.array([lam]))[0][0]
+        return point(u, lam)[0][0]
 
     def jacobian(u, lam):
-        _, J, Rw = sys_.evaluate(u[None, :], np.array([lam]))
+        _, J, Rw = point(u, lam)
         return J[0], Rw[0]
 
     def key(u: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -241,8 +382,12 @@ def residual_response(
                         (lo, hi),
                         direction=direction,
                         u_scale=a_scale,
-                        ds_max=ds_max,
+                        # steps relative to the amplitude: a branch growing by decades is
+                        # traced in a few hundred points, not cut off by max_points
+                        adaptive_scale=True,
+                        ds_max=ds_max * refine,
                         max_points=4000,
+                        **_FAST_CONTINUATION,
                     )
                 )
             except ContinuationError:
@@ -267,16 +412,32 @@ def residual_response(
         good = (u_c[:, amp] > 0) & np.all(np.isfinite(u_c), axis=1)
         if np.count_nonzero(good) < 2:
             continue
-        curves.append((u_c[good], w_c[good], folds))
-        traced.append(key(u_c[good], w_c[good]))
+        u_c, w_c = _densify(sys_, u_c[good], w_c[good], refine, hi - lo, a_hi)
+        curves.append((u_c, w_c, folds))
+        traced.append(key(u_c, w_c))
 
     wave = _Waveform(approx, approx.amplitude or sys_.unknowns[amp], *_phase_and_freq(approx))
     branches, fold_pts = [], []
+    dropped = 0
     for u_c, w_c, folds in curves:
-        branches.append(_branch(approx, sys_, wave, u_c, w_c, stability))
+        b = _branch(approx, sys_, wave, u_c, w_c, stability)
+        ok = b.amplitude <= (1.0 + max_correction) * b.first_harmonic_amplitude
+        if np.all(ok):
+            branches.append(b)
+        else:
+            dropped += int(np.count_nonzero(~ok))
+            branches += [_slice(b, i, j) for i, j in _valid_runs(ok)]
         for f in folds:
-            fold_pts.append((float(f.lam), float(f.u[amp])))
+            # a fold of the left-out part is not reported either
+            near = np.argmin(np.abs(w_c - f.lam) + np.abs(u_c[:, amp] - f.u[amp]))
+            if ok[near]:
+                fold_pts.append((float(f.lam), float(f.u[amp])))
     notes = () if branches else ("no solution found on the seeding grid",)
+    if dropped:
+        notes += (
+            f"{dropped} points left out where the waveform's correction exceeds "
+            f"{max_correction:g} times its first harmonic (outside the expansion's validity)",
+        )
     params = {k: v for k, v in approx.oscillator.params.items() if v is not None}
     return Response(
         tuple(branches),
@@ -285,6 +446,45 @@ def residual_response(
         params,
         folds=tuple(fold_pts),
         notes=notes,
+    )
+
+
+def _polar(approx: Approximation) -> Approximation:
+    """A Cartesian approximation (unknowns ``p, q`` with waveform ``p cos tau + q sin tau``
+    and no amplitude symbol, as van der Pol's averaging gives) in polar unknowns
+    ``p = A cos phi``, ``q = A sin phi``: the seeding grid, the positive-amplitude domain and
+    the waveform statistics are all in amplitude and phase.  Others pass through."""
+    if approx.amplitude is not None or len(approx.unknowns) != 2:
+        return approx
+    p, q = approx.unknowns
+    c, sn = approx.waveform.coeff(sp.cos(approx.tau)), approx.waveform.coeff(sp.sin(approx.tau))
+    if sp.simplify(approx.waveform - p * sp.cos(approx.tau) - q * sp.sin(approx.tau)) != 0 or (
+        c != p or sn != q
+    ):
+        return approx
+    A = sp.Symbol("A", positive=True)
+    phi = sp.Symbol("phi", real=True)
+    to = {p: A * sp.cos(phi), q: A * sp.sin(phi)}
+    res = [sp.sympify(r).xreplace(to) for r in approx.residuals]
+    # the balance of the cosine and sine parts, rotated to the (A, phi) directions
+    rot = (
+        res[0] * sp.cos(phi) + res[1] * sp.sin(phi),
+        -res[0] * sp.sin(phi) + res[1] * sp.cos(phi),
+    )
+    flow = None
+    if approx.slow_flow is not None and len(approx.slow_flow) == 2:
+        dp, dq = (sp.sympify(f).xreplace(to) for f in approx.slow_flow)
+        flow = (
+            dp * sp.cos(phi) + dq * sp.sin(phi),
+            (-dp * sp.sin(phi) + dq * sp.cos(phi)) / A,
+        )
+    return dataclasses.replace(
+        approx,
+        unknowns=(A, phi),
+        residuals=rot,
+        waveform=A * sp.cos(approx.tau - phi),
+        slow_flow=flow,
+        amplitude=A,
     )
 
 
