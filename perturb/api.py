@@ -38,7 +38,10 @@ def frequency_response(
     ----------
     method
         ``"exact"`` (continuation of exact periodic orbits), ``"hb"`` (numeric multi-harmonic
-        balance, ``harmonics`` harmonics, exact Galerkin projection for PWL forces) or a
+        balance, ``harmonics`` harmonics, exact Galerkin projection for PWL forces),
+        ``"auto"`` (the cheapest method that meets ``rtol`` at exact spot checks,
+        :func:`perturb.adaptive.auto_frequency_response`; the choice, its estimate and the
+        spot-check errors are the first ``notes`` of the response) or a
         symbolic method of :data:`perturb.methods.METHODS` (``"mms"`` and ``"avg"`` are
         accepted for ``"ms"`` and ``"kb"``).
     Omega
@@ -51,7 +54,9 @@ def frequency_response(
     harmonics
         Harmonics of ``"hb"`` (default 15).
     options
-        Passed to the solver.
+        Passed to the solver. With ``"auto"``: ``rtol`` (relative amplitude tolerance in
+        ``(0, 1)``, default ``1e-3``), ``spots`` / ``n_spots`` (spot-check frequencies),
+        ``points``.
 
     Notes
     -----
@@ -61,6 +66,16 @@ def frequency_response(
     (:func:`perturb.numeric.residual_response.residual_response`).
     """
     method = ALIASES.get(method, method)
+    if method == "auto":
+        from .adaptive import auto_frequency_response, check_rtol
+
+        rtol = check_rtol(options.pop("rtol", 1e-3))
+        if frequencies is not None or order is not None or harmonics is not None:
+            raise ParameterError(
+                "method 'auto' chooses order and harmonics itself over a window Omega=(lo, hi): "
+                "give neither frequencies=, order= nor harmonics="
+            )
+        return auto_frequency_response(oscillator, Omega, rtol, **options)[0]
     if method == "exact":
         from .simulate.continuation import exact_frequency_response, exact_solutions_at
 

@@ -10,7 +10,7 @@ Subcommands::
     perturb simulate MODEL [--param ...] --y0 x,v --t 0:100 [--method auto|exact|event|lcp|ode]
     perturb periodic MODEL [--param ...] --omega 0.6 [--m 1]
     perturb derive METHOD MODEL [--order N] [--param ...] [--latex F.tex] [--json F.json]
-    perturb run [SCENE.toml] [--out DIR]            answer a scene (default: the embedded one)
+    perturb run [SCENE.toml] [--out DIR] [--rtol R] answer a scene (default: the embedded one)
 
 Errors a user can cause print one line ``perturb: error: ...`` and exit with status 2;
 nothing typed on the command line is evaluated as code.
@@ -306,6 +306,17 @@ def _cmd_run(args: argparse.Namespace) -> int:
         Path(args.out).mkdir(parents=True, exist_ok=True)
         return cmd_sweep(build_args(args.scene, str(Path(args.out) / "map.nc")))
     scene = load_scene(args.scene) if args.scene else default_scene()
+    if args.rtol is not None:
+        import dataclasses
+
+        from .adaptive import check_rtol
+
+        if scene.method != "auto" or scene.kind != "frequency_response":
+            raise PerturbError(
+                f"--rtol {args.rtol}: applies to frequency-response scenes with "
+                f"[method] name = 'auto' ({scene.source} asks for {scene.kind} by {scene.method})"
+            )
+        scene = dataclasses.replace(scene, rtol=check_rtol(args.rtol))
     run_scene(scene, args.out)
     return 0
 
@@ -396,6 +407,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="answer a scene file (default: the embedded default scene)")
     p.add_argument("scene", nargs="?", help="scene TOML file")
     p.add_argument("--out", default="out", help="output directory (default ./out)")
+    p.add_argument(
+        "--rtol", type=_finite("--rtol"), help="override [accuracy] rtol of a method = auto scene"
+    )
     p.set_defaults(func=_cmd_run)
 
     from .sweep_cli import add_parser as add_sweep_parser

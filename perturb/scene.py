@@ -18,11 +18,35 @@ parameter values, what is asked (``[ask] kind``), the method and where to write 
     png = "frc.png"
     latex = "derivation.tex"
 
-Unknown sections or keys are errors (a typo must not be silently ignored).
+``[ask] kind`` is one of
+
+``frequency_response``
+    ``omega = [lo, hi]``, ``points``; any method of :func:`perturb.frequency_response`,
+    including ``name = "auto"`` with ``[accuracy] rtol`` (the cheapest method that meets it at
+    exact spot checks, :mod:`perturb.adaptive`; the choice goes to ``report.json``).
+``backbone``
+    ``amplitude = [lo, hi]``, ``points``: the frequency of the free undamped oscillation
+    (forcing and damping set to zero) against its amplitude, from the energy integral.
+``time_history``
+    ``y0 = [x0, v0]``, ``t = [t0, t1]``, ``samples``; ``[method] name`` is the integrator
+    (``auto``, ``exact``, ``event``, ``lcp``, ``ode``).
+``step_response``
+    As ``time_history`` from rest by default, with the forcing held at its value at ``t = 0``
+    (``F`` for ``F cos(Omega t)``): the response to a suddenly applied load.
+``bifurcation_diagram``
+    ``parameter``, ``values = [lo, hi]``, ``points``, optional ``y0``, ``transient_periods``,
+    ``record_periods``: stroboscopic ``x`` of the attractors against the parameter.
+
+Each writes a CSV and a PNG into the output directory (``[output] csv`` / ``png``) and a JSON
+``report`` of what was computed. Peak maps are scenes with a ``[sweep]`` table
+(:mod:`perturb.sweep_cli`). Unknown sections or keys, and keys of another kind, are errors (a
+typo must not be silently ignored).
 """
 
 from __future__ import annotations
 
+import json
+import math
 import sys
 import tomllib
 from collections.abc import Mapping
@@ -35,17 +59,62 @@ from .errors import ParameterError, PerturbError
 from .methods import METHODS
 from .model import Oscillator, builtin_model, validate_parameter_value
 
-__all__ = ["Scene", "load_scene", "default_scene", "run_scene", "METHODS"]
+__all__ = [
+    "Scene",
+    "load_scene",
+    "default_scene",
+    "run_scene",
+    "backbone",
+    "step_oscillator",
+    "METHODS",
+]
 
 _KEYS: dict[str, set[str]] = {
     "model": {"name", "equation"},
     "params": set(),  # any parameter name
-    "ask": {"kind", "omega", "points"},
-    "method": {"name"},
-    "output": {"csv", "png", "latex"},
-    "accuracy": {"rtol"},
+    "ask": {
+        "kind",
+        "omega",
+        "points",
+        "amplitude",
+        "y0",
+        "t",
+        "samples",
+        "parameter",
+        "values",
+        "transient_periods",
+        "record_periods",
+    },
+    "method": {"name", "order", "harmonics"},
+    "output": {"csv", "png", "latex", "report"},
+    "accuracy": {"rtol", "spots"},
 }
-_KINDS = ("frequency_response",)
+#: The ``[ask]`` keys each kind accepts (besides ``kind``).
+_KIND_KEYS: dict[str, set[str]] = {
+    "frequency_response": {"omega", "points"},
+    "backbone": {"amplitude", "points"},
+    "time_history": {"y0", "t", "samples"},
+    "step_response": {"y0", "t", "samples"},
+    "bifurcation_diagram": {
+        "parameter",
+        "values",
+        "points",
+        "y0",
+        "transient_periods",
+        "record_periods",
+    },
+}
+_KINDS = tuple(_KIND_KEYS)
+#: Integrators of the time-history kinds.
+_INTEGRATORS = ("auto", "exact", "event", "lcp", "ode")
+#: File names when ``[output]`` does not give them.
+_DEFAULT_NAMES = {
+    "frequency_response": ("frc.csv", "frc.png"),
+    "backbone": ("backbone.csv", "backbone.png"),
+    "time_history": ("time_history.csv", "time_history.png"),
+    "step_response": ("step_response.csv", "step_response.png"),
+    "bifurcation_diagram": ("bifurcation.csv", "bifurcation.png"),
+}
 
 
 @dataclass(frozen=True)
@@ -60,6 +129,17 @@ class Scene:
     points: int = 2000
     method: str = "hb1"
     rtol: float | None = None
+    order: int | None = None
+    harmonics: int | None = None
+    spots: tuple[float, ...] | None = None
+    amplitude: tuple[float, float] = (0.1, 10.0)
+    y0: tuple[float, float] = (0.0, 0.0)
+    t: tuple[float, float] = (0.0, 100.0)
+    samples: int = 4001
+    parameter: str | None = None
+    values: tuple[float, float] | None = None
+    transient_periods: int = 200
+    record_periods: int = 16
     outputs: Mapping[str, str] = field(
         default_factory=lambda: MappingProxyType(
             {"csv": "frc.csv", "png": "frc.png", "latex": "derivation.tex"}
@@ -68,6 +148,7 @@ class Scene:
     source: str = "<scene>"
 
     def oscillator(self) -> Oscillator:
+        """The model with the scene's parameter values."""
         if self.equation is not None:
             return Oscillator.parse(self.equation, dict(self.params), name=self.model)
         return builtin_model(self.model, **self.params)
@@ -116,44 +197,145 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
     kind = ask.get("kind", "frequency_response")
     if kind not in _KINDS:
         raise _scene_error(source, f"[ask] kind = {kind!r}: expected one of {', '.join(_KINDS)}")
-    omega = ask.get("omega", [0.2, 2.0])
-    if (
-        not isinstance(omega, list)
-        or len(omega) != 2
-        or not all(isinstance(w, int | float) and not isinstance(w, bool) for w in omega)
-        or not 0 < omega[0] < omega[1]
-    ):
-        raise _scene_error(
-            source, f"[ask] omega = {omega!r}: expected [low, high] with 0 < low < high"
-        )
-    points = ask.get("points", 2000)
+    for key in ask:
+        if key != "kind" and key not in _KIND_KEYS[kind]:
+            raise _scene_error(
+                source,
+                f"[ask] {key!r} does not apply to kind {kind!r}: expected one of "
+                + ", ".join(sorted(_KIND_KEYS[kind])),
+            )
+    fields: dict = {}
+    if "omega" in ask or kind == "frequency_response":
+        fields["omega"] = _interval(source, "omega", ask.get("omega", [0.2, 2.0]), positive=True)
+    if "amplitude" in ask:
+        fields["amplitude"] = _interval(source, "amplitude", ask["amplitude"], positive=True)
+    if "t" in ask:
+        fields["t"] = _interval(source, "t", ask["t"], positive=False)
+    if "values" in ask:
+        fields["values"] = _interval(source, "values", ask["values"], positive=False)
+    if "y0" in ask:
+        y0 = ask["y0"]
+        if not (
+            isinstance(y0, list) and len(y0) == 2 and all(_is_number(v) for v in y0)
+        ) or not all(math.isfinite(v) for v in y0):
+            raise _scene_error(source, f"[ask] y0 = {y0!r}: expected [x0, v0]")
+        fields["y0"] = (float(y0[0]), float(y0[1]))
+    default_points = {"frequency_response": 2000, "backbone": 200, "bifurcation_diagram": 60}
+    points = ask.get("points", default_points.get(kind, 2000))
     if not isinstance(points, int) or isinstance(points, bool) or not 10 <= points <= 10**6:
         raise _scene_error(source, f"[ask] points = {points!r}: expected an integer in [10, 1e6]")
-    method = data.get("method", {}).get("name", "hb1")
-    if method not in METHODS:
+    for key, lo, hi in (
+        ("samples", 2, 10**7),
+        ("transient_periods", 0, 10**6),
+        ("record_periods", 1, 10**4),
+    ):
+        if key in ask:
+            value = ask[key]
+            if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
+                raise _scene_error(
+                    source, f"[ask] {key} = {value!r}: expected an integer in [{lo}, {hi}]"
+                )
+            fields[key] = value
+    if kind == "bifurcation_diagram":
+        parameter = ask.get("parameter")
+        if not isinstance(parameter, str) or not parameter.isidentifier():
+            raise _scene_error(
+                source, f"[ask] parameter = {parameter!r}: expected the name of a parameter"
+            )
+        if "values" not in fields:
+            raise _scene_error(source, "[ask] values = [lo, hi] is needed for the diagram")
+        fields["parameter"] = parameter
+
+    method_table = data.get("method", {})
+    method = method_table.get(
+        "name", "auto" if kind in ("time_history", "step_response") else "hb1"
+    )
+    if kind in ("time_history", "step_response", "bifurcation_diagram"):
+        if method not in _INTEGRATORS:
+            raise _scene_error(
+                source,
+                f"[method] name = {method!r}: kind {kind!r} expects an integrator, one of "
+                + ", ".join(_INTEGRATORS),
+            )
+    elif method not in METHODS and method not in _NUMERIC_METHODS:
         raise _scene_error(
-            source, f"[method] name = {method!r}: expected one of {', '.join(METHODS)}"
+            source,
+            f"[method] name = {method!r}: expected one of "
+            + ", ".join([*_NUMERIC_METHODS, *METHODS]),
         )
-    outputs = dict(Scene.__dataclass_fields__["outputs"].default_factory())  # type: ignore[misc]
+    for key in ("order", "harmonics"):
+        if key in method_table:
+            value = method_table[key]
+            if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= 1000:
+                raise _scene_error(
+                    source, f"[method] {key} = {value!r}: expected a positive integer"
+                )
+            fields[key] = value
+    csv_name, png_name = _DEFAULT_NAMES[kind]
+    outputs = {"csv": csv_name, "png": png_name, "report": "report.json"}
+    if kind == "frequency_response":
+        outputs["latex"] = "derivation.tex"
     for key, value in data.get("output", {}).items():
         if not isinstance(value, str) or not value or Path(value).name != value:
             raise _scene_error(
                 source, f"[output] {key} = {value!r}: expected a plain file name (no directories)"
             )
         outputs[key] = value
-    rtol = data.get("accuracy", {}).get("rtol")
+    accuracy = data.get("accuracy", {})
+    rtol = accuracy.get("rtol")
+    if rtol is not None:
+        from .adaptive import check_rtol
+
+        try:
+            rtol = check_rtol(rtol)
+        except ParameterError as exc:
+            raise _scene_error(source, f"[accuracy] {exc}") from None
+    if method == "auto" and kind == "frequency_response" and rtol is None:
+        raise _scene_error(source, "[method] name = 'auto' needs [accuracy] rtol = ...")
+    if "spots" in accuracy:
+        spots = accuracy["spots"]
+        if (
+            not isinstance(spots, list)
+            or not spots
+            or not all(_is_number(w) and 0 < w < math.inf for w in spots)
+        ):
+            raise _scene_error(
+                source, f"[accuracy] spots = {spots!r}: expected a list of positive frequencies"
+            )
+        fields["spots"] = tuple(float(w) for w in spots)
     return Scene(
         model=str(name),
         equation=equation,
         params=MappingProxyType(params),
         kind=kind,
-        omega=(float(omega[0]), float(omega[1])),
         points=points,
         method=method,
-        rtol=None if rtol is None else float(rtol),
+        rtol=rtol,
         outputs=MappingProxyType(outputs),
         source=source,
+        **fields,
     )
+
+
+_NUMERIC_METHODS = ("auto", "hb", "exact")
+
+
+def _is_number(v: object) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def _interval(source: str, key: str, value: object, *, positive: bool) -> tuple[float, float]:
+    ok = (
+        isinstance(value, list)
+        and len(value) == 2
+        and all(_is_number(w) and math.isfinite(w) for w in value)
+        and value[0] < value[1]
+        and (not positive or value[0] > 0)
+    )
+    if not ok:
+        cond = "0 < low < high" if positive else "low < high"
+        raise _scene_error(source, f"[ask] {key} = {value!r}: expected [low, high] with {cond}")
+    return (float(value[0]), float(value[1]))  # type: ignore[index]
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -173,11 +355,22 @@ def default_scene() -> Scene:
 
 
 def run_scene(scene: Scene, out_dir: str | Path = "out", *, log=None) -> dict[str, Path]:
-    """Answer ``scene`` and write its outputs into ``out_dir``; returns the written paths."""
-    from .cache import cached_derivation
-    from .numeric.frequency_response import frequency_response
-    from .report.figures import plot_frequency_response
-    from .report.latex import latex_document
+    """Answer ``scene`` and write its outputs into ``out_dir``.
+
+    Parameters
+    ----------
+    scene : Scene
+    out_dir : str or Path
+        Created if missing.
+    log : file, optional
+        Where progress lines go (default standard error).
+
+    Returns
+    -------
+    dict
+        The written paths by kind (``csv``, ``png``, ``report``, and ``latex`` for a
+        frequency response by a symbolic method).
+    """
 
     def say(msg: str) -> None:
         print(msg, file=log or sys.stderr, flush=True)
@@ -186,19 +379,277 @@ def run_scene(scene: Scene, out_dir: str | Path = "out", *, log=None) -> dict[st
     out.mkdir(parents=True, exist_ok=True)
     osc = scene.oscillator()
     say(f"[perturb] scene {scene.source}: {osc}")
-    say(f"[perturb] deriving {scene.method} ...")
-    approx = cached_derivation(scene.method, METHODS[scene.method], osc)
-    say(f"[perturb] tracing the frequency response over Omega in {scene.omega} ...")
-    resp = frequency_response(approx, scene.omega, points=scene.points)
-    say(f"[perturb] {resp!r}".replace("\n", "\n[perturb] "))
-    paths = {
-        "csv": out / scene.outputs["csv"],
-        "png": out / scene.outputs["png"],
-        "latex": out / scene.outputs["latex"],
+    paths = {"csv": out / scene.outputs["csv"], "png": out / scene.outputs["png"]}
+    runner = {
+        "frequency_response": _run_frequency_response,
+        "backbone": _run_backbone,
+        "time_history": _run_time_history,
+        "step_response": _run_time_history,
+        "bifurcation_diagram": _run_bifurcation,
+    }[scene.kind]
+    report = {
+        "scene": scene.source,
+        "kind": scene.kind,
+        "model": str(osc),
+        "params": dict(scene.params),
     }
-    resp.to_csv(paths["csv"])
-    plot_frequency_response(resp, paths["png"])
-    latex_document(approx, paths["latex"])
+    report.update(runner(scene, osc, out, paths, say))
+    paths["report"] = out / scene.outputs.get("report", "report.json")
+    paths["report"].write_text(json.dumps(report, indent=1, default=str) + "\n")
     for kind, p in paths.items():
         say(f"[perturb] wrote {kind}: {p}")
     return paths
+
+
+def _run_frequency_response(scene: Scene, osc: Oscillator, out: Path, paths: dict, say) -> dict:
+    from .report.figures import plot_frequency_response
+
+    info: dict = {"omega": list(scene.omega)}
+    approx = None
+    if scene.method == "auto":
+        from .adaptive import auto_frequency_response
+
+        say(f"[perturb] choosing a method for rtol = {scene.rtol:g} (spot checks) ...")
+        resp, choice = auto_frequency_response(
+            osc,
+            scene.omega,
+            scene.rtol,
+            spots=scene.spots,
+            points=scene.points,
+            log=lambda line: say(f"[perturb]   {line}"),
+        )
+        say("[perturb] " + choice.summary().replace("\n", "\n[perturb] "))
+        info["method"] = "auto"
+        info["auto"] = choice.to_dict()
+        cand = choice.chosen.candidate
+        if cand.method not in ("hb", "exact"):
+            from .adaptive import _derive
+
+            approx = _derive(cand, osc)
+    elif scene.method in ("hb", "exact"):
+        from .api import frequency_response
+
+        say(f"[perturb] tracing the {scene.method} frequency response over {scene.omega} ...")
+        extra = {"harmonics": scene.harmonics} if scene.method == "hb" else {}
+        resp = frequency_response(osc, scene.method, scene.omega, **extra)
+        info["method"] = scene.method
+    else:
+        from .cache import cached_derivation
+        from .numeric.frequency_response import frequency_response
+        from .numeric.residual_response import residual_response
+
+        say(f"[perturb] deriving {scene.method} ...")
+        opts = {} if scene.order is None else {"order": scene.order}
+        approx = cached_derivation(scene.method, METHODS[scene.method], osc, **opts)
+        say(f"[perturb] tracing the frequency response over Omega in {scene.omega} ...")
+        poly = approx.frequency_polynomial
+        if poly is None or len(poly) > 3 or approx.slow_flow is None:
+            resp = residual_response(approx, scene.omega)
+        else:
+            resp = frequency_response(approx, scene.omega, points=scene.points)
+        info["method"] = scene.method
+    say(f"[perturb] {resp!r}".replace("\n", "\n[perturb] "))
+    resp.to_csv(paths["csv"])
+    plot_frequency_response(resp, paths["png"])
+    info["response"] = resp.method
+    info["branches"] = len(resp.branches)
+    if approx is not None and "latex" in scene.outputs:
+        from .report.latex import latex_document
+
+        paths["latex"] = out / scene.outputs["latex"]
+        latex_document(approx, paths["latex"])
+    return info
+
+
+def _numeric_force(osc: Oscillator):
+    """``f(x)`` of the free undamped oscillator as a numpy function (parameters substituted)."""
+    import numpy as np
+    import sympy as sp
+
+    x = osc.x
+    f = osc.restoring_force.xreplace(osc.substitutions())
+    free = f.free_symbols - {x}
+    if free:
+        raise ParameterError(
+            "backbone: the restoring force needs values for "
+            + ", ".join(sorted(str(s) for s in free))
+        )
+    fn = sp.lambdify(x, f, modules=[{"Heaviside": lambda z, h0=0.5: np.heaviside(z, h0)}, "numpy"])
+    return lambda z: np.asarray(fn(z), dtype=float) * np.ones_like(np.asarray(z, dtype=float))
+
+
+def backbone(osc: Oscillator, amplitudes) -> dict[str, list[float]]:
+    """Period and frequency of the free undamped oscillation from each turning point.
+
+    From rest at ``x0`` the motion runs to the other turning point ``x1`` (the nearest point
+    beyond which the potential ``G(x) = int_0^x f`` exceeds ``G(x0)``) and back, so
+    ``T = 2 |int_{x0}^{x1} dx / sqrt(2 (G(x0) - G(x)))|``, evaluated by adaptive quadrature
+    after ``x = c + h sin(theta)``, which removes the inverse square-root end singularities.
+
+    Parameters
+    ----------
+    osc : Oscillator
+        Damping and forcing are ignored; the restoring force needs parameter values.
+    amplitudes : array_like
+        Starting turning points ``x0 > 0``.
+
+    Returns
+    -------
+    dict
+        Lists ``x0``, ``x1``, ``amplitude`` (``max(|x0|, |x1|)``), ``period``, ``omega``
+        (``2 pi / period``); turning points without a bounded orbit are left out.
+    """
+    import numpy as np
+    from scipy.integrate import quad
+    from scipy.optimize import brentq
+
+    f = _numeric_force(osc)
+    try:
+        kinks = sorted(float(b) for b in osc.piecewise_linear().breakpoints)
+    except Exception:  # a smooth force has no canonical PWL form; nothing to split at
+        kinks = []
+
+    def G(z: float) -> float:
+        pts = [b for b in kinks if min(0.0, z) < b < max(0.0, z)]
+        return float(quad(lambda s: float(f(s)), 0.0, z, points=pts or None, limit=200)[0])
+
+    out: dict[str, list[float]] = {k: [] for k in ("x0", "x1", "amplitude", "period", "omega")}
+    for x0 in np.asarray(amplitudes, dtype=float):
+        f0 = float(f(x0))
+        if f0 == 0.0:
+            continue
+        d = -1.0 if f0 > 0 else 1.0  # the force pushes the mass this way
+        g0 = G(x0)
+        # march until the potential climbs back to G(x0): the other turning point
+        step, z, x1, gz = 0.01 * max(1.0, abs(x0)), x0, None, g0
+        for i in range(20000):
+            z_next = z + d * step
+            # the potential step by step: short integrals instead of one from 0 each time
+            pts = [b for b in kinks if min(z, z_next) < b < max(z, z_next)]
+            g_next = gz + quad(lambda q: float(f(q)), z, z_next, points=pts or None)[0]
+            if g_next >= g0:
+                if i == 0:
+                    break  # at (numerically) an equilibrium: no oscillation to time
+                x1 = brentq(lambda q, g0=g0: G(q) - g0, z, z_next, xtol=1e-14, rtol=1e-14)
+                break
+            z, gz = z_next, g_next
+        if x1 is None:
+            continue
+        c, h = 0.5 * (x0 + x1), 0.5 * (x1 - x0)
+        ths = sorted(float(np.arcsin((b - c) / h)) for b in kinks if min(x0, x1) < b < max(x0, x1))
+
+        def integrand(th: float, c=c, h=h, g0=g0) -> float:
+            gap = 2.0 * (g0 - G(c + h * np.sin(th)))
+            return abs(h) * np.cos(th) / np.sqrt(max(gap, 1e-300))
+
+        half = quad(integrand, -np.pi / 2, np.pi / 2, points=ths or None, limit=200)[0]
+        T = 2.0 * half
+        out["x0"].append(float(x0))
+        out["x1"].append(float(x1))
+        out["amplitude"].append(max(abs(float(x0)), abs(float(x1))))
+        out["period"].append(T)
+        out["omega"].append(2.0 * np.pi / T)
+    return out
+
+
+def _run_backbone(scene: Scene, osc: Oscillator, out: Path, paths: dict, say) -> dict:
+    import numpy as np
+
+    lo, hi = scene.amplitude
+    say(f"[perturb] backbone (free undamped) for turning points {lo:g}..{hi:g} ...")
+    bb = backbone(osc, np.linspace(lo, hi, scene.points))
+    cols = ("x0", "x1", "amplitude", "period", "omega")
+    lines = [",".join(cols)] + [
+        ",".join(repr(bb[c][i]) for c in cols) for i in range(len(bb["x0"]))
+    ]
+    paths["csv"].write_text("\n".join(lines) + "\n")
+    fig, ax = _figure()
+    ax.plot(bb["omega"], bb["amplitude"], ".", ms=2)
+    ax.set_xlabel("free-vibration frequency omega")
+    ax.set_ylabel("amplitude max|x|")
+    ax.set_title(f"backbone: {osc}", fontsize=7)
+    fig.savefig(paths["png"])
+    return {"amplitude": [lo, hi], "points": len(bb["x0"]), "method": "energy quadrature"}
+
+
+def _figure():
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5), dpi=110)
+    ax.grid(alpha=0.3)
+    return fig, ax
+
+
+def step_oscillator(osc: Oscillator) -> Oscillator:
+    """``osc`` with its forcing held at the value it has at ``t = 0`` (a suddenly applied
+    constant load: ``F`` for ``F cos(Omega t)``)."""
+    import sympy as sp
+
+    eq = osc.equation
+    t = next((s for s in eq.rhs.free_symbols if s.name == "t"), sp.Symbol("t"))
+    rhs = eq.rhs.subs(t, 0)
+    params = {k: v for k, v in osc.params.items() if v is not None and k != "Omega"}
+    return Oscillator.parse(f"{eq.lhs} = {rhs}", params, name=f"{osc.name} step")
+
+
+def _run_time_history(scene: Scene, osc: Oscillator, out: Path, paths: dict, say) -> dict:
+    from .report.figures import plot_time_history
+    from .simulate.time_history import time_history
+
+    if scene.kind == "step_response":
+        osc = step_oscillator(osc)
+        say(f"[perturb] step load: {osc}")
+    say(f"[perturb] integrating over t in {scene.t} from y0 = {scene.y0} ({scene.method}) ...")
+    hist = time_history(osc, scene.y0, scene.t, method=scene.method, samples=scene.samples)
+    say(f"[perturb] {hist!r}")
+    hist.to_csv(paths["csv"])
+    plot_time_history(hist, paths["png"], title=str(osc))
+    return {"t": list(scene.t), "y0": list(scene.y0), "integrator": hist.method}
+
+
+def _run_bifurcation(scene: Scene, osc: Oscillator, out: Path, paths: dict, say) -> dict:
+    import numpy as np
+
+    from .simulate.sweeps import bifurcation_diagram
+
+    assert scene.values is not None and scene.parameter is not None
+    values = np.linspace(*scene.values, scene.points)
+    say(
+        f"[perturb] bifurcation diagram over {scene.parameter} in {scene.values} "
+        f"({scene.points} values) ..."
+    )
+    diag = bifurcation_diagram(
+        osc,
+        scene.parameter,
+        values,
+        y0=scene.y0,
+        transient_periods=scene.transient_periods,
+        record_periods=scene.record_periods,
+        method=scene.method,
+        progress=False,
+    )
+    say(f"[perturb] {diag!r}")
+    lines = [f"{scene.parameter},run,x,v,period"]
+    for i in range(diag.x.shape[0]):
+        for j, p in enumerate(diag.values):
+            for x, v in zip(diag.x[i, j], diag.v[i, j], strict=True):
+                lines.append(f"{float(p)!r},{i},{float(x)!r},{float(v)!r},{int(diag.period[i, j])}")
+    paths["csv"].write_text("\n".join(lines) + "\n")
+    fig, ax = _figure()
+    p, x = diag.points()
+    ax.plot(p, x, ",k")
+    ax.set_xlabel(scene.parameter)
+    ax.set_ylabel(f"x at phase {diag.phase:g} of each forcing period")
+    ax.set_title(f"bifurcation diagram: {osc}", fontsize=7)
+    fig.savefig(paths["png"])
+    return {
+        "parameter": scene.parameter,
+        "values": list(scene.values),
+        "points": scene.points,
+        "period_1": int(np.sum(diag.period == 1)),
+        "subharmonic": int(np.sum(diag.period > 1)),
+        "not_periodic": int(np.sum(diag.period == 0)),
+    }

@@ -70,6 +70,8 @@ def test_fourier_command_against_mpmath_quadrature(capsys):
         (["fourier", "x", "--A", "1", "--param", "k"], "expected NAME=VALUE"),
         (["fourier", "x", "--A", "1", "--param", "k=nan"], "finite"),
         (["run", "/nonexistent/scene.toml"], "cannot read scene file"),
+        (["run", "--rtol", "1e-3"], "applies to frequency-response scenes"),
+        (["run", str(ROOT / "scenes" / "zou_fig17_k-3.toml"), "--rtol", "2"], "rtol = 2.0"),
     ],
 )
 def test_user_errors_exit_2_with_one_clear_line(argv, fragment, capsys):
@@ -106,6 +108,7 @@ def test_run_default_scene_writes_csv_png_latex(tmp_path):
     tex = paths["latex"].read_text()
     assert "\\begin{document}" in tex and "\\end{document}" in tex
     assert "H\\left(" in tex or "a^{R}" in tex
+    assert '"method": "hb1"' in paths["report"].read_text()
 
 
 @pytest.mark.parametrize(
@@ -271,3 +274,168 @@ def test_run_on_a_sweep_scene_writes_the_map(tmp_path):
 def test_frc_order_for_a_method_without_one_is_a_clear_error(capsys):
     assert main(["frc", "nsd", "--method", "hb1", "--order", "2"]) == 2
     assert "has no expansion order" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------------------------
+# ask kinds beyond the frequency response
+# ---------------------------------------------------------------------------------------------
+def _csv_columns(path):
+    import numpy as np
+
+    with open(path) as fh:
+        rows = list(csv.DictReader(fh))
+    return {k: np.array([float(r[k]) for r in rows]) for k in rows[0]}
+
+
+@pytest.mark.parametrize(
+    "text, fragment",
+    [
+        ("[ask]\nkind='backbone'\nomega=[1, 2]", "'omega' does not apply to kind 'backbone'"),
+        ("[ask]\nkind='time_history'\ny0=[1]", "y0"),
+        ("[ask]\nkind='time_history'\n[method]\nname='hb1'", "expects an integrator"),
+        ("[ask]\nkind='bifurcation_diagram'\nparameter='k'", "values"),
+        ("[ask]\nkind='bifurcation_diagram'\nvalues=[0, 1]", "parameter"),
+        ("[ask]\nkind='backbone'\namplitude=[2, 1]", "amplitude"),
+        ("[ask]\nkind='step_response'\nsamples=1", "samples"),
+        ("[method]\nname='hb'\nharmonics=0", "harmonics"),
+    ],
+)
+def test_bad_ask_kinds(text, fragment):
+    with pytest.raises(PerturbError) as info:
+        parse_scene("[model]\nname='nsd'\n" + text, "test.toml")
+    assert fragment in str(info.value)
+
+
+def test_every_shipped_scene_parses():
+    from perturb.scene import load_scene
+
+    for path in sorted((ROOT / "scenes").glob("*.toml")):
+        if path.name == "peak_map.toml":
+            continue  # a [sweep] scene, read by perturb.sweep_cli
+        scene = load_scene(path)
+        scene.oscillator()
+        assert "REFERENCES.md" in path.read_text() or "course" in path.name, path
+
+
+def test_backbone_scene_duffing_against_the_elliptic_integral(tmp_path):
+    import dataclasses
+
+    from perturb.scene import load_scene
+
+    scene = load_scene(ROOT / "scenes" / "course_duffing_backbone.toml")
+    scene = dataclasses.replace(scene, points=12)
+    paths = run_scene(scene, tmp_path, log=open(tmp_path / "log.txt", "w"))
+    cols = _csv_columns(paths["csv"])
+    assert cols["x0"].size == 12
+    assert paths["png"].read_bytes()[:4] == b"\x89PNG"
+    mp.mp.dps = 30
+    for A, T in zip(cols["x0"], cols["period"], strict=True):
+        A = mp.mpf(float(A))
+        ref = 4 * mp.ellipk(A**2 / (2 * (1 + A**2))) / mp.sqrt(1 + A**2)
+        assert T == pytest.approx(float(ref), rel=1e-9)
+
+
+def test_backbone_of_the_nsd_oscillator_against_closed_forms():
+    import math
+
+    from perturb.scene import backbone
+
+    osc = builtin_model("nsd", k=-2.0, mu=0.05, F=2.0)
+    # outer-segment orbits, 1 <= x <= x_c = 1 - 2k = 5: harmonic about x_b = 3, period 2 pi
+    bb = backbone(osc, [1.5, 2.5, 4.5])
+    assert bb["period"] == pytest.approx([2 * math.pi] * 3, rel=1e-10)
+    assert bb["x1"] == pytest.approx([4.5, 3.5, 1.5], rel=1e-10)
+    # beyond the separatrix x_d = 1 - k + sqrt(k (k - 1)): the orbit visits all three
+    # segments; mpmath quadrature of the energy integral over [-A, A] as the reference
+    A = 8.0
+    k = mp.mpf(-2)
+
+    def G(x):
+        x = abs(x)
+        return k * x**2 / 2 + ((1 - k) * (x - 1) ** 2 / 2 if x > 1 else 0)
+
+    mp.mp.dps = 30
+    half = mp.quad(lambda x: 1 / mp.sqrt(2 * (G(A) - G(x))), [-A, -1, 0, 1, A])
+    bb = backbone(osc, [A])
+    assert bb["x1"][0] == pytest.approx(-A, rel=1e-10)
+    assert bb["period"][0] == pytest.approx(float(2 * half), rel=1e-8)
+
+
+def test_step_response_scene_of_a_linear_oscillator_against_its_closed_form(tmp_path):
+    import numpy as np
+
+    from perturb.scene import load_scene
+
+    scene = load_scene(ROOT / "scenes" / "course_linear_step_response.toml")
+    paths = run_scene(scene, tmp_path, log=open(tmp_path / "log.txt", "w"))
+    cols = _csv_columns(paths["csv"])
+    t = cols["t"]
+    z = 0.05
+    wd = np.sqrt(1 - z * z)
+    ref = 1.0 - np.exp(-z * t) * (np.cos(wd * t) + z / wd * np.sin(wd * t))
+    assert np.max(np.abs(cols["x"] - ref)) < 1e-9
+    assert paths["png"].read_bytes()[:4] == b"\x89PNG"
+    assert "step_response" in paths["report"].read_text()
+
+
+def test_time_history_scene_against_dop853(tmp_path):
+    import dataclasses
+    import math
+
+    import numpy as np
+    from scipy.integrate import solve_ivp
+
+    from perturb.scene import load_scene
+
+    scene = load_scene(ROOT / "scenes" / "zou_fig5_time_history.toml")
+    scene = dataclasses.replace(scene, t=(0.0, 40.0), samples=401)
+    paths = run_scene(scene, tmp_path, log=open(tmp_path / "log.txt", "w"))
+    cols = _csv_columns(paths["csv"])
+
+    def rhs(t, y):
+        x, v = y
+        f = -2 * x + 3 * ((x - 1) * (x > 1) + (x + 1) * (x < -1))
+        return [v, 2 * math.cos(0.6 * t) - 0.05 * v - f]
+
+    sol = solve_ivp(
+        rhs,
+        (0, 40),
+        [0, 0],
+        method="DOP853",
+        rtol=1e-12,
+        atol=1e-12,
+        max_step=0.01,
+        t_eval=cols["t"],
+    )
+    assert np.max(np.abs(cols["x"] - sol.y[0])) < 1e-6
+
+
+def test_bifurcation_scene_period_one_points_are_periodic_orbits(tmp_path):
+    import dataclasses
+
+    import numpy as np
+
+    from perturb.scene import load_scene
+    from perturb.simulate.orbits import periodic_orbits
+
+    scene = load_scene(ROOT / "scenes" / "zou_fig6_bifurcation.toml")
+    scene = dataclasses.replace(
+        scene, values=(-2.0, -1.0), points=10, transient_periods=100, record_periods=4
+    )
+    scene = dataclasses.replace(scene, points=10)
+    paths = run_scene(scene, tmp_path, log=open(tmp_path / "log.txt", "w"))
+    cols = _csv_columns(paths["csv"])
+    assert set(np.unique(cols["k"])) == set(np.linspace(-2.0, -1.0, 10))
+    assert paths["png"].read_bytes()[:4] == b"\x89PNG"
+    # a period-1 attractor at k: its section point is the state of a stable exact orbit
+    checked = 0
+    for kv in (-2.0, -1.0):
+        sel = (cols["k"] == kv) & (cols["period"] == 1)
+        if not sel.any():
+            continue
+        osc = scene.oscillator().with_params(k=kv)
+        orbits = [o for o in periodic_orbits(osc) if o.m == 1 and o.max_multiplier < 1]
+        x = cols["x"][sel][0]
+        assert min(abs(o.y0[0] - x) for o in orbits if o.t0 == 0) < 1e-6
+        checked += 1
+    assert checked
