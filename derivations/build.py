@@ -67,6 +67,7 @@ def compile_pdf(tex: Path, *, max_runs: int = 3, timeout: float = 300.0) -> Path
             cwd=tex.parent,
             capture_output=True,
             text=True,
+            errors="replace",  # TeX writes file names and messages in its own 8-bit encoding
             timeout=timeout,
         )
         if proc.returncode != 0:

@@ -16,15 +16,16 @@ perturb's public API and checks every claim it can against an independent refere
 - peak amplitude maps (Figs. 9, 12) and the capacity/demand chart (Fig. 11) with the paper's
   conclusion that negative stiffness plus damping lowers the peak restoring force, in numbers;
 - frequency responses (Figs. 17, 19) by continuation of exact orbits against first- and
-  second-order modified L-P, limit cycles (Fig. 18) and time histories (Figs. 13-15);
+  second-order modified L-P and numeric multi-harmonic balance, limit cycles (Fig. 18) and
+  time histories (Figs. 13-15);
 - the modified L-P derivation (eqs. 38-60) as generated LaTeX, first and second order.
 
 The seed text drops the digits 0 and 5 and minus signs; parameter values rebuilt from it are
 listed in :data:`RECONSTRUCTED` and said so in the captions.
 
-Run ``python derivations/zou_nagarajaiah.py [--fast] [--out ROOT]``; everything is written to
-``ROOT/zou_nagarajaiah/`` (ROOT defaults to ``derivations/out``), and ``section.tex`` names its
-files relative to ROOT.
+Run ``python derivations/zou_nagarajaiah.py [--fast] [--out DIR]``; everything is written to
+DIR (default ``derivations/out/zou_nagarajaiah/``), and ``section.tex`` names its files
+relative to DIR's parent, where ``build.py`` puts the assembled document.
 """
 
 from __future__ import annotations
@@ -52,6 +53,11 @@ from perturb.model import Oscillator, builtin_model
 from perturb.numeric.compare import compare, relative_errors
 from perturb.numeric.compile import bind_parameters, lambdify
 from perturb.numeric.floquet import monodromy_multipliers
+from perturb.numeric.harmonic_balance import (
+    HarmonicBalanceBranch,
+    harmonic_balance_branch,
+    harmonic_balance_orbit,
+)
 from perturb.report.figures import plot_frequency_response, plot_time_history
 from perturb.report.latex import step_latex
 from perturb.response import Branch, Response
@@ -98,10 +104,12 @@ class Run:
     root: Path
     fast: bool
     log: list[str] = field(default_factory=list)
+    #: the study's folder under ``root`` (``--out`` names ``root/folder``)
+    folder: str = NAME
 
     @property
     def dir(self) -> Path:
-        return self.root / NAME
+        return self.root / self.folder
 
     def path(self, filename: str) -> Path:
         self.dir.mkdir(parents=True, exist_ok=True)
@@ -109,7 +117,7 @@ class Run:
 
     def tex(self, filename: str) -> str:
         """How ``section.tex`` names a file: relative to the assembled document in ROOT."""
-        return f"{NAME}/{filename}"
+        return f"{self.folder}/{filename}"
 
     def say(self, line: str = "") -> None:
         print(line, flush=True)
@@ -1592,10 +1600,94 @@ def link_points(orbs: list[dict], jump: float = LINK_JUMP) -> list[list[dict]]:
     return [br for br in done + open_ if len(br) >= 2]
 
 
+#: Harmonics of the numeric multi-harmonic balance curve (full run, ``--fast``).
+HB_HARMONICS = (15, 7)
+
+
+def _hb_seed(k: float, mu: float, F: float, Omega: float, H: int) -> tuple[np.ndarray, float]:
+    """HB coefficients ``[a0, a_1, b_1, ..., a_H, b_H]`` of the largest first-order mLP orbit
+    at ``Omega`` (a guess that Newton corrects), and its amplitude ``max|x|``."""
+    m1 = _mlp(1)
+    orbs = m1.orbits(m1.solve([Omega], k, mu, F), k, mu, F, samples=256)
+    if not orbs:
+        raise PerturbError(f"no first-order mLP solution at Omega = {Omega:g} to seed HB from")
+    big = max(orbs, key=lambda o: o["amplitude"])
+    X = np.fft.rfft(big["x"]) / big["x"].size
+    u = np.empty(2 * H + 1)
+    u[0] = X[0].real
+    u[1::2], u[2::2] = 2 * X[1 : H + 1].real, -2 * X[1 : H + 1].imag
+    return u, big["amplitude"]
+
+
+def _hb_resonant(k: float, mu: float, F: float, window, H: int) -> HarmonicBalanceBranch:
+    """The HB branch through the largest first-order mLP orbit at ``max(low, LOW_OMEGA)``
+    (below LOW_OMEGA mLP is too poor a guess for Newton), traced over the whole window: the
+    seed is corrected by Newton, continued down to the window's low end, and the curve is
+    traced upwards from there."""
+    lo = float(window[0])
+    ws = max(lo, LOW_OMEGA)
+    osc = nsd(k, mu, F)
+    guess, _ = _hb_seed(k, mu, F, ws, H)
+    sol = harmonic_balance_orbit(osc, ws, harmonics=H, guess=guess, stability="none")
+    start = sol.coefficients
+    if ws > lo:
+        down = harmonic_balance_branch(
+            osc, (lo, ws), harmonics=H, start=start, direction=-1, stability="none"
+        )
+        if down.omega[0] > lo * (1 + 1e-9):
+            raise PerturbError(
+                f"the HB branch through the mLP seed at Omega = {ws:g} folds back before "
+                f"Omega = {lo:g}"
+            )
+        start = down.coefficients[0]
+    return harmonic_balance_branch(osc, window, harmonics=H, start=start, direction=1)
+
+
+def hb_response(k: float, mu: float, F: float, window, run: Run) -> Response:
+    """Numeric harmonic balance as drawn in Figs. 17 and 19: exact Galerkin projection of the
+    PWL force, pseudo-arclength continuation, Hill stability.
+
+    The automatic start sits at the window's high end, and continuation follows only the
+    branch through it; for k = -2 and -3 that is not the resonant branch (detached from it,
+    Fig. 17). So a second curve is traced from the largest first-order mLP orbit
+    (:func:`_hb_resonant`) unless the first curve already passes through it. Branches
+    reached from neither start (one-well orbits, closed loops) are missed, and the tables
+    count them."""
+    H = HB_HARMONICS[1] if run.fast else HB_HARMONICS[0]
+    first = frequency_response(nsd(k, mu, F), "hb", Omega=window, harmonics=H)
+    branches, folds, notes = list(first.branches), list(first.folds), list(first.notes)
+    lo = float(window[0])
+    try:
+        second = _hb_resonant(k, mu, F, window, H)
+    except PerturbError as exc:
+        notes.append(f"no second curve from the mLP seed: {exc}")
+    else:
+        # the same curve when both pass through the same solution at the low end
+        a_lo = second.amplitude[0]
+        same = any(
+            abs(w - second.omega[0]) < 1e-9 * lo and abs(a / a_lo - 1) < 1e-6
+            for b in first.branches
+            for w, a in zip(b.omega, b.amplitude, strict=True)
+        )
+        if same:
+            notes.append("the mLP seed lies on the first curve")
+        else:
+            r2 = second.to_response()
+            branches += r2.branches
+            folds += r2.folds
+            notes.append(f"second curve from the mLP seed at Omega = {max(lo, LOW_OMEGA):g}")
+    return dataclasses.replace(
+        first,
+        branches=tuple(branches),
+        folds=tuple(sorted(folds)),
+        notes=tuple(notes),
+        method=f"HB {H}",
+    )
+
+
 #: The approximations drawn against the exact response (Figs. 17 and 19), as
 #: (label, function(oscillator values k, mu, F, window, run) -> Response). A further method is
-#: one more line here, e.g. multi-harmonic balance once the numeric layer traces it:
-#:     ("HB 5", lambda k, mu, F, win, run: frequency_response(nsd(k, mu, F), "hb", Omega=win)),
+#: one more line here.
 APPROXIMATIONS: list[tuple[str, Callable[..., Response]]] = [
     (
         "mLP order 1",
@@ -1608,6 +1700,7 @@ APPROXIMATIONS: list[tuple[str, Callable[..., Response]]] = [
         "mLP order 2",
         lambda k, mu, F, win, run: _mlp2().response(k, mu, F, win, 30 if run.fast else 300),
     ),
+    ("HB", hb_response),
 ]
 
 _MLP_CACHE: dict[int, MLP] = {}
@@ -1715,7 +1808,7 @@ def frequency_response_study(
                     k,
                     mu,
                     F,
-                    label,
+                    r.method,
                     len(c.matches),
                     c.max_error,
                     c.rms_error,
@@ -1759,6 +1852,94 @@ def frequency_response_study(
     return fpath, numbers, table
 
 
+def _branch_kind(b: Branch) -> str:
+    """What an exact branch is, for the text: the saddle orbit inside |x| < 1, a one-well
+    orbit (nonzero mean) or a symmetric one."""
+    if float(np.max(b.amplitude)) < 1:
+        return "the saddle branch"
+    if float(np.max(np.abs(b.mean))) > 1e-6 * float(np.max(b.amplitude)):
+        return "a one-well branch"
+    return "a symmetric branch"
+
+
+def hb_paragraph(numbers: dict, ks: Sequence[float], run: Run, *, intro: bool = True) -> str:
+    """What the HB curves of a figure cover, from the comparison with the exact branches;
+    ``intro`` adds how HB is traced."""
+    H = HB_HARMONICS[1] if run.fast else HB_HARMONICS[0]
+    per_k = []
+    for k in ks:
+        r, c = numbers[k]["HB"]["response"], numbers[k]["HB"]["comparison"]
+        exact = numbers[k]["exact"]
+        two = any(n.startswith("second curve") for n in r.notes)
+        kinds: dict[str, int] = {}
+        for i in c.missed:
+            kind = _branch_kind(exact.branches[i])
+            kinds[kind] = kinds.get(kind, 0) + 1
+        missed = ", ".join(
+            kind if n == 1 else f"{n} {kind.split(' ', 1)[1].replace('branch', 'branches')}"
+            for kind, n in kinds.items()
+        )
+        per_k.append(
+            f"$k = {g(k)}$: {'two curves' if two else 'one curve'}, "
+            f"{len(set(c.matches.values()))} of {len(exact.branches)} exact branches matched"
+            + (f", misses {missed}" if missed else "")
+        )
+    how = (
+        f"HB is perturb's numeric multi-harmonic balance with $H = {H}$ harmonics "
+        r'(\texttt{frequency\_response(osc, "hb", harmonics=H)}: exact Galerkin projection '
+        "of the piecewise-linear force, pseudo-arclength continuation, Hill stability). "
+        "Continuation follows only the branch through its automatic start at the window's "
+        "high end, so a second curve is started from the largest first-order mLP orbit at "
+        f"$\\Omega = {g(LOW_OMEGA)}$ (corrected by Newton, continued to the window's low "
+        "end and traced across the window) unless the first curve already passes through "
+        "it. Branches reached from neither start are missed: "
+        if intro
+        else f"HB ($H = {H}$) is traced as for Fig.~17: "
+    )
+    return (
+        how + "; ".join(per_k) + ". HB's errors in the table are those of its matched "
+        "branches, and they include the linear interpolation between the points of the "
+        "exact branch."
+    )
+
+
+#: Frequencies (nearest points of the HB curve) where HB and first-order mLP are checked
+#: against exact orbits computed at exactly those frequencies (Fig. 17, k = -0.5).
+HB_CHECK_OMEGAS = (0.6, 0.9, 1.1)
+
+
+def hb_pointwise(k: float, mu: float, F: float, hb: Response) -> list[list]:
+    """HB's main branch (the one through the resonance peak) at its points nearest
+    :data:`HB_CHECK_OMEGAS`, and first-order mLP at the same frequencies, against every
+    exact orbit there: rows (Omega, exact max|x|, HB max|x|, HB error, mLP max|x|, mLP
+    error, HB stable, exact stable). Free of the interpolation between points of a traced
+    exact branch that the table's errors include."""
+    main = max(hb.branches, key=lambda b: float(np.max(b.amplitude)))
+    idx = [int(np.argmin(np.abs(main.omega - w))) for w in HB_CHECK_OMEGAS]
+    ws = [float(main.omega[i]) for i in idx]
+    osc = nsd(k, mu, F)
+    exact = frequency_response(osc, "exact", frequencies=ws, progress=False)
+    mlp = frequency_response(osc, "mlp", frequencies=ws)
+
+    def at(r: Response, w: float) -> list[tuple[float, bool]]:
+        return [
+            (float(a), bool(st))
+            for b in r.branches
+            for om, a, st in zip(b.omega, b.amplitude, b.stable, strict=True)
+            if om == w
+        ]
+
+    rows = []
+    for i, w in zip(idx, ws, strict=True):
+        a_hb = float(main.amplitude[i])
+        a_ex, st_ex = min(at(exact, w), key=lambda p: abs(p[0] / a_hb - 1))
+        a_m = min((a for a, _ in at(mlp, w)), key=lambda a: abs(a / a_ex - 1))
+        rows.append(
+            [w, a_ex, a_hb, abs(a_hb / a_ex - 1), a_m, abs(a_m / a_ex - 1), main.stable[i], st_ex]
+        )
+    return rows
+
+
 FIG17_KS = (-0.5, -1.0, -2.0, -3.0)
 
 
@@ -1766,6 +1947,31 @@ def fig17(run: Run) -> Part:
     window = (0.5, 1.5) if run.fast else (0.2, 2.0)
     fpath, numbers, table = frequency_response_study(
         run, "fig17", "Fig. 17", [(k, 0.05, 2.0) for k in FIG17_KS], window
+    )
+    k0 = FIG17_KS[0]
+    point = hb_pointwise(k0, 0.05, 2.0, numbers[k0]["HB"]["response"])
+    numbers[k0]["HB"]["pointwise"] = point
+    run.write_csv(
+        "fig17_hb_pointwise.csv",
+        ["Omega", "exact", "hb", "hb_rel_error", "mlp1", "mlp1_rel_error", "hb_stable", "stable"],
+        point,
+    )
+    run.say(
+        f"== Fig. 17, k = {k0:g}, main branch at its own HB points: "
+        + "; ".join(
+            f"Omega = {r[0]:.4g}: HB error {r[3]:.1e}, first-order mLP {r[5]:.1e}" for r in point
+        )
+    )
+    pointwise = (
+        f" At $k = {g(k0)}$, on the main branch at HB's own points "
+        + ", ".join(f"$\\Omega = {r[0]:.3f}$" for r in point)
+        + ", against exact orbits computed at exactly those frequencies, HB errs by "
+        + ", ".join(sci(r[3]) for r in point)
+        + " and first-order mLP by "
+        + ", ".join(sci(r[5]) for r in point)
+        + " (HB's stability "
+        + ("agrees" if all(r[6] == r[7] for r in point) else "does not agree")
+        + " with the exact one there)."
     )
     rows = " \\\\\n".join(table)
     low = (
@@ -1827,16 +2033,14 @@ $k$ & method & matched & max & RMS & max, off folds & same, $\Omega \ge {g(LOW_O
 \bottomrule
 \end{{tabular}}
 \end{{center}}
-Missed exact branches are the one-well (asymmetric, nonzero mean) orbits and, at low
-frequency, the superharmonic loops, which no expansion about $A\cos\psi$ reproduces.{low}
-Pending:
-multi-harmonic harmonic balance curves (perturb's \texttt{{hb}} method is not yet traced by the
-numeric frequency-response layer, whose amplitude parametrisation needs an equation quadratic
-in $\Omega^2$); they enter this figure as one more entry of \texttt{{APPROXIMATIONS}}.
+The exact branches that mLP misses are the one-well (asymmetric, nonzero mean) orbits and,
+at low frequency, the superharmonic loops, which no expansion about $A\cos\psi$ reproduces.{low}
+{hb_paragraph(numbers, FIG17_KS, run)}{pointwise}
 """ + figure_tex(
         fpath,
         r"Frequency responses for $k = -0.5, -1, -2, -3$ (Fig.~17): exact branches, "
-        r"first- and second-order modified L-P; solid stable, dashed unstable. "
+        r"first- and second-order modified L-P, multi-harmonic balance (HB, the branches "
+        r"reached from its two starts only: see the text); solid stable, dashed unstable. "
         r"$\mu = 0.05$ reconstructed.\label{fig:zn17}",
     )
     return Part(tex, numbers)
@@ -1864,6 +2068,7 @@ $k$ & method & matched & max & RMS & max, off folds & same, $\Omega \ge {g(LOW_O
 \bottomrule
 \end{{tabular}}
 \end{{center}}
+{hb_paragraph(numbers, (2.0, 4.0), run, intro=False)}
 """ + figure_tex(
         fpath,
         r"Frequency responses for positive $k$ (Fig.~19); $\mu = 0.2$ and $F = 0.5$ "
@@ -2240,15 +2445,16 @@ and minus signs; values rebuilt from it are marked \emph{reconstructed} in the c
 
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--fast", action="store_true", help="coarse grids (about three minutes)")
+    ap.add_argument("--fast", action="store_true", help="coarse grids (about 80 s of CPU time)")
     ap.add_argument(
         "--out",
         type=Path,
-        default=DEFAULT_ROOT,
-        help=f"root of the outputs; files go to ROOT/{NAME}/ (default: {DEFAULT_ROOT})",
+        default=DEFAULT_ROOT / NAME,
+        help=f"output folder (default: {DEFAULT_ROOT / NAME}); build.py reads its parent",
     )
     args = ap.parse_args(argv)
-    run = Run(args.out.resolve(), args.fast)
+    out = args.out.resolve()
+    run = Run(out.parent, args.fast, folder=out.name)
     t_start = time.perf_counter()
     fo = FirstOrderPeaks()
     steps: list[tuple[str, Callable[[], Part]]] = [
@@ -2303,6 +2509,8 @@ def self_checks(parts: dict[str, Part]) -> list[tuple[str, bool]]:
             out.append(
                 (f"{key}, k = {k:g}: first-order mLP matches an exact branch", bool(c.matches))
             )
+            c = res["HB"]["comparison"]
+            out.append((f"{key}, k = {k:g}: HB matches an exact branch", bool(c.matches)))
     return out
 
 

@@ -1,7 +1,8 @@
 """derivations/course.py: the numbers it publishes, each against an oracle computed here
 independently of the code that produced it, and the files it writes.
 
-The script runs once, in ``--fast`` mode, into a temporary folder (module fixture); the tests
+The script runs once per session, in ``--fast`` mode, into a temporary folder (the
+``derivations_fast`` fixture of conftest.py, which the document build test shares); the tests
 read its ``summary.json`` and CSV files. Oracles:
 
 - the free Duffing period by quadrature of the energy integral (not the elliptic formula the
@@ -24,9 +25,6 @@ import csv
 import json
 import math
 import re
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import mpmath as mp
@@ -36,8 +34,6 @@ import sympy as sp
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 from scipy.special import mathieu_a, mathieu_b
-
-SCRIPT = Path(__file__).resolve().parents[1] / "derivations" / "course.py"
 
 FILES = (
     "section.tex",
@@ -62,15 +58,8 @@ FILES = (
 
 
 @pytest.fixture(scope="module")
-def course(tmp_path_factory):
-    out = tmp_path_factory.mktemp("derivations-out") / "course"
-    proc = subprocess.run(
-        [sys.executable, str(SCRIPT), "--fast", "--out", str(out)],
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
-    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-4000:]
+def course(derivations_fast):
+    out = derivations_fast("course") / "course"
     return out, json.loads((out / "summary.json").read_text())
 
 
@@ -99,27 +88,15 @@ def test_files_and_latex_references(course):
     assert not re.search(r"(?<![A-Za-z\\])eps(?![A-Za-z])", text)
 
 
-def test_section_compiles_with_pdflatex(course, tmp_path):
-    exe = shutil.which("pdflatex")
-    if exe is None:
-        pytest.skip("pdflatex not installed")
+def test_section_compiles_with_pdflatex(course, tmp_path, compile_tex, derivation_module):
     out, _ = course
-    doc = out.parent / "doc.tex"
+    # the section alone, in the assembled document's preamble, beside a link to its folder
+    (tmp_path / "course").symlink_to(out, target_is_directory=True)
+    doc = tmp_path / "doc.tex"
     doc.write_text(
-        "\\documentclass[11pt]{article}\n\\usepackage[T1]{fontenc}\n"
-        "\\usepackage{amsmath,amssymb}\n\\usepackage{graphicx}\n\\usepackage{booktabs}\n"
-        "\\usepackage[margin=2.2cm]{geometry}\n\\begin{document}\n"
-        "\\input{course/section.tex}\n\\end{document}\n"
+        derivation_module("build").document(tmp_path, [tmp_path / "course" / "section.tex"])
     )
-    proc = subprocess.run(
-        [exe, "-interaction=nonstopmode", "-halt-on-error", doc.name],
-        cwd=out.parent,
-        capture_output=True,
-        text=True,
-        errors="replace",  # TeX writes file names and messages in its own encoding
-        timeout=300,
-    )
-    assert proc.returncode == 0, proc.stdout[-3000:]
+    compile_tex(doc)
 
 
 # ----------------------------------------------------------------------- free Duffing --

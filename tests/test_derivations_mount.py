@@ -10,18 +10,16 @@ written here, never the script's own numbers:
 * the floating-plate linear system, propagated by a matrix exponential;
 * the ramp response as the running mean of the step response (linearity), by quadrature.
 
-The last tests run the script in ``--fast`` mode into a temporary folder and build the
-document with ``derivations/build.py`` (the ``pdflatex`` step is skipped where it is missing).
+The last tests run the script in ``--fast`` mode (once per session, the ``derivations_fast``
+fixture of conftest.py) and build the document with ``derivations/build.py`` (the
+``pdflatex`` step is skipped where it is missing, except under CI).
 """
 
 from __future__ import annotations
 
 import csv
-import importlib.util
 import math
 import shutil
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -34,25 +32,15 @@ from scipy.optimize import brentq
 from perturb.model import Oscillator
 from perturb.simulate.event_driven import simulate
 
-DERIVATIONS = Path(__file__).resolve().parents[1] / "derivations"
 
-
-def _load(name: str):
-    spec = importlib.util.spec_from_file_location(f"derivations_{name}", DERIVATIONS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up while being built
-    spec.loader.exec_module(module)
-    return module
+@pytest.fixture(scope="module")
+def hm(derivation_module):
+    return derivation_module("hydraulic_mount")
 
 
 @pytest.fixture(scope="module")
-def hm():
-    return _load("hydraulic_mount")
-
-
-@pytest.fixture(scope="module")
-def build():
-    return _load("build")
+def build(derivation_module):
+    return derivation_module("build")
 
 
 def polynomials(m):
@@ -345,9 +333,12 @@ def test_free_decoupler_regions_and_constraints(hm):
 # the script end to end, and the document
 # --------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def fast_run(hm, tmp_path_factory):
-    root = tmp_path_factory.mktemp("derivations-out")
-    assert hm.main(["--fast", "--out", str(root / "hydraulic_mount")]) == 0
+def fast_run(derivations_fast, tmp_path_factory):
+    # a root of its own, so the document built here holds this study only
+    root = tmp_path_factory.mktemp("derivations-mount")
+    shutil.copytree(
+        derivations_fast("hydraulic_mount") / "hydraulic_mount", root / "hydraulic_mount"
+    )
     return root
 
 
@@ -379,15 +370,14 @@ def test_script_writes_outputs(fast_run):
     assert "hydraulic_mount/nonlinear_step.png" in tex
 
 
-def test_document_builds(build, fast_run):
+def test_document_builds(build, fast_run, request):
     assert build.main(["--root", str(fast_run), "--no-pdf"]) == 0
     doc = (fast_run / "derivations.tex").read_text()
     assert r"\input{hydraulic_mount/section.tex}" in doc
     for package in ("amsmath", "graphicx", "booktabs"):
         assert package in doc
     assert r"\usepackage[T1]{fontenc}" in doc
-    if shutil.which("pdflatex") is None:
-        pytest.skip("pdflatex is not installed")
+    request.getfixturevalue("pdflatex")  # skips without it (fails under CI)
     assert build.main(["--root", str(fast_run)]) == 0
     assert (fast_run / "derivations.pdf").stat().st_size > 10_000
 

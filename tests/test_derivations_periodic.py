@@ -21,12 +21,8 @@ build are marked slow.
 from __future__ import annotations
 
 import csv
-import importlib.util
 import math
 import re
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -35,21 +31,12 @@ from scipy.integrate import quad
 from scipy.linalg import expm
 from scipy.optimize import brentq, fsolve, root
 
-DERIVATIONS = Path(__file__).resolve().parents[1] / "derivations"
 TWO_PI = 2.0 * math.pi
 
 
-def _load(name: str):
-    spec = importlib.util.spec_from_file_location(f"derivations_{name}", DERIVATIONS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up while being built
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.fixture(scope="module")
-def ps():
-    return _load("periodic_solutions")
+def ps(derivation_module):
+    return derivation_module("periodic_solutions")
 
 
 @pytest.fixture(scope="module")
@@ -492,10 +479,8 @@ def test_finite_differences_lose_their_order_on_the_nsd_orbit(ps):
 # the whole script in --fast mode
 # ------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def fast_run(ps, tmp_path_factory):
-    root_dir = tmp_path_factory.mktemp("derivations-out")
-    assert ps.main(["--fast", "--out", str(root_dir / "periodic_solutions")]) == 0
-    return root_dir
+def fast_run(derivations_fast):
+    return derivations_fast("periodic_solutions")
 
 
 def _rows(path: Path) -> list[dict[str, str]]:
@@ -546,23 +531,12 @@ def test_script_writes_outputs_and_claims(fast_run):
 
 
 @pytest.mark.slow
-def test_section_compiles_with_pdflatex(fast_run, tmp_path):
-    exe = shutil.which("pdflatex")
-    if exe is None:
-        pytest.skip("pdflatex not installed")
-    doc = fast_run / "doc.tex"
-    doc.write_text(
-        "\\documentclass[11pt]{article}\n\\usepackage[T1]{fontenc}\n"
-        "\\usepackage{amsmath,amssymb}\n\\usepackage{graphicx}\n\\usepackage{booktabs}\n"
-        "\\usepackage[margin=2.2cm]{geometry}\n\\begin{document}\n"
-        "\\input{periodic_solutions/section.tex}\n\\end{document}\n"
+def test_section_compiles_with_pdflatex(fast_run, tmp_path, compile_tex, derivation_module):
+    # the section alone, in the assembled document's preamble, beside a link to its folder
+    (tmp_path / "periodic_solutions").symlink_to(
+        fast_run / "periodic_solutions", target_is_directory=True
     )
-    proc = subprocess.run(
-        [exe, "-interaction=nonstopmode", "-halt-on-error", doc.name],
-        cwd=fast_run,
-        capture_output=True,
-        text=True,
-        errors="replace",
-        timeout=300,
-    )
-    assert proc.returncode == 0, proc.stdout[-3000:]
+    doc = tmp_path / "doc.tex"
+    section = tmp_path / "periodic_solutions" / "section.tex"
+    doc.write_text(derivation_module("build").document(tmp_path, [section]))
+    compile_tex(doc)

@@ -2,10 +2,6 @@
 
 from __future__ import annotations
 
-import os
-import shutil
-import subprocess
-
 import pytest
 
 from perturb import builtin_model
@@ -13,29 +9,11 @@ from perturb.methods.harmonic_balance import single_harmonic_balance
 from perturb.report.latex import escape, latex_document
 
 
-def _pdflatex():
-    exe = shutil.which("pdflatex")
-    if exe is None:
-        if os.environ.get("CI"):
-            pytest.fail("pdflatex is missing in CI: .ci/run must install texlive")
-        pytest.skip("pdflatex not installed")
-    return exe
-
-
 @pytest.mark.parametrize("model", ["nsd", "duffing", "deadzone", "saturation"])
-def test_derivation_document_compiles(model, tmp_path):
-    exe = _pdflatex()
+def test_derivation_document_compiles(model, tmp_path, compile_tex):
     tex = tmp_path / "doc.tex"
     latex_document(single_harmonic_balance(builtin_model(model)), tex)
-    proc = subprocess.run(
-        [exe, "-interaction=nonstopmode", "-halt-on-error", tex.name],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert proc.returncode == 0, proc.stdout[-3000:]
-    assert (tmp_path / "doc.pdf").stat().st_size > 1000
+    compile_tex(tex, timeout=120)
 
 
 def test_text_is_escaped():
