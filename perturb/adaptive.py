@@ -617,7 +617,11 @@ def _hb_multistart(
     or closes), so branches that one continuation run would not reach (in-well orbits,
     isolas) are on the curve too."""
     from .numeric.compare import relative_errors
-    from .numeric.harmonic_balance import harmonic_balance_branch, harmonic_balance_orbit
+    from .numeric.harmonic_balance import (
+        harmonic_balance_branch,
+        harmonic_balance_branch_through,
+        harmonic_balance_orbit,
+    )
 
     lo, hi = window
     raw = [harmonic_balance_branch(oscillator, window, harmonics=H)]
@@ -641,7 +645,7 @@ def _hb_multistart(
         except PerturbError:
             continue
         try:
-            br = _hb_through(oscillator, raw[0].system, sol, window)
+            br = harmonic_balance_branch_through(raw[0].system, sol.coefficients, sol.Omega, window)
         except PerturbError:
             continue
         raw.append(br)
@@ -654,74 +658,6 @@ def _hb_multistart(
     )
     resp = Response(branches, first.method, first.model, dict(first.params), folds, notes)
     return resp, raw
-
-
-def _hb_through(oscillator: Oscillator, system: Any, sol: Any, window: tuple[float, float]):
-    """The HB branch through the solution ``sol`` (inside ``window``), traced both ways.
-
-    :func:`~perturb.numeric.harmonic_balance.harmonic_balance_branch` starts at an end of
-    the window; a branch through an interior point needs the continuation started there,
-    with the same settings (Hill stability at every point)."""
-    from .numeric.continuation import continue_curve
-    from .numeric.harmonic_balance import HarmonicBalanceBranch
-
-    lo, hi = window
-    u0 = np.asarray(sol.coefficients, dtype=float)
-    w0 = float(sol.Omega)
-    scale = max(1e-10, float(np.abs(u0).max()))
-
-    def point_stability(u, W, J_u, _):
-        return system.hill_exponents(u, W, J_u, full=False, refine_complex=False)
-
-    runs = []
-    for direction in (-1, 1):
-        curve = continue_curve(
-            system.residual,
-            system.jacobian,
-            u0,
-            w0,
-            (lo, hi),
-            direction=direction,
-            u_scale=1e-2 * scale,
-            lam_scale=hi - lo,
-            adaptive_scale=True,
-            ds_max=0.05,
-            tol=1e-10,
-            max_points=5000,
-            callback=point_stability,
-        )
-        runs.append(curve)
-        if curve.stop_reason == "closed":
-            break  # an isola: one run went all the way round
-    # the first run reversed, then the second without its (shared) start point
-    U = np.concatenate([runs[0].u[::-1]] + [c.u[1:] for c in runs[1:]])
-    W = np.concatenate([runs[0].lam[::-1]] + [c.lam[1:] for c in runs[1:]])
-    lam = np.concatenate(
-        [np.array(runs[0].callback_values)[::-1]]
-        + [np.array(c.callback_values)[1:] for c in runs[1:]]
-    )
-    stats = system.statistics(U)
-    T = 2.0 * math.pi * system.m / W
-    mm = np.minimum(np.exp(np.minimum(700.0, lam.real.max(axis=1) * T)), 1e300)
-    fold_u = tuple(f.u for c in runs for f in c.folds)
-    fold_amp = system.statistics(np.array(fold_u))["amplitude"] if fold_u else np.empty(0)
-    fold_w = [float(f.lam) for c in runs for f in c.folds]
-    params = {k: v for k, v in oscillator.params.items() if v is not None and k != "Omega"}
-    return HarmonicBalanceBranch(
-        omega=W,
-        amplitude=stats["amplitude"],
-        first_harmonic_amplitude=stats["first_harmonic_amplitude"],
-        mean=stats["mean"],
-        stable=mm < 1.0,
-        max_multiplier=mm,
-        coefficients=U,
-        exponents=lam,
-        folds=tuple((w, float(a)) for w, a in zip(fold_w, fold_amp, strict=True)),
-        fold_coefficients=fold_u,
-        curve=runs[-1],
-        system=system,
-        params=params,
-    )
 
 
 def window_estimate(

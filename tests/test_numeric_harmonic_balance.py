@@ -40,6 +40,7 @@ from perturb.numeric.harmonic_balance import (
     HarmonicBalanceSystem,
     HarmonicBasis,
     harmonic_balance_branch,
+    harmonic_balance_branch_through,
     harmonic_balance_branches,
     harmonic_balance_orbit,
     harmonic_balance_response,
@@ -578,6 +579,34 @@ def test_detached_loop_found_from_single_harmonic_seeds():
         builtin_model("nsd", k=-3.0, mu=0.05, F=2.0), (0.2, 2.0), harmonics=9, all_branches=True
     )
     assert len(resp.branches) == 3
+
+
+def test_branch_through_an_interior_solution_is_the_whole_branch():
+    """A branch started from an orbit in the middle of the window (Duffing, Omega = 1.6 on the
+    upper, resonant branch, found by Newton from the exact orbit's harmonics) reaches its fold
+    going up and the window edge going down, every point a solution; its fold is the fold of
+    the edge-started branch. Oracle for the orbit: tight shooting on the ODE."""
+    osc = builtin_model("duffing", mu=0.1, F=0.5)
+    window = (0.5, 3.0)
+    ref = periodic_orbit(ODEFlow(osc.with_params(Omega=1.6), rtol=1e-12, atol=1e-12), [2.0, 0.0])
+    sol = harmonic_balance_orbit(osc, 1.6, harmonics=7, guess=ref)
+    assert abs(sol.amplitude - ref.amplitude) < 1e-6 * ref.amplitude
+    system = HarmonicBalanceSystem(osc, harmonics=7)
+    br = harmonic_balance_branch_through(system, sol.coefficients, 1.6, window)
+    assert br.omega.min() == pytest.approx(window[0], abs=1e-12)
+    res = [
+        np.abs(system.residual(u, W)).max() for u, W in zip(br.coefficients, br.omega, strict=True)
+    ]
+    assert max(res) < 1e-8
+    edge = harmonic_balance_branch(osc, window, harmonics=7, direction=1)
+    assert len(br.folds) >= 1 and len(edge.folds) >= 1
+    assert max(f[0] for f in br.folds) == pytest.approx(max(f[0] for f in edge.folds), rel=1e-6)
+    with pytest.raises(ParameterError, match="inside the window"):
+        harmonic_balance_branch_through(system, sol.coefficients, 3.5, window)
+    with pytest.raises(ParameterError, match="finite coefficients"):
+        harmonic_balance_branch_through(system, [1.0, 2.0], 1.6, window)
+    with pytest.raises(ParameterError, match="guess = 'orbit'"):
+        harmonic_balance_orbit(osc, 1.6, harmonics=7, guess="orbit")
 
 
 # ---------------------------------------------------------------------------------------------

@@ -159,6 +159,7 @@ __all__ = [
     "harmonic_balance_orbit",
     "harmonic_balance_branch",
     "harmonic_balance_branches",
+    "harmonic_balance_branch_through",
     "harmonic_balance_response",
 ]
 
@@ -1637,12 +1638,44 @@ def _guess_vector(system: HarmonicBalanceSystem, guess: Any) -> np.ndarray:
             if pos is not None:
                 u[pos], u[pos + 1] = a, b
         return u
-    u = np.asarray(guess, dtype=float).reshape(-1)
-    if u.size != basis.size or not np.all(np.isfinite(u)):
+    if all(hasattr(guess, a) for a in ("sample", "period", "m", "autonomous")):
+        # a periodic orbit (perturb.simulate.PeriodicOrbit): duck-typed, so the numeric layer
+        # does not import the reference solvers
+        return _orbit_coefficients(system, guess)
+    try:
+        u = np.asarray(guess, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        u = None
+    if u is None or u.size != basis.size or not np.all(np.isfinite(u)):
+        what = f"guess = {guess!r:.80}" if u is None else f"guess of {u.size} values"
         raise ParameterError(
-            f"guess of {u.size} values: expected {basis.size} finite coefficients "
-            "[a0, a_1, b_1, ...] (or a HarmonicBalanceSolution)"
+            f"{what}: expected {basis.size} finite coefficients [a0, a_1, b_1, ...], "
+            "a HarmonicBalanceSolution or a PeriodicOrbit"
         )
+    return u
+
+
+def _orbit_coefficients(system: HarmonicBalanceSystem, orbit: Any) -> np.ndarray:
+    """The basis coefficients of a forced periodic orbit (e.g. an exact one from shooting):
+    its Fourier series in the HB phase ``tau = 2 pi t / P`` (``P = m 2 pi / Omega``), by the
+    trapezoidal rule on equally spaced samples, which is spectrally accurate for a periodic
+    function and exact for every basis harmonic below half the sample count."""
+    if orbit.autonomous or orbit.m != system.m:
+        raise ParameterError(
+            f"guess: a forced period-{system.m} orbit expected, got "
+            + ("an autonomous limit cycle" if orbit.autonomous else f"period {orbit.m}")
+        )
+    basis = system.basis
+    kmax = max(basis.harmonics, default=0)
+    t, x, _ = orbit.sample(max(256, 8 * kmax))
+    tau = _TWO_PI * t / orbit.period
+    u = np.zeros(basis.size)
+    if basis.bias:
+        u[0] = float(np.mean(x))
+    for k in basis.harmonics:
+        pos = basis.index_of(k)
+        u[pos] = 2.0 * float(np.mean(x * np.cos(k * tau)))
+        u[pos + 1] = 2.0 * float(np.mean(x * np.sin(k * tau)))
     return u
 
 
@@ -1669,7 +1702,7 @@ def harmonic_balance_orbit(
         Forcing frequency (default: the oscillator's value).
     harmonics, m, odd_only, projection, samples
         See :class:`HarmonicBalanceSystem`.
-    guess : array_like or HarmonicBalanceSolution, optional
+    guess : array_like, HarmonicBalanceSolution or PeriodicOrbit, optional
         Starting coefficients; a solution of another truncation is mapped by harmonic
         number. Default: continuation in the forcing amplitude from a static equilibrium.
     tol : float
@@ -2160,15 +2193,81 @@ def harmonic_balance_branches(
         if any(_on_branch(b, u, W, 0.05) for b in found):
             continue
         try:
-            down = _trace(system, u, W, window, -1, stability, ds_max, tol, max_points)
-            parts = [(down, True)]
-            if down.stop_reason != "closed":
-                up = _trace(system, u, W, window, 1, stability, ds_max, tol, max_points)
-                parts.append((up, False))
+            found.append(
+                harmonic_balance_branch_through(
+                    system,
+                    u,
+                    W,
+                    window,
+                    stability=stability,
+                    ds_max=ds_max,
+                    tol=tol,
+                    max_points=max_points,
+                )
+            )
         except ContinuationError:
             continue
-        found.append(_assemble(system, parts, stability))
     return tuple(found)
+
+
+def harmonic_balance_branch_through(
+    system: HarmonicBalanceSystem,
+    u: ArrayLike,
+    Omega: float,
+    Omega_window: Sequence[float],
+    *,
+    stability: Stability = "hill",
+    ds_max: float = 0.05,
+    tol: float = 1e-10,
+    max_points: int = 5000,
+) -> HarmonicBalanceBranch:
+    """The branch through the solution ``u`` at ``Omega`` inside the window, traced down and
+    then up (one run only when the first closes on itself: an isola).
+
+    :func:`harmonic_balance_branch` starts at an end of the window; this starts anywhere, from
+    a solution found some other way (a seed of :func:`harmonic_balance_branches`, or Newton
+    from an exact orbit's Fourier coefficients).
+
+    Parameters
+    ----------
+    system : HarmonicBalanceSystem
+    u : array_like
+        Coefficients of a solution at ``Omega`` (to ``tol``; it is not corrected first).
+    Omega : float
+        Inside ``Omega_window``.
+    Omega_window, stability, ds_max, tol, max_points
+        See :func:`harmonic_balance_branch`.
+
+    Returns
+    -------
+    HarmonicBalanceBranch
+        Points in increasing order along the curve from its low-frequency end; ``curve`` is
+        the downward run.
+
+    Raises
+    ------
+    ParameterError
+        Bad input (the message names it).
+    ContinuationError
+        When the continuation fails at its first step.
+    """
+    window = _check_window(Omega_window)
+    stability = _check_stability(stability)
+    tol = _positive_tol(tol)
+    W = float(Omega)
+    if not window[0] <= W <= window[1]:
+        raise ParameterError(f"Omega = {Omega!r}: expected a value inside the window {window}")
+    u0 = np.asarray(u, dtype=float).reshape(-1)
+    if u0.size != system.basis.size or not np.all(np.isfinite(u0)):
+        raise ParameterError(
+            f"u: expected {system.basis.size} finite coefficients, got shape {np.shape(u)}"
+        )
+    down = _trace(system, u0, W, window, -1, stability, ds_max, tol, max_points)
+    parts = [(down, True)]
+    if down.stop_reason != "closed":
+        up = _trace(system, u0, W, window, 1, stability, ds_max, tol, max_points)
+        parts.append((up, False))
+    return _assemble(system, parts, stability)
 
 
 def harmonic_balance_response(
