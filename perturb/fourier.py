@@ -452,20 +452,34 @@ def _ramp_integral(m: IntArray, phi: FloatArray, c: FloatArray, s: FloatArray) -
     Outside it (``m <= 1`` and ``phi >= 1``) the closed forms ``sin phi - phi cos phi`` and
     ``(phi - sin phi cos phi)/2`` are used, which are well conditioned there.
     """
-    mf = m.astype(np.float64)
     # m >= 2 is only ever passed here with m phi < 1 (up to rounding at the boundary, where the
     # series still converges fast); m <= 1 uses the series below phi = 1
     series = (m >= 2) | (phi < 1.0)
-    x = phi * phi
-    y = (mf * phi) ** 2
-    P = np.zeros_like(phi)
-    for j in range(_RAMP_SERIES.shape[0] - 1, -1, -1):
-        Qj = np.zeros_like(phi)
-        for k in range(_RAMP_SERIES.shape[1] - 1, -1, -1):
-            Qj = Qj * y + _RAMP_SERIES[j, k]
-        P = P * x + Qj
     closed = np.where(m == 0, s - phi * c, 0.5 * (phi - s * c))
-    return np.where(series, phi**3 * P, closed)
+    # phi**3 (a libm/SIMD pow) on the whole array as before, so that no element's rounding
+    # depends on which others are selected; the rest is exact IEEE multiply/add, element by
+    # element, so summing the series only where it is used changes no bit
+    out = np.where(series, phi**3, closed)
+    sel = np.flatnonzero(series)
+    if sel.size == 0:
+        return out
+    ph = phi.reshape(-1)[sel]
+    x = ph * ph
+    y = (m.reshape(-1)[sel].astype(np.float64) * ph) ** 2
+    # Horner in y for all ten rows j at once, then in x: the same multiply-then-add per element
+    # as ten separate row loops (so bit-identical), but 40 array operations instead of 220,
+    # which is most of this kernel's cost on the few hundred points of a frequency response
+    rows = _RAMP_SERIES.shape[0]
+    Q = np.zeros((rows, sel.size))
+    for k in range(_RAMP_SERIES.shape[1] - 1, -1, -1):
+        Q *= y
+        Q += _RAMP_SERIES[:, k, None]
+    P = np.zeros(sel.size)
+    for j in range(rows - 1, -1, -1):
+        P *= x
+        P += Q[j]
+    out.reshape(-1)[sel] *= P
+    return out
 
 
 class _Term(NamedTuple):
@@ -649,6 +663,26 @@ def _prepare(n: ArrayLike, A: ArrayLike, **reals: ArrayLike) -> tuple[IntArray, 
     return n_, base
 
 
+def _prepare_unchecked(
+    n: ArrayLike, A: ArrayLike, b: ArrayLike, d: ArrayLike
+) -> tuple[IntArray, FloatArray, FloatArray, FloatArray]:
+    """:func:`_prepare` of ``n, A, b, d`` for inputs known to be valid, without the checks.
+
+    The compiled numeric layer (:mod:`perturb.numeric.frequency_response`) calls the kernels
+    several times per response with harmonic indices and amplitudes it built itself; there
+    the validation (finiteness scans, error-location bookkeeping, a trial broadcast) is pure
+    fixed cost.  The arrays returned are equal in value, dtype and shape to those of
+    :func:`_prepare`, so every kernel computes bit-identical results from them.
+    """
+    n_ = np.asarray(n, dtype=np.int64)
+    A_ = np.asarray(A, dtype=np.float64)
+    b_ = np.asarray(b, dtype=np.float64)
+    d_ = np.asarray(d, dtype=np.float64)
+    base_shape = np.broadcast_shapes(A_.shape, b_.shape, d_.shape)
+    A_, b_, d_ = (np.broadcast_to(a, base_shape).copy() for a in (A_, b_, d_))
+    return n_, A_, b_, d_
+
+
 # ---------------------------------------------------------------------------------------------
 # public numeric API
 # ---------------------------------------------------------------------------------------------
@@ -688,6 +722,11 @@ def step_coefficients(
         ``b``/``d`` are not finite; the message names the offending value.
     """
     n_, (A_, b_, d_) = _prepare(n, A, b=b, d=d)
+    return _step_kernel(n_, A_, b_, d_)
+
+
+def _step_kernel(n_: IntArray, A_: FloatArray, b_: FloatArray, d_: FloatArray) -> FloatArray:
+    """:func:`step_coefficients` of prepared arrays (``A_, b_, d_`` of one shape)."""
     g = _geometry(A_, b_, d_)
     loc_value = np.where(g.up, 0.0, 1.0)
     return _assemble(n_, A_, loc_value, np.zeros_like(A_), [_Term(g, 0.0, 1.0)])
@@ -732,6 +771,11 @@ def ramp_coefficients(
         ``b``/``d`` are not finite; the message names the offending value.
     """
     n_, (A_, b_, d_) = _prepare(n, A, b=b, d=d)
+    return _ramp_kernel(n_, A_, b_, d_)
+
+
+def _ramp_kernel(n_: IntArray, A_: FloatArray, b_: FloatArray, d_: FloatArray) -> FloatArray:
+    """:func:`ramp_coefficients` of prepared arrays (``A_, b_, d_`` of one shape)."""
     g = _geometry(A_, b_, d_)
     loc_value = np.where(g.up, 0.0, b_ - d_)
     loc_slope = np.where(g.up, 0.0, 1.0)
@@ -772,6 +816,11 @@ def dirac_coefficients(
         infinite.  Also for bad inputs as in :func:`step_coefficients`.
     """
     n_, (A_, b_, d_) = _prepare(n, A, b=b, d=d)
+    return _dirac_kernel(n_, A_, b_, d_)
+
+
+def _dirac_kernel(n_: IntArray, A_: FloatArray, b_: FloatArray, d_: FloatArray) -> FloatArray:
+    """:func:`dirac_coefficients` of prepared arrays (``A_, b_, d_`` of one shape)."""
     g = _geometry(A_, b_, d_)
     if g.tangent.any():
         idx = tuple(int(i) for i in np.argwhere(g.tangent)[0]) if g.tangent.ndim else ()
@@ -783,6 +832,50 @@ def dirac_coefficients(
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = np.where(g.crossing, _TWO_OVER_PI / np.where(g.crossing, g.a_sin, 1.0), 0.0)
     return _Trig(n_, g.phi, ~g.up).weighted([("cos", scale, np.ones(n_.shape))])
+
+
+# ---------------------------------------------------------------------------------------------
+# unchecked entry points for the compiled numeric layer
+# ---------------------------------------------------------------------------------------------
+
+
+def _step_coefficients_unchecked(
+    n: ArrayLike, A: ArrayLike, b: ArrayLike = 0.0, d: ArrayLike = 0.0
+) -> FloatArray:
+    """:func:`step_coefficients` without input validation (internal callers only).
+
+    ``n`` must be non-negative integers, ``A`` finite and ``>= 0``, ``b`` and ``d`` finite,
+    all broadcastable: nothing is checked, invalid input gives undefined values instead of
+    a :class:`~perturb.errors.FourierError`.  Valid input gives bit-identical results.
+    """
+    return _step_kernel(*_prepare_unchecked(n, A, b, d))
+
+
+def _ramp_coefficients_unchecked(
+    n: ArrayLike, A: ArrayLike, b: ArrayLike = 0.0, d: ArrayLike = 0.0
+) -> FloatArray:
+    """:func:`ramp_coefficients` without input validation (see
+    :func:`_step_coefficients_unchecked`)."""
+    return _ramp_kernel(*_prepare_unchecked(n, A, b, d))
+
+
+def _dirac_coefficients_unchecked(
+    n: ArrayLike, A: ArrayLike, b: ArrayLike = 0.0, d: ArrayLike = 0.0
+) -> FloatArray:
+    """:func:`dirac_coefficients` without input validation (see
+    :func:`_step_coefficients_unchecked`); tangency still raises, being a property of the
+    values, not a malformed input."""
+    return _dirac_kernel(*_prepare_unchecked(n, A, b, d))
+
+
+#: checked public function -> its unchecked twin, for callers that build valid inputs
+#: themselves (looked up by function so that a caller falls back to the checked one for
+#: anything not listed)
+_UNCHECKED = {
+    step_coefficients: _step_coefficients_unchecked,
+    ramp_coefficients: _ramp_coefficients_unchecked,
+    dirac_coefficients: _dirac_coefficients_unchecked,
+}
 
 
 def abs_coefficients(

@@ -261,3 +261,65 @@ def test_exact_pwl_hill_matches_sampled_hill_exponents(k):
     lam = hill_exponents(osc, xf, w[:, None] * dxf, 2 * np.pi / w, 1, cp.Omega)
     sampled = np.exp(np.max(lam.real, axis=1) * 2 * np.pi / w)
     np.testing.assert_allclose(fast, sampled, rtol=1e-7)
+
+
+def _response_arrays(resp):
+    return [
+        np.concatenate([np.asarray(getattr(b, f), float) for b in resp.branches])
+        for f in ("omega", "amplitude", "first_harmonic_amplitude", "mean", "max_multiplier")
+    ]
+
+
+@pytest.mark.parametrize("stability", ["slow_flow", "hill"])
+def test_unchecked_fourier_path_gives_the_checked_response_bitwise(stability):
+    # the compiled solver evaluates the amplitude's Fourier atoms with fourier's unchecked
+    # kernels; the validating public ones must give the very same response
+    from perturb.methods import modified_lindstedt
+    from perturb.numeric.frequency_response import compile_response
+
+    osc = builtin_model("nsd", k=-3.0, mu=0.05, F=2.0)
+    solver = compile_response(modified_lindstedt(osc, 1))
+    assert solver.atoms.unchecked
+    fast = frequency_response(solver, (0.2, 2.0), points=600, stability=stability)
+    solver.atoms.unchecked = False
+    solver.atoms._plans.clear()
+    slow = frequency_response(solver, (0.2, 2.0), points=600, stability=stability)
+    assert fast.folds == slow.folds
+    for x, y in zip(_response_arrays(fast), _response_arrays(slow), strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_closed_form_hill_exponents_match_lapack():
+    from perturb.numeric.frequency_response import _hill1_exponents, _hill1_matrix
+
+    rng = np.random.default_rng(5)
+    n = 2000
+    w = 10 ** rng.uniform(-1, 0.5, n)
+    q0 = rng.normal(0, 2, n)
+    # harmonics of q from absent to O(1), so that real, complex and clustered roots all occur
+    qk = rng.normal(0, 1, (4, n)) * rng.choice([0.0, 1e-8, 1.0], (4, n))
+    scale = np.sqrt(1 + w**2 + np.abs(q0) + np.abs(qk).sum(axis=0))
+
+    def exponent(z):
+        # the stability measure: largest real part of the two exponents of least |Im|
+        order = np.argsort(np.abs(z.imag) + 1e-12 * np.abs(z.real), axis=1)
+        return np.max(np.take_along_axis(z, order[:, :2], axis=1).real, axis=1)
+
+    # (p > 0: with p = 0 the selection itself is ambiguous, +-nu having equal |Im| and |Re|)
+    for p in (0.01, 0.05, 0.7):
+        lam = _hill1_exponents(q0, *qk, w, p)
+        ref = np.linalg.eigvals(_hill1_matrix(q0, *qk, w, p))
+        # the same six eigenvalues (greedy nearest matching), to LAPACK's own accuracy:
+        # ~1e-15 typically, ~eps**(1/3) where three roots cluster
+        for i in range(n):
+            rest = list(ref[i])
+            for z in lam[i]:
+                j = int(np.argmin(np.abs(np.array(rest) - z)))
+                assert abs(rest.pop(j) - z) < 1e-9 * scale[i]
+        # where two pairs have the same |Im| (+-nu complex) LAPACK's rounding noise in Im
+        # outweighs the 1e-12 |Re| tie-break, and its pick is arbitrary: compare elsewhere
+        im = np.sort(np.abs(ref.imag), axis=1)
+        clear = im[:, 2] - im[:, 1] > 1e-9 * scale
+        assert clear.mean() > 0.75
+        diff = np.abs(exponent(lam) - exponent(ref)) / scale
+        assert np.max(diff[clear]) < 1e-10
