@@ -569,6 +569,19 @@ def test_non_convergence_reports_the_residual():
     assert isinstance(info.value, PerturbError)
 
 
+def test_relaxation_cycle_from_the_harmonic_guess():
+    """van der Pol eps = 5 from the harmonic guess (2, 0), 2 pi: Newton alone ran away (|x|
+    doubling per iteration with a shrinking period, each step stiffer); the run-away guard
+    stops it and the settled-transient restart converges. Oracle: a long DOP853 run with
+    events."""
+    flow = ODEFlow(builtin_model("vanderpol", eps=5.0), rtol=1e-12, atol=1e-12)
+    orb = limit_cycle(flow, [2.0, 0.0], TWO_PI)
+    T_ref, A_ref = vdp_reference(5.0, 25)
+    assert abs(orb.period - T_ref) < 1e-8 * T_ref
+    assert abs(orb.amplitude - A_ref) < 1e-8 * A_ref
+    assert orb.stability == "stable"
+
+
 def test_limit_cycle_refuses_an_equilibrium():
     flow = ODEFlow(builtin_model("vanderpol", eps=0.5))
     with pytest.raises(ShootingError, match="equilibrium"):

@@ -835,6 +835,39 @@ def _reject_equilibrium(flow: Any, y0: np.ndarray, P: float, what: str, rn: floa
         )
 
 
+#: Largest growth of the state, relative to the guess, that limit-cycle Newton may take.
+_RUNAWAY = 100.0
+
+
+def _settled_start(flow: Flow, y: np.ndarray, T0: float) -> np.ndarray | None:
+    """``(x_max, 0, P)`` of the attractor reached from ``y``: 50 guessed periods of transient,
+    then two successive maxima of ``x`` (``v`` crossing from + to -, located by linear
+    interpolation on a 1/64-period grid) give the state and the period; ``None`` when the
+    transient diverges, stops at an equilibrium, or shows no two maxima in 16 periods."""
+    try:
+        z = np.asarray(flow(y, 0.0, 50.0 * T0).y, dtype=float)
+        h = T0 / 64.0
+        t, crossings = 50.0 * T0, []
+        for _ in range(16 * 64):
+            z1 = np.asarray(flow(z, t, t + h).y, dtype=float)
+            if not np.all(np.isfinite(z1)):
+                return None
+            if z[1] > 0.0 >= z1[1]:
+                f = z[1] / (z[1] - z1[1])
+                crossings.append((t + f * h, z[0] + f * (z1[0] - z[0])))
+                if len(crossings) == 2:
+                    break
+            z, t = z1, t + h
+    except (ArithmeticError, ValueError, RuntimeError):
+        return None
+    if len(crossings) < 2:
+        return None
+    (t1, _), (t2, x2) = crossings
+    if not (t2 - t1 > 0.0 and math.isfinite(x2)):
+        return None
+    return np.array([x2, 0.0, t2 - t1])
+
+
 def limit_cycle(
     flow: Flow,
     y_guess: ArrayLike,
@@ -870,7 +903,10 @@ def limit_cycle(
     ParameterError
         Bad arguments or a forced flow.
     ShootingError
-        No convergence, or convergence to an equilibrium.
+        No convergence, or convergence to an equilibrium, also after the fallback: when Newton
+        from the guess fails (``phase = "velocity"``), the guess is simulated for 50 guessed
+        periods and Newton restarts from the maximum of ``x`` and the period measured on the
+        settled transient (stable cycles only: an unstable one repels the transient).
     """
     _check_flow(flow)
     _check_autonomous(flow, "limit_cycle")
@@ -907,19 +943,44 @@ def limit_cycle(
 
         z0 = np.array([T0])
 
-    out = _newton(
-        evaluate,
-        z0,
-        tol=tol,
-        max_iter=max_iter,
-        # the residual is a state difference: scale by the state, not the period
-        scale=lambda z: _state_scale(z[:2] if phase == "velocity" else y),
-        what=what,
-        admissible=lambda z: bool(z[-1] > 0.0),
-    )
-    y0 = out.z[:2].copy() if phase == "velocity" else y.copy()
-    P = float(out.z[-1])
-    _reject_equilibrium(flow, y0, P, what, out.rnorm, out.iterations)
+    def solve(z_start: np.ndarray) -> tuple[Any, np.ndarray, float]:
+        out = _newton(
+            evaluate,
+            z_start,
+            tol=tol,
+            max_iter=max_iter,
+            # the residual is a state difference: scale by the state, not the period
+            scale=lambda z: _state_scale(z[:2] if phase == "velocity" else y),
+            what=what,
+            # a positive period, and no run-away: from a poor guess on a relaxation cycle the
+            # iterates can double |x| while the period shrinks, each step stiffer than the last
+            admissible=lambda z: (
+                bool(z[-1] > 0.0)
+                and (phase != "velocity" or _state_scale(z[:2]) <= _RUNAWAY * _state_scale(y))
+            ),
+        )
+        y0 = out.z[:2].copy() if phase == "velocity" else y.copy()
+        P = float(out.z[-1])
+        _reject_equilibrium(flow, y0, P, what, out.rnorm, out.iterations)
+        return out, y0, P
+
+    try:
+        out, y0, P = solve(z0)
+    except ShootingError as first:
+        # Newton's basin shrinks as a cycle turns into a relaxation oscillation (van der Pol
+        # at eps >~ 3 from the harmonic guess (2, 0), 2 pi runs into the equilibrium).  A
+        # stable cycle attracts the guess, so settle on it by simulation and start again from
+        # the measured maximum and period; an unstable cycle or a divergent transient leaves
+        # the first error standing.
+        if phase != "velocity":
+            raise
+        start = _settled_start(flow, y, T0)
+        if start is None:
+            raise first from None
+        try:
+            out, y0, P = solve(start)
+        except ShootingError:
+            raise first from None
     dense = _FlowDense(flow, y0[None, :], np.array([0.0, P]))
     return _make_orbit(
         dense=dense,
