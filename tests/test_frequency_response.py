@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 from scipy.optimize import brentq
@@ -323,3 +325,166 @@ def test_closed_form_hill_exponents_match_lapack():
         assert clear.mean() > 0.75
         diff = np.abs(exponent(lam) - exponent(ref)) / scale
         assert np.max(diff[clear]) < 1e-10
+
+
+@functools.lru_cache(maxsize=4)
+def _dense_tables(K, count, endpoint):
+    """cos(n t), sin(n t) at ``count`` equally spaced t over one period, n < K."""
+    t = np.linspace(0, 2 * np.pi, count, endpoint=endpoint)
+    n = np.arange(K)
+    return t, np.cos(np.outer(t, n)), np.sin(np.outer(t, n))
+
+
+def _oracle_max_abs(c, s):
+    """max |x| of one row ``x = sum_n c_n cos(n t) + s_n sin(n t)`` by brute force: 1e5
+    samples, then a bounded scalar maximisation about the best one (independent of
+    :func:`_extrema`'s brackets, Newton steps and symmetry shortcuts)."""
+    from scipy.optimize import minimize_scalar
+
+    n = np.arange(c.size)
+
+    def x(t):
+        return float(np.sum(c * np.cos(n * t) + s * np.sin(n * t)))
+
+    t, ct, st = _dense_tables(c.size, 100_000, False)
+    xs = ct @ c + st @ s
+    j = int(np.argmax(np.abs(xs)))
+    sign = np.sign(xs[j])
+    h = 2 * np.pi / t.size
+    res = minimize_scalar(
+        lambda u: -sign * x(u),
+        bounds=(t[j] - h, t[j] + h),
+        method="bounded",
+        options={"xatol": 1e-13},
+    )
+    return max(abs(xs[j]), abs(res.fun))
+
+
+def _symmetric_rows():
+    """Half-wave symmetric rows (odd harmonics only, as the nsd waveforms): first-harmonic
+    dominated, dominated by higher harmonics (sampled brackets), flat maxima (``x'' = 0``
+    or ``x'' = x'''' = 0`` at the top) and a pure cosine."""
+    rng = np.random.default_rng(11)
+    K = 16
+    C, S = np.zeros((30, K)), np.zeros((30, K))
+    decay = np.exp(-0.3 * np.arange(1, K, 2))
+    C[:, 1::2] = rng.normal(size=(30, K // 2)) * decay
+    S[:, 1::2] = rng.normal(size=(30, K // 2)) * decay
+    C[:8, 3::2] *= 1e-3  # first harmonic dominates
+    C[8:16, 1] = 0.02  # higher harmonics dominate
+    S[8:16, 1] = 0.0
+    C[16:20], S[16:20] = 0.0, 0.0
+    C[16, 1], C[16, 3] = 1.0, -1 / 9  # flat top: x''(0) = 0, x ~ 8/9 - t^4 / 3
+    C[17, 1], C[17, 3], C[17, 5] = 1.0, -5 / 32, 1 / 160  # x'' = x'''' = 0 at t = 0
+    C[18, 1] = 2.5  # pure cosine
+    C[19, 1], S[19, 3] = 0.7, 0.3  # rotated peaks
+    return C, S
+
+
+@pytest.mark.parametrize("count", [128, 127])
+def test_max_abs_of_half_wave_symmetric_rows_matches_dense_oracle(count):
+    """max |x| from :func:`_extrema` (which refines the critical points in [0, pi) of a
+    half-wave symmetric row and mirrors the rest, and orders them by one argsort) against
+    brute force; an odd sample count takes the path without mirroring of sampled rows."""
+    from perturb.numeric.frequency_response import _extrema, _max_abs_at
+
+    C, S = _symmetric_rows()
+    rows, tau, xe = _extrema(C, S, count)
+    got = _max_abs_at(rows, xe, C.shape[0], C[:, 0])
+    for i in range(C.shape[0]):
+        ref = _oracle_max_abs(C[i], S[i])
+        assert abs(got[i] - ref) <= 1e-12 * ref, (i, got[i], ref)
+        # ordered by row, then tau in [0, 2 pi), and critical: x'(tau) = 0
+        t = tau[rows == i]
+        assert np.all(np.diff(t) > 0) and t.min() >= 0 and t.max() < 2 * np.pi
+    assert np.all(np.diff(rows) >= 0)
+    assert abs(got[18] - 2.5) < 1e-15
+
+
+@functools.lru_cache(maxsize=2)
+def _nsd_orbits(k, F, grazing=(1e-2, 1e-4, 1e-6)):
+    """Waveform coefficients of the first-order mLP response of nsd (every 23rd point and
+    the orbits with max |x| closest above 1), plus the orbits of the response rescaled so
+    that max |x| = 1 + eps for each ``eps`` in ``grazing``: near-double crossings. Returns
+    the solver, ``C, S``, the response's amplitudes of the unscaled rows and the number of
+    rescaled rows (last)."""
+    from perturb.methods import modified_lindstedt
+    from perturb.numeric.frequency_response import compile_response
+
+    osc = builtin_model("nsd", k=k, mu=0.05, F=F)
+    cp = compile_response(modified_lindstedt(osc, 1))
+    resp = frequency_response(cp, (0.2, 2.0), points=2000)
+    w = np.concatenate([br.omega for br in resp.branches])
+    A = np.concatenate([br.first_harmonic_amplitude for br in resp.branches])
+    amp = np.concatenate([br.amplitude for br in resp.branches])
+    pc, ps = cp.phase_u(cp.atoms.evaluate(A, cp.phase_u.rows), A, w)
+    C, S = cp.wave.coefficients(A, np.arctan2(ps, pc), w)
+    above = np.nonzero(amp > 1)[0]
+    near = above[np.argsort(amp[above])[:5]]
+    pick = np.unique(np.concatenate([np.arange(0, w.size, 23), near]))
+    # rescaled: the waveforms of the largest orbits (strongly non-sinusoidal) and of some
+    # inside the well; max |x| from the dense oracle, so the target 1 + eps is exact to ~1e-16
+    shapes = np.concatenate(
+        [np.argsort(amp)[-3:], np.nonzero(amp < 1)[0][:: max(1, (amp < 1).sum() // 3)]]
+    )
+    Cg, Sg = [], []
+    for i in shapes:
+        m = _oracle_max_abs(C[i], S[i])
+        for eps in grazing:
+            Cg.append(C[i] * (1 + eps) / m)
+            Sg.append(S[i] * (1 + eps) / m)
+    return cp, np.vstack([C[pick], Cg]), np.vstack([S[pick], Sg]), amp[pick], len(Cg)
+
+
+@pytest.mark.parametrize(("k", "F"), [(-3.0, 2.0), (-0.5, 2.0)])
+def test_response_amplitudes_match_dense_oracle_including_grazing(k, F):
+    """The amplitude column (max |x| over a period) of the first-order mLP response of nsd
+    against brute force on the waveform, including the orbits of the response closest above
+    the breakpoints (max |x| = 1.0024 for k = -0.5) and rescaled orbits with
+    max |x| = 1 + 1e-2 .. 1e-6."""
+    from perturb.numeric.frequency_response import _extrema, _max_abs_at
+
+    cp, C, S, amp, _ = _nsd_orbits(k, F)
+    rows, _, xe = _extrema(C, S)
+    got = _max_abs_at(rows, xe, C.shape[0], C[:, 0])
+    for i in range(C.shape[0]):
+        ref = _oracle_max_abs(C[i], S[i])
+        assert abs(got[i] - ref) <= 1e-12 * ref, (i, got[i], ref)
+        if i < amp.size:  # the response's own column (coefficients from the atoms' path)
+            assert abs(amp[i] - ref) <= 1e-12 * ref, (i, amp[i], ref)
+
+
+@pytest.mark.parametrize(("k", "F"), [(-3.0, 2.0), (-0.5, 2.0)])
+def test_breakpoint_crossings_match_brentq_including_grazing(k, F):
+    """The crossings of the breakpoints +-1 (found for d = +1 and mirrored to -1 on these
+    half-wave symmetric orbits, from a half-cosine guess by Halley steps) against brentq on
+    the sign changes of 1e5 samples of x - d, with orbits that graze the breakpoints
+    (max |x| = 1 + 1e-6: crossings 1e-3 apart)."""
+    from scipy.optimize import brentq
+
+    from perturb.numeric.frequency_response import _extrema
+
+    cp, C, S, _, n_grazing = _nsd_orbits(k, F)
+    rows, tau, jump = cp.hill.crossings(C, S, *_extrema(C, S))
+    n = np.arange(C.shape[1])
+    t, ct, st = _dense_tables(C.shape[1], 100_001, True)
+    # q = g'(x) jumps by k - 1 crossing -1 upwards and by 1 - k crossing +1 upwards
+    levels = ((-1.0, k - 1.0), (1.0, 1.0 - k))
+    for i in range(C.shape[0]):
+
+        def x(u, i=i):
+            return float(np.sum(C[i] * np.cos(n * u) + S[i] * np.sin(n * u)))
+
+        xs = ct @ C[i] + st @ S[i]
+        ref = []
+        for d, dq in levels:
+            for j in np.nonzero(np.sign(xs[:-1] - d) * np.sign(xs[1:] - d) < 0)[0]:
+                r = brentq(lambda u, d=d: x(u) - d, t[j], t[j + 1], xtol=1e-15, rtol=1e-15)
+                ref.append((np.mod(r, 2 * np.pi), dq if xs[j + 1] > xs[j] else -dq))
+        ref.sort()
+        if i >= C.shape[0] - n_grazing:  # rescaled to max |x| = 1 + eps: near-double crossings
+            assert len(ref) >= 2, i
+        mine = np.argsort(tau[rows == i])
+        assert mine.size == len(ref), i
+        np.testing.assert_allclose(tau[rows == i][mine], [r[0] for r in ref], rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(jump[rows == i][mine], [r[1] for r in ref])

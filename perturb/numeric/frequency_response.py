@@ -713,21 +713,20 @@ def _trig_samples(C: np.ndarray, S: np.ndarray, count: int) -> np.ndarray:
 class _TrigRows:
     """Trigonometric polynomials ``x_i(t) = sum_n C_in cos(n t) + S_in sin(n t)`` for the rows
     ``rows`` of ``C, S``, restricted to the harmonics present (e.g. the odd ones of a
-    waveform with half-wave symmetry), evaluated at one ``t`` each."""
+    waveform with half-wave symmetry), evaluated at one ``t`` each.
+
+    With ``P_n = C_n cos(n t) + S_n sin(n t)`` and ``Q_n = S_n cos(n t) - C_n sin(n t)`` the
+    derivatives are ``x^(k) = (-1)^(k // 2) sum_n n^k (P_n if k is even else Q_n)``: weighted
+    sums of the same products for every order, where scaled copies of ``C, S`` per order
+    (and their gathering for each active set) cost more than the sums themselves."""
 
     def __init__(self, C: np.ndarray, S: np.ndarray, rows: np.ndarray) -> None:
-        present = np.any(C != 0, axis=0) | np.any(S != 0, axis=0)
-        self.ns = np.nonzero(present)[0]
-        self.n = self.ns.astype(float)[:, None]
-        self.CT = C.T[self.ns][:, rows]
-        self.ST = S.T[self.ns][:, rows]
-        self._der: dict[int, tuple[np.ndarray, np.ndarray]] = {0: (self.CT, self.ST)}
-
-    def _coefs(self, k: int) -> tuple[np.ndarray, np.ndarray]:
-        if k not in self._der:  # d/dt (C cos + S sin) = n S cos - n C sin
-            c, s = self._coefs(k - 1)
-            self._der[k] = (self.n * s, -self.n * c)
-        return self._der[k]
+        self.ns = np.flatnonzero(np.any(C, axis=0) | np.any(S, axis=0))
+        self.n = self.ns.astype(float)
+        # (harmonic, row) in row-major order, the layout of the tables of _powers: the
+        # transposed view of C would make every sum stride across memory
+        self.CT = np.ascontiguousarray(C.T[self.ns]).take(rows, axis=1)
+        self.ST = np.ascontiguousarray(S.T[self.ns]).take(rows, axis=1)
 
     def _powers(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``cos(n t), sin(n t)`` for the harmonics present, from products of
@@ -752,12 +751,19 @@ class _TrigRows:
     def __call__(self, t: np.ndarray, idx: np.ndarray | None = None, orders=(0,)):
         """``d^k x_i / dt^k (t)`` for ``k`` in ``orders`` and the polynomials ``idx``."""
         ct, st = self._powers(t)
+        c, s = self.CT, self.ST
+        if idx is not None and idx.size < c.shape[1]:
+            c, s = c[:, idx], s[:, idx]
         out = []
         for k in orders:
-            c, s = self._coefs(k)
-            if idx is not None and idx.size < c.shape[1]:
-                c, s = c[:, idx], s[:, idx]
-            out.append(np.einsum("ji,ji->i", c, ct) + np.einsum("ji,ji->i", s, st))
+            # x^(k) = (-1)^(k // 2) sum_n n^k P_n (k even) or Q_n (k odd); each sum fused in
+            # one einsum: the tables are too large for the cache, and temporaries for P_n,
+            # Q_n made the sums memory-bound (twice slower on all points at once)
+            wk = (-1.0) ** (k // 2) * self.n**k
+            if k % 2 == 0:
+                out.append(np.einsum("j,ji,ji->i", wk, c, ct) + np.einsum("j,ji,ji->i", wk, s, st))
+            else:
+                out.append(np.einsum("j,ji,ji->i", wk, s, ct) - np.einsum("j,ji,ji->i", wk, c, st))
         return out
 
 
@@ -808,6 +814,31 @@ def _safe_newton(
     return x
 
 
+def _level_crossings(C, S, rows, d, lo, hi, x_lo, x_hi) -> np.ndarray:
+    """The ``tau`` in ``[lo, hi]`` where the rows ``rows`` of ``x = sum_n C_n cos(n tau) +
+    S_n sin(n tau)``, monotone from ``x_lo = x(lo)`` to ``x_hi = x(hi)`` (consecutive
+    critical points), cross the level ``d``, to full precision.
+
+    The first guess takes the piece for half a cosine wave, ``x ~ m + h cos(pi s)`` with
+    ``s`` the position in ``[lo, hi]`` (exact for a pure first harmonic); Halley's steps
+    (cubic convergence, the second derivative costs one more weighted sum of the products
+    already formed) then stop after a step below ``1e-7``, whose own error is of the order
+    of its cube (``~1e-21`` times the curvature scale): two or three evaluations for most
+    pieces (a few non-sinusoidal ones need up to seven), where Newton's steps from the
+    bracket's middle needed 5 to 9."""
+    poly = _TrigRows(C, S, rows)
+    m, h = 0.5 * (x_lo + x_hi), 0.5 * (x_lo - x_hi)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.arccos(np.clip(np.nan_to_num((d - m) / h), -1.0, 1.0)) / np.pi
+    guess = lo + s * (hi - lo)
+
+    def level(t, idx):
+        x, dx, d2x = poly(t, idx, (0, 1, 2))
+        return x - d, dx, d2x
+
+    return _safe_newton(level, lo, hi, x_lo - d, x_hi - d, guess, 1e-7)
+
+
 def _extrema(C: np.ndarray, S: np.ndarray, count: int = _WAVEFORM_SAMPLES):
     """Every critical point of the rows ``x(tau) = sum_n C_n cos(n tau) + S_n sin(n tau)``.
 
@@ -821,7 +852,9 @@ def _extrema(C: np.ndarray, S: np.ndarray, count: int = _WAVEFORM_SAMPLES):
     together to full precision."""
     n_rows, K = C.shape
     n = np.arange(K)
-    amp = np.hypot(C, S)
+    # (only for the dominance test below: sqrt(C^2 + S^2) is within an ulp of hypot, at a
+    # third of its cost)
+    amp = np.sqrt(C * C + S * S)
     c1 = amp[:, 1] if K > 1 else np.zeros(n_rows)
     R1 = amp[:, 2:] @ n[2:].astype(float)
     R2 = amp[:, 2:] @ (n[2:] ** 2).astype(float)
@@ -834,7 +867,7 @@ def _extrema(C: np.ndarray, S: np.ndarray, count: int = _WAVEFORM_SAMPLES):
     half = np.arcsin(0.5 * (rho[rows_d] + rho_max[rows_d]))
     t1 = np.arctan2(S[rows_d, 1], C[rows_d, 1]) if K > 1 else np.zeros(0)
     # half-wave symmetry (odd harmonics only): x(t + pi) = -x(t), one region suffices
-    sym = np.all(C[rows_d, 0::2] == 0, axis=1) & np.all(S[rows_d, 0::2] == 0, axis=1)
+    sym = ~(np.any(C[rows_d, 0::2], axis=1) | np.any(S[rows_d, 0::2], axis=1))
     n_max, n_min = rows_d.size, int(np.count_nonzero(~sym))
     centre = np.concatenate([t1, t1[~sym] + np.pi])
     r_b = np.concatenate([rows_d, rows_d[~sym]])
@@ -867,10 +900,17 @@ def _extrema(C: np.ndarray, S: np.ndarray, count: int = _WAVEFORM_SAMPLES):
     # scale), and the value at a critical point depends on it only to second order
     t = _safe_newton(slope, lo_b, hi_b, f_lo, f_hi, guess, 1e-3)
     x = poly(t)[0]
-    r_b = np.concatenate([r_b, rows_d[sym]])
-    t = np.mod(np.concatenate([t, t[:n_max][sym] + np.pi]), 2 * np.pi)
-    x = np.concatenate([x, -x[:n_max][sym]])
-    order = np.lexsort((t, r_b))
+    mirror = np.nonzero(sym)[0]
+    r_b = np.concatenate([r_b, r_b[mirror]])
+    t = np.mod(np.concatenate([t, t[mirror] + np.pi]), 2 * np.pi)
+    x = np.concatenate([x, -x[mirror]])
+    # by row, then tau: one argsort of the key row * 8 + tau (tau < 2 pi < 8), a fifth of
+    # lexsort's cost; rounding of the key can only tie (not swap) two taus of a row, and
+    # lexsort settles the rare ties
+    order = np.argsort(r_b * 8.0 + t, kind="stable")
+    ro_, to_ = r_b[order], t[order]
+    if np.any((ro_[1:] == ro_[:-1]) & (to_[1:] <= to_[:-1])):
+        order = np.lexsort((t, r_b))
     return r_b[order], t[order], x[order]
 
 
@@ -1043,7 +1083,12 @@ class _PWLHill:
 
     def crossings(self, C, S, r, te, xe):
         """Breakpoint crossings of the orbits with critical points ``(r, te, xe)`` (from
-        :func:`_extrema`): row, phase ``tau`` in ``[0, 2 pi)`` and jump of ``q``."""
+        :func:`_extrema`): row, phase ``tau`` in ``[0, 2 pi)`` and jump of ``q``.
+
+        An orbit with half-wave symmetry (odd harmonics only: ``x(tau + pi) = -x(tau)``)
+        crosses ``-d`` at ``tau + pi`` where it crosses ``d`` at ``tau``, in the other
+        direction: where ``-d`` is a breakpoint too, only the crossings of ``d > 0`` are
+        solved for such orbits (half the work on the symmetric PWL forces of the seeds)."""
         empty = np.empty(0)
         if r.size == 0 or self.breakpoints.size == 0:
             return np.empty(0, int), empty, empty
@@ -1057,24 +1102,32 @@ class _PWLHill:
         nxt[last] = starts[np.cumsum(first)[last] - 1]
         t_end = np.where(last, te[nxt] + 2 * np.pi, te[nxt])
         x_end = xe[nxt]
+        bps, dqs = self.breakpoints, np.diff(self.slopes)
+        sym_row = ~(np.any(C[:, 0::2], axis=1) | np.any(S[:, 0::2], axis=1))
         rows, taus, jumps = [], [], []
-        for i, d in enumerate(self.breakpoints):
+        solved: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        # positive breakpoints first, so that their mirrors can reuse them
+        for i in sorted(range(bps.size), key=lambda i: -bps[i]):
+            d, dq = bps[i], dqs[i]
             k = np.nonzero((xe - d) * (x_end - d) < 0)[0]
+            mirror = solved.get(-d) if d < 0 else None
+            if mirror is not None:
+                k = k[~sym_row[r[k]]]
+                rm, tm, upm = mirror
+                m = sym_row[rm]
+                rows.append(rm[m])
+                taus.append(np.mod(tm[m] + np.pi, 2 * np.pi))
+                # x crosses -d downwards at tau + pi where it crosses d upwards at tau
+                jumps.append(np.where(upm[m], -dq, dq))
             if k.size == 0:
                 continue
             rk = r[k]
-            poly = _TrigRows(C, S, rk)
-
-            def level(t, idx, poly=poly, d=d):
-                x, dx = poly(t, idx, (0, 1))
-                return x - d, dx
-
-            lo, hi = te[k], t_end[k]
-            tc = _safe_newton(level, lo, hi, xe[k] - d, x_end[k] - d, 0.5 * (lo + hi), 1e-13)
+            tc = _level_crossings(C, S, rk, d, te[k], t_end[k], xe[k], x_end[k])
+            up = x_end[k] > xe[k]
+            solved[d] = (rk, tc, up)
             rows.append(rk)
             taus.append(np.mod(tc, 2 * np.pi))
-            dq = self.slopes[i + 1] - self.slopes[i]
-            jumps.append(np.where(x_end[k] > xe[k], dq, -dq))
+            jumps.append(np.where(up, dq, -dq))
         if not rows:
             return np.empty(0, int), empty, empty
         return np.concatenate(rows), np.concatenate(taus), np.concatenate(jumps)
@@ -1094,8 +1147,9 @@ class _PWLHill:
         )
         # q = q0 + sum_k qc_k cos(k tau) + qs_k sin(k tau), k = 1, 2
         qc, qs = [], []
-        for k in (1, 2):
-            z = jump * np.exp(-1j * k * tau) / (2j * np.pi * k)  # q_k = (qc_k - i qs_k) / 2
+        e1 = np.exp(-1j * tau)
+        for k, e in ((1, e1), (2, e1 * e1)):  # (squaring: one complex exp fewer, ~1 ulp)
+            z = jump * e / (2j * np.pi * k)  # q_k = (qc_k - i qs_k) / 2
             qc.append(2 * np.bincount(rows, z.real, minlength=n_orb))
             qs.append(-2 * np.bincount(rows, z.imag, minlength=n_orb))
         lam = _hill1_exponents(q0, qc[0], qs[0], qc[1], qs[1], w, self.damping)
