@@ -10,8 +10,15 @@ F = 2, W in [0.2, 2] (Zou-Nagarajaiah Fig. 17d), all branches at 0.5 % output sp
 amplitude).
 
 * ``exact_branches`` with its defaults: closed-form seeds, virtual sweeps up and down (60
-  frequencies), branch switching at every branch point, mirror images; and with the
-  single-harmonic-balance approximation as the only extra seed source (no sweeps).
+  frequencies), branch switching at every branch point, mirror images, refined folds; run
+  serially (``workers=1``) and with two worker processes (``workers=2``: both halves of every
+  branch at once, the closed-form seeds' branches at once; same branches, checked here point
+  by point); and with the single-harmonic-balance approximation as the only extra seed source
+  (no sweeps).
+* CPU time: ``time.process_time`` of this process, plus (pool) the CPU time of the reaped
+  worker processes (``resource.getrusage(RUSAGE_CHILDREN)``); the 1-minute load average at the
+  end of every run is printed with it (other people's jobs inflate the wall time, and the
+  pool's wall time most: its two halves then share the cores with them).
 * the detached branch alone (``continue_orbits`` from the cross-well orbit at W = 0.6: the
   run that stalled at the branch point W ~ 0.4835 in the first version and took ~700 s).
 * brute force: ``frequency_sweep(method="ode")`` (solve_ivp DOP853 rtol 1e-10, up and down,
@@ -32,6 +39,7 @@ import math
 import os
 import platform
 import pstats
+import resource
 import statistics
 import sys
 import time
@@ -65,18 +73,43 @@ def row(name: str, seconds: float, cal: float, extra: str, cpu: float = math.nan
     return f"{name:<44} {seconds:9.2f} s {cpu:8.2f} s {seconds / cal:10.0f}   {extra}"
 
 
+def _children_cpu() -> float:
+    """User + system CPU seconds of reaped child processes (the pool's workers)."""
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
 class Clock:
-    """Wall and CPU time (``time.process_time``) of one run, and the load average at its end
-    (a shared machine inflates the wall time; the CPU time much less)."""
+    """Wall and CPU time of one run (``time.process_time`` plus the CPU time of child
+    processes reaped during it), and the load average at its end (a shared machine inflates
+    the wall time; the CPU time much less)."""
 
     def __enter__(self) -> Clock:
-        self.w, self.c = time.perf_counter(), time.process_time()
+        self.w, self.c, self.k = time.perf_counter(), time.process_time(), _children_cpu()
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.wall = time.perf_counter() - self.w
-        self.cpu = time.process_time() - self.c
+        self.own = time.process_time() - self.c
+        self.children = _children_cpu() - self.k
+        self.cpu = self.own + self.children
         self.load = os.getloadavg()[0]
+
+
+def same_branches(a, b) -> bool:
+    """Point-by-point equality of two exact_branches results (serial vs pool)."""
+    if len(a.branches) != len(b.branches) or a.mirror_of != b.mirror_of:
+        return False
+    for x, y in zip(a.branches, b.branches, strict=True):
+        if len(x) != len(y) or x.stop_reason != y.stop_reason:
+            return False
+        for p, q in zip(x.points, y.points, strict=True):
+            if p.parameter != q.parameter or not np.array_equal(p.y0, q.y0):
+                return False
+        sa = [(s.kind, s.index, s.parameter) for s in x.special_points]
+        if sa != [(s.kind, s.index, s.parameter) for s in y.special_points]:
+            return False
+    return True
 
 
 def main() -> None:
@@ -98,18 +131,33 @@ def main() -> None:
     lines = []
 
     with Clock() as ck:
-        res = exact_branches(osc, WINDOW, progress=False)
+        res = exact_branches(osc, WINDOW, progress=False, workers=1)
     t_def, c_def = ck.wall, ck.cpu
     n_pts = sum(len(b) for b in res.branches)
     closed = sum(q.source == "closed form" for b in res.branches for q in b.points)
     lines.append(
         row(
-            "exact_branches (defaults)",
+            "exact_branches (defaults, workers=1)",
             t_def,
             cal0,
             f"{len(res.branches)} branches, {n_pts} points ({closed} closed form), "
             f"{res.periods:.0f} periods propagated; load {ck.load:.2f} at the end",
             c_def,
+        )
+    )
+    print(lines[-1])
+
+    with Clock() as ck:
+        res2 = exact_branches(osc, WINDOW, progress=False, workers=2)
+    t_par, c_par = ck.wall, ck.cpu
+    lines.append(
+        row(
+            "exact_branches (defaults, workers=2)",
+            t_par,
+            cal0,
+            f"same branches as workers=1: {same_branches(res, res2)}; CPU {ck.own:.2f} s here "
+            f"+ {ck.children:.2f} s workers; load {ck.load:.2f} at the end",
+            c_par,
         )
     )
     print(lines[-1])
@@ -186,7 +234,15 @@ def main() -> None:
         f"brute force / exact_branches = {t_bf_full / t_def:.1f} (wall), "
         f"{c_bf_full / c_def:.1f} (CPU) (the brute force finds stable orbits only)"
     )
-    print(f"exact_branches (defaults): {t_def:.2f} s wall, {c_def:.2f} s CPU; target <= 5 s")
+    print(
+        f"brute force / exact_branches (workers=2) = {t_bf_full / t_par:.1f} (wall), "
+        f"{c_bf_full / c_par:.1f} (CPU, all processes)"
+    )
+    print(f"exact_branches (workers=1): {t_def:.2f} s wall, {c_def:.2f} s CPU; target <= 5 s")
+    print(
+        f"exact_branches (workers=2): {t_par:.2f} s wall, {c_par:.2f} s CPU (all processes); "
+        f"serial / pool wall = {t_def / t_par:.2f}"
+    )
     print(
         f"exact_branches (defaults) = {t_def / cal:.0f} exact periods of work "
         f"({res.periods:.0f} propagated + overhead); at 1 ms per period: {t_def / cal * 1e-3:.1f} s"
@@ -198,7 +254,7 @@ def main() -> None:
     if args.profile:
         prof = cProfile.Profile()
         prof.enable()
-        exact_branches(osc, WINDOW, progress=False)
+        exact_branches(osc, WINDOW, progress=False, workers=1)
         prof.disable()
         st = pstats.Stats(prof)
         total = st.total_tt

@@ -75,7 +75,10 @@ Closed-form arcs (PWL systems, ``m = 1``)
     term), which Newton tolerates; the steps restart small.  A numerical orbit that enters a
     linear segment entirely (no switch) is recognised and continued in closed form.
 
-Special points (between consecutive points): folds (sign change of :math:`dp/ds`), branch
+Special points (between consecutive points): folds (sign change of :math:`dp/ds`; refined by
+regula falsi on the tangent's parameter component over corrected points and inserted into the
+branch as a point of its own — interpolation would put the fold inside the sampled range,
+:math:`O(\Delta s^2)` short of it, since the parameter is extreme there), branch
 points (a multiplier through +1, :math:`\det(M - I)` changes sign, without a fold: the
 symmetry-breaking pitchforks of odd systems), period doublings (:math:`\det(M + I)` changes
 sign), Neimark–Sacker (a complex pair through the unit circle) and grazings (the number of
@@ -106,6 +109,15 @@ Exact frequency response
     branch without integrating, and integrates (``transient_periods``, then Newton from a
     nearly periodic state) only where that branch ends or loses stability — where a real
     sweep jumps — and across regions without a stable period-1 orbit.
+
+Parallel tracing
+    With ``workers > 1`` (default: two on a machine with two or more CPUs, serial inside a
+    worker of another pool) the two halves of a branch are marched at once in forked worker
+    processes, and the branches of all closed-form seeds at once.  A march's steps do not
+    depend on its stop tests, only its end does, so a march made blind to the other half and
+    to branches registered meanwhile is cut afterwards where the serial march would have
+    stopped (the missing tests replayed point by point), and results are used in submission
+    order: the branches are exactly the serial ones, whatever the timing.
 """
 
 from __future__ import annotations
@@ -466,6 +478,7 @@ class _Pt:
         "grazing",
         "source",
         "blocks",
+        "fold",
     )
 
     def __init__(self, p: float, Z: np.ndarray) -> None:
@@ -483,6 +496,7 @@ class _Pt:
         self.grazing = False
         self.source = "shooting"
         self.blocks: list[np.ndarray] | None = None  # node sensitivities (branch switching)
+        self.fold = False  # a refined fold (dp/ds = 0), inserted between two sampled points
 
     @property
     def N(self) -> int:
@@ -1592,8 +1606,19 @@ class _Tracer:
         self, start: _Pt, sign: float, other: list[_Pt], parent_m: int | None
     ) -> tuple[list[_Pt], str, bool]:
         """Continue from ``start`` along ``sign * tangent`` until a stop condition."""
+        pts, reason, closed, _, _ = self.march_record(start, sign, other, parent_m)
+        return pts, reason, closed
+
+    def march_record(
+        self, start: _Pt, sign: float, other: list[_Pt], parent_m: int | None
+    ) -> tuple[list[_Pt], str, bool, int, list[float]]:
+        """:meth:`march`, and what a replay of its stop tests needs: the number of points
+        (after ``start``) that went through :meth:`_joined` (a last point exactly on the
+        window edge does not), and the propagated periods up to every point."""
         eng, st = self.eng, self.st
         pts = [start]
+        work = [0.0]
+        checked = 0
         own = _Poly.of([start], eng.Sp, st.ds_max, eng.m)
         cum = [0.0]
         other_poly = _Poly.of(other, eng.Sp, st.ds_max, eng.m)
@@ -1628,6 +1653,7 @@ class _Tracer:
                     edge_pt = self._edge_point(cur, new)
                     if edge_pt is not None:
                         pts.append(edge_pt)
+                        work.append(eng.periods - periods0)
                     reason = "window edge"
                     break
                 new = self.to_closed(new, 1.0 if new.tangent3()[2] >= 0 else -1.0)
@@ -1637,6 +1663,8 @@ class _Tracer:
             stop2 = self._joined(pts, own, cum, new, h, other_poly, other_cum, parent_m)
             cum.append(cum[-1] + h)
             pts.append(new)
+            work.append(eng.periods - periods0)
+            checked = len(pts) - 1
             own.append(new.key())
             if stop2 is not None:
                 reason, closed = stop2
@@ -1648,7 +1676,7 @@ class _Tracer:
             if np.linalg.norm(c3) > 0:
                 dir3 = c3 / np.linalg.norm(c3)
             cur, cur_t = new, new.tangent
-        return pts, reason, closed
+        return pts, reason, closed, checked, work
 
     def _numeric_step(
         self,
@@ -1811,7 +1839,12 @@ class _Tracer:
         other: _Poly,
         other_cum: np.ndarray,
         parent_m: int | None,
+        first: int = 0,
+        own_loop: bool = True,
     ) -> tuple[str, bool] | None:
+        """Why the march stops at ``new`` (reason, closed loop), or None.  ``first`` and
+        ``own_loop`` restrict a replay (:func:`_replay`) to the tests a speculative march
+        could not make: branches registered from ``first`` on, and the other half."""
         eng, st = self.eng, self.st
         cur = pts[-1]
         # a period-2m branch collapsing onto its period-m orbit (at the period doubling)
@@ -1836,7 +1869,9 @@ class _Tracer:
 
         # another branch, in any representation of a period-m orbit
         shifted = list(zip(new.keys(eng.m), cur.keys(eng.m), strict=True))
-        for i, it in enumerate(self.registry.items):
+        items = self.registry.items
+        for i in range(first, len(items)):
+            it = items[i]
             if it.m == eng.m and any(on(it, kn=a, kc=b) for a, b in shifted):
                 return f"joined branch {i}", False
         # back on this branch, far along the curve: a closed loop
@@ -1844,7 +1879,7 @@ class _Tracer:
         gap = 6 * st.ds_max + 3 * h
         n_far = int(np.searchsorted(np.asarray(cum), s_new - gap, side="right"))
         n_far = min(n_far, len(pts) - 3)
-        if n_far >= 2 and on(own, 0, n_far - 1):
+        if own_loop and n_far >= 2 and on(own, 0, n_far - 1):
             return "closed loop", True
         if len(other) >= 2:
             k0 = int(np.searchsorted(other_cum, gap - s_new, side="left"))
@@ -1882,7 +1917,31 @@ class _Tracer:
         else:
             pts = fwd
             reason = "closed loop" if closed else reason_f
+        pts = self.refine_folds(pts)
         return self.freeze(pts, closed, reason, self.eng.periods - periods0), pts
+
+    def _collapsed(self, q: _Pt) -> bool:
+        """A period-``m > 1`` orbit that is (nearly) its own shift by one forcing period: the
+        turn of a period-``2m`` branch where it is born at a period doubling is that period
+        doubling (a pitchfork of the doubled orbit), not a saddle-node."""
+        m = self.eng.m
+        if m == 1 or q.N % m:
+            return False
+        k = q.N // m
+        return bool(np.max(np.abs(q.Z[k] - q.Z[0])) < 1e-3 * q.R)
+
+    def refine_folds(self, pts: list[_Pt]) -> list[_Pt]:
+        """``pts`` with the refined fold (:func:`_fold_point`) inserted between every two
+        consecutive points where the parameter component of the tangent changes sign."""
+        out = [pts[0]] if pts else []
+        for a, b in zip(pts[:-1], pts[1:], strict=True):
+            ta, tb = a.tangent, b.tangent
+            if ta is not None and tb is not None and float(ta[-1]) * float(tb[-1]) < 0:
+                q = _fold_point(self, a, b)
+                if q is not None and not self._collapsed(q):
+                    out.append(q)
+            out.append(b)
+        return out
 
     def freeze(
         self, pts: list[_Pt], closed: bool, reason: str, periods: float, m: int | None = None
@@ -1955,10 +2014,28 @@ def _special_points(pts: list[_Pt], points: Sequence[ContinuationPoint]) -> list
 
     tp = [q.tangent[2] for q in points]
     fold_at = set()
+    refined = {i for i, q in enumerate(pts) if q.fold}
+    for i in sorted(refined):
+        # a refined fold is a point of the branch: reported there, and the sign changes of
+        # dp/ds and det(M - I) on either side of it belong to it
+        fold_at.update((i - 1, i))
+        q = points[i]
+        out.append(
+            SpecialPoint(
+                "fold", i, float(q.parameter), float(q.amplitude), (float(q.y0[0]), float(q.y0[1]))
+            )
+        )
     for i in range(n - 1):
-        if tp[i] * tp[i + 1] < 0:
+        if tp[i] * tp[i + 1] < 0 and not ({i, i + 1} & refined):
+            # not refined (closed-form neighbour, or the refinement failed): interpolated, but
+            # never inside the sampled range (the parameter is extreme at a fold)
             fold_at.add(i)
-            out.append(interp(i, weight(tp[i], tp[i + 1]), "fold"))
+            sp_ = interp(i, weight(tp[i], tp[i + 1]), "fold")
+            pa, pb = points[i].parameter, points[i + 1].parameter
+            edge = max(pa, pb) if tp[i] > 0 else min(pa, pb)
+            if (sp_.parameter - edge) * tp[i] < 0:
+                sp_ = SpecialPoint("fold", i, float(edge), sp_.amplitude, sp_.y0)
+            out.append(sp_)
     for i in range(n - 1):
         a, b = pts[i], pts[i + 1]
         if a.mode == "closed" and b.mode == "closed" and a.seg == b.seg:
@@ -2156,6 +2233,74 @@ def _refine(tracer: _Tracer, a: _Pt, b: _Pt, target: float, steps: int = 8) -> _
             side = 1
         if sb - sa < 1e-7 * L:
             break
+    return best
+
+
+def _fold_point(tracer: _Tracer, a: _Pt, b: _Pt, steps: int = 12) -> _Pt | None:
+    r"""The fold between consecutive points ``a`` and ``b`` (``dp/ds`` changes sign), or None.
+
+    Regula falsi (Illinois) on the parameter component of the tangent, over points corrected
+    on hyperplanes normal to the chord from ``a`` to ``b`` (the arc between two sampled points
+    crosses each of them once).  Linear interpolation of that component between the sampled
+    points is not enough: near a fold :math:`p(s) \approx p^* - c(s - s^*)^2`, so the
+    interpolated parameter lies *inside* the sampled range, short of the fold by
+    :math:`O(\Delta s^2)` (2.4e-4 on the Duffing jump-down fold at 0.5 % spacing); here the
+    error in :math:`s` is squared instead, ~1e-12 in :math:`p`."""
+    eng = tracer.eng
+    if a.N != b.N or a.mode == "closed" or b.mode == "closed":
+        return None
+    if a.tangent is None or b.tangent is None:
+        return None
+    D = a.D(eng.Sp)
+    ch = (b.u() - a.u()) / D
+    L = float(np.linalg.norm(ch))
+    if L == 0.0 or not math.isfinite(L):
+        return None
+    t = ch / L
+    u0 = a.u()
+
+    def f(q: _Pt) -> float:
+        # the tangent's parameter component, oriented along the branch (the chord)
+        v, _ = _null_tangent(q, eng.Sp)
+        return float(-v[-1] if float(v @ ch) < 0 else v[-1])
+
+    sa, sb = 0.0, L
+    fa, fb = float(a.tangent[-1]), float(b.tangent[-1])
+    if not fa * fb < 0:
+        return None
+    best: _Pt | None = None
+    fbest = math.inf
+    side = 0
+    for _ in range(steps):
+        s = sb - fb * (sb - sa) / (fb - fa) if fb != fa else 0.5 * (sa + sb)
+        if not sa < s < sb:
+            s = 0.5 * (sa + sb)
+        q, _ = _correct(eng, u0 + s * t * D, a.N, D, t, max(s, 1e-9), tracer.st, first_cap=10.0)
+        if q is None or q.J is None:
+            break
+        fq = f(q)
+        if abs(fq) < abs(fbest):
+            best, fbest = q, fq
+        if abs(fq) <= 1e-12:
+            break
+        if fq * fa > 0:
+            sa, fa = s, fq
+            if side == -1:
+                fb *= 0.5
+            side = -1
+        else:
+            sb, fb = s, fq
+            if side == 1:
+                fa *= 0.5
+            side = 1
+        if sb - sa < 1e-10 * L:
+            break
+    if best is None:
+        return None
+    v, sing = _null_tangent(best, eng.Sp)
+    best.tangent = -v if float(v @ ch) < 0 else v
+    best.singular = sing
+    best.fold = True
     return best
 
 
@@ -2361,7 +2506,7 @@ def _mirror_point(tracer: _Tracer, q: _Pt) -> _Pt:
     r.mult = q.mult.copy()
     r.stats = (q.stats[0], q.stats[1], -q.stats[2])
     r.sig = -np.roll(q.sig.reshape(-1, 2), -(SIG_PHASES // 2), axis=0).ravel()
-    r.switches, r.grazing, r.mode = q.switches, q.grazing, "shoot"
+    r.switches, r.grazing, r.mode, r.fold = q.switches, q.grazing, "shoot", q.fold
     r.source = "mirror"
     return r
 
@@ -2466,6 +2611,223 @@ def _walk(pts: list[_Pt], closed: bool, i: int, target: float) -> tuple[bool, in
 
 
 # =============================================================================================
+# parallel tracing: the two halves of every branch in worker processes
+# =============================================================================================
+#: Tracers of running :func:`exact_branches` calls, by key.  Forked workers inherit them
+#: (a tracer holds compiled flows, which do not pickle), so a task sends only its start point,
+#: direction and the registry of traced branches.
+_FORKED: dict[int, _Tracer] = {}
+
+
+def _march_task(
+    key: int, start: _Pt, sign: float, registry: _Registry, parent_m: int | None
+) -> tuple[tuple[list[_Pt], str, bool, int, list[float]], float]:
+    """One half of a branch, in a worker: :meth:`_Tracer.march_record` without the other
+    half (its closed-loop test is replayed when the result is used), and the periods spent."""
+    tracer = _FORKED[key]
+    tracer.registry = registry
+    p0 = tracer.eng.periods
+    rec = tracer.march_record(start, sign, [], parent_m)
+    return rec, tracer.eng.periods - p0
+
+
+def _replay(
+    tracer: _Tracer,
+    rec: tuple[list[_Pt], str, bool, int, list[float]],
+    other: list[_Pt],
+    first: int,
+    parent_m: int | None,
+) -> tuple[list[_Pt], str, bool, int, list[float]]:
+    """A speculative march cut where the serial march would have stopped.
+
+    The march's steps do not depend on its stop tests, only its end does: it was made with
+    the branches registered up to ``first`` and without ``other`` (the first half), so the
+    stop tests against later branches and against ``other`` are replayed point by point; the
+    last tested point gets every test, in the serial order (which also decides the reason)."""
+    pts, reason, closed, checked, work = rec
+    if first >= len(tracer.registry.items) and not other:
+        return rec
+    eng, st = tracer.eng, tracer.st
+    own = _Poly.of([pts[0]], eng.Sp, st.ds_max, eng.m)
+    other_poly = _Poly.of(other, eng.Sp, st.ds_max, eng.m)
+    other_cum = np.cumsum(
+        [0.0] + [_key_step(a, b, eng.Sp) for a, b in zip(other[:-1], other[1:], strict=True)]
+    )
+    cum = [0.0]
+    done = [pts[0]]
+    for k in range(1, checked + 1):
+        new = pts[k]
+        h = _key_step(done[-1], new, eng.Sp)
+        last = k == checked
+        stop = tracer._joined(
+            done,
+            own,
+            cum,
+            new,
+            h,
+            other_poly,
+            other_cum,
+            parent_m,
+            first=0 if last else first,
+            own_loop=last,
+        )
+        if stop is not None:
+            return pts[: k + 1], stop[0], stop[1], k, work[: k + 1]
+        cum.append(cum[-1] + h)
+        done.append(new)
+        own.append(new.key())
+    return rec
+
+
+class _Job:
+    """A branch being traced from ``start``: both halves submitted, or (serial) nothing yet."""
+
+    __slots__ = ("start", "parent_m", "first", "fwd", "bwd")
+
+    def __init__(self, start: _Pt, parent_m: int | None, first: int) -> None:
+        self.start, self.parent_m, self.first = start, parent_m, first
+        self.fwd: Any = None
+        self.bwd: Any = None
+
+
+class _Speculator:
+    """Traces branches for :func:`exact_branches`, in worker processes when it may.
+
+    A branch is two marches from its start point; with a pool they run at once, each in a
+    worker, and a march is blind to branches registered after it was submitted and (the
+    second half) to the first half.  :func:`_replay` cuts each where the serial march would
+    have stopped, and the result is used in submission order, so the branches, their points
+    and the decisions made from them (seeds skipped, the budget) are those of the serial run,
+    whatever the timing.  Speculative work past such a cut, and on a branch that turns out to
+    be traced already, is counted in ``wasted``.  ``workers == 1`` runs :meth:`_Tracer.trace`
+    when the result is asked for (nothing speculative)."""
+
+    def __init__(self, tracer: _Tracer, workers: int) -> None:
+        self.tracer = tracer
+        self.workers = workers
+        self.pool: Any = None
+        self.key = id(tracer)
+        self.wasted = 0.0
+        self.failure: str | None = None
+
+    @property
+    def parallel(self) -> bool:
+        return self.workers > 1 and self.failure is None
+
+    def _pool(self) -> Any:
+        if self.pool is None:
+            import concurrent.futures as cf
+            import multiprocessing as mp
+
+            _FORKED[self.key] = self.tracer
+            self.pool = cf.ProcessPoolExecutor(self.workers, mp_context=mp.get_context("fork"))
+        return self.pool
+
+    def submit(self, start: _Pt, parent_m: int | None = None) -> _Job:
+        job = _Job(start, parent_m, len(self.tracer.registry.items))
+        if self.parallel:
+            try:
+                pool = self._pool()
+                reg = self.tracer.registry
+                job.fwd = pool.submit(_march_task, self.key, start, 1.0, reg, parent_m)
+                job.bwd = pool.submit(_march_task, self.key, start, -1.0, reg, parent_m)
+            except Exception as exc:  # no pool here (resources, platform): serial
+                self._fail(exc)
+                job.fwd = job.bwd = None
+        return job
+
+    def _fail(self, exc: BaseException) -> None:
+        self.failure = f"parallel tracing off after {type(exc).__name__}: {exc}"
+        self.close()
+
+    def _get(self, fut: Any) -> Any:
+        try:
+            rec, periods = fut.result()
+        except Exception as exc:  # a broken pool: the caller redoes the branch serially
+            self._fail(exc)
+            return None
+        return rec, periods
+
+    def discard(self, job: _Job) -> None:
+        """A job whose start turned out to lie on a traced branch (or a second half not
+        needed): cancelled if it has not started, else left to finish (not waited for)."""
+        for fut in (job.fwd, job.bwd):
+            if fut is not None and not fut.cancel():
+                fut.add_done_callback(self._count_waste)
+
+    def _count_waste(self, fut: Any) -> None:
+        if not fut.cancelled() and fut.exception() is None:
+            self.wasted += fut.result()[1]
+
+    def result(self, job: _Job) -> tuple[ContinuationBranch, list[_Pt]]:
+        tr = self.tracer
+        if job.fwd is None:
+            return tr.trace(job.start, parent_m=job.parent_m)
+        got_f = self._get(job.fwd)
+        if got_f is None:
+            return tr.trace(job.start, parent_m=job.parent_m)
+        rec_f = _replay(tr, got_f[0], [], job.first, job.parent_m)
+        fwd, reason_f, closed, _, work_f = rec_f
+        periods = work_f[-1]
+        self.wasted += got_f[1] - work_f[-1]
+        if closed:
+            self.discard(job)  # the second half: the loop is closed already
+            pts, reason = fwd, "closed loop"
+        else:
+            got_b = self._get(job.bwd)
+            if got_b is None:
+                return tr.trace(job.start, parent_m=job.parent_m)
+            bwd, reason_b, closed, _, work_b = _replay(tr, got_b[0], fwd, job.first, job.parent_m)
+            periods += work_b[-1]
+            self.wasted += got_b[1] - work_b[-1]
+            for q in bwd[1:]:
+                if q.tangent is not None:
+                    q.tangent = -q.tangent
+            pts = bwd[:0:-1] + fwd
+            reason = "closed loop" if closed else f"{reason_b} / {reason_f}"
+        # the serial run's work (budget and the branch's record), whatever was speculated
+        tr.eng.periods += periods
+        p0 = tr.eng.periods
+        pts = tr.refine_folds(pts)
+        periods += tr.eng.periods - p0
+        return tr.freeze(pts, closed, reason, periods), pts
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+            self.pool = None
+        _FORKED.pop(self.key, None)
+
+
+def _resolve_workers(workers: int | None) -> int:
+    """Worker processes for tracing: ``workers``, or by default ``PERTURB_WORKERS`` or 2 on a
+    machine with two or more CPUs; 1 (serial) inside a worker process of any pool (a response
+    computed on a pool must not start pools of its own) and where ``fork`` is unavailable."""
+    import multiprocessing as mp
+    import os
+
+    if workers is None:
+        env = os.environ.get("PERTURB_WORKERS", "").strip()
+        if env:
+            try:
+                workers = int(env)
+            except ValueError:
+                raise ParameterError(
+                    f"PERTURB_WORKERS = {env!r}: expected a positive integer"
+                ) from None
+        else:
+            workers = 2
+        workers = min(workers, os.cpu_count() or 1)
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ParameterError(f"workers = {workers!r}: expected a positive integer or None")
+    if workers > 1 and (
+        mp.parent_process() is not None or "fork" not in mp.get_all_start_methods()
+    ):
+        return 1
+    return workers
+
+
+# =============================================================================================
 # public: every branch
 # =============================================================================================
 def exact_branches(
@@ -2486,6 +2848,7 @@ def exact_branches(
     max_branches: int = 40,
     max_periods: float = 2e5,
     progress: bool | None = None,
+    workers: int | None = None,
 ) -> ExactBranches:
     r"""Every branch of periodic orbits found over ``window`` of the forcing frequency.
 
@@ -2523,6 +2886,15 @@ def exact_branches(
         Budgets: branches, and propagated time in forcing periods (all stages).
     progress
         Progress line (default: on unless ``PERTURB_PROGRESS=0``).
+    workers
+        Processes that trace (default: ``PERTURB_WORKERS``, else 2 on a machine with two or
+        more CPUs).  With more than one, the two halves of every period-1 branch are marched
+        at once in a process pool (``fork``), and the closed-form seeds' branches all at
+        once; each march is cut afterwards where the serial march would have stopped
+        (branches registered meanwhile, the other half) and results are used in submission
+        order, so the branches are exactly those of ``workers=1``.  Serial inside a worker
+        process of another pool (e.g. :func:`perturb.sweep.sweep`), where ``fork`` is not
+        available, and if the pool fails (noted).  The pool starts at the first branch.
 
     Returns
     -------
@@ -2543,9 +2915,54 @@ def exact_branches(
     ):
         if isinstance(v, bool) or not isinstance(v, int) or v < 0:
             raise ParameterError(f"{name} = {v!r}: expected a non-negative integer")
+    n_workers = _resolve_workers(workers)
     family = FlowFamily(oscillator)
     st = _settings(ds_max, 1e-7, tol, 20000, max_periods)
     tracer = _Tracer(family, 1, 0.0, (lo, hi), st, closed_form=closed_form)
+    spec = _Speculator(tracer, n_workers)
+    try:
+        return _exact_branches(
+            oscillator,
+            tracer,
+            spec,
+            t_begin,
+            seeds=seeds,
+            approximation=approximation,
+            approximation_seeds=approximation_seeds,
+            sweep_points=sweep_points,
+            transient_periods=transient_periods,
+            branch_points=branch_points,
+            period_doubling=period_doubling,
+            symmetry=symmetry,
+            max_branches=max_branches,
+            max_periods=max_periods,
+            progress=progress,
+        )
+    finally:
+        spec.close()
+
+
+def _exact_branches(
+    oscillator: Oscillator,
+    tracer: _Tracer,
+    spec: _Speculator,
+    t_begin: float,
+    *,
+    seeds: Sequence[tuple[float, ArrayLike]],
+    approximation: Any,
+    approximation_seeds: int,
+    sweep_points: int,
+    transient_periods: int,
+    branch_points: bool,
+    period_doubling: bool,
+    symmetry: bool,
+    max_branches: int,
+    max_periods: float,
+    progress: bool | None,
+) -> ExactBranches:
+    """The body of :func:`exact_branches` (arguments checked, tracer and pool set up)."""
+    family, st = tracer.eng.family, tracer.st
+    lo, hi = tracer.eng.lo, tracer.eng.hi
     eng, reg = tracer.eng, tracer.registry
     sym = bool(symmetry) and _is_odd_symmetric(eng)
     branches: list[ContinuationBranch] = []
@@ -2585,7 +3002,7 @@ def exact_branches(
         if not budget_left() or reg.near(pt, 1)[0] >= 0:
             return False
         start = tracer.start_point(pt.p, None, seed=pt)
-        br, pts = tracer.trace(start)
+        br, pts = spec.result(spec.submit(start))
         add(br, pts, tracer)
         return True
 
@@ -2598,9 +3015,29 @@ def exact_branches(
     closed_seeds = tracer.closed.seeds() if tracer.closed is not None else []
     total = len(closed_seeds) + len(raw) + 2 * sweep_points
     with Progress(total, "exact frequency response", enabled=progress) as bar:
+        # the closed-form seeds' branches all at once (speculative with a pool: a seed on an
+        # earlier seed's branch is dropped when its turn comes, as the serial run skips it)
+        jobs: list[tuple[_Pt, _Job | None]] = []
+        images: list[_Pt] = []
         for pt in closed_seeds:
-            try_seed(pt)
+            # not speculated: the mirror image of an earlier seed (odd systems), whose branch
+            # is the earlier one's mirror, registered by the time this seed's turn comes
+            twin = any(_key_step(r, pt, eng.Sp) < 1e-9 for r in images)
+            if sym:
+                images.append(_mirror_point(tracer, pt))
+            job = None
+            if spec.parallel and not twin:
+                job = spec.submit(tracer.start_point(pt.p, None, seed=pt))
+            jobs.append((pt, job))
+        for pt, job in jobs:
             bar.update()
+            if job is None:
+                try_seed(pt)
+            elif not budget_left() or reg.near(pt, 1)[0] >= 0:
+                spec.discard(job)
+            else:
+                br, pts = spec.result(job)
+                add(br, pts, tracer)
         failed = 0
         for p, y in raw:
             bar.update()
@@ -2669,7 +3106,7 @@ def exact_branches(
                         continue
                     if reg.near(q, 1)[0] >= 0:
                         continue
-                    br, pts = tracer.trace(q)
+                    br, pts = spec.result(spec.submit(q))
                     add(br, pts, tracer)
         if child is not None:
             for b in range(len(branches)):
@@ -2692,6 +3129,11 @@ def exact_branches(
             f"budget reached: {len(branches)} branches (max {max_branches}), "
             f"{eng.periods:.0f} periods (max {max_periods:g})"
         )
+    if spec.failure is not None:
+        notes.append(spec.failure)
+    elif spec.pool is not None:
+        # (the speculative work not used depends on timing: ``spec.wasted``, not a note)
+        notes.append(f"traced with {spec.workers} worker processes")
     return ExactBranches(
         branches=tuple(branches),
         mirror_of=tuple(mirror_of),
