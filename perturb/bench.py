@@ -201,8 +201,12 @@ def method_settings(kind: str = "forced") -> list[Setting]:
                 Setting(
                     f"hb-{proj}-H{h}",
                     "hb",
-                    f"H={h}, projection={proj}",
-                    {"harmonics": h, "projection": proj},
+                    f"H={h}, projection={proj}, every branch from hb1 seeds",
+                    # every branch continuation reaches from the automatic start and from the
+                    # single-harmonic branches (detached loops, in-well orbits): the rows are
+                    # compared with every exact branch, so a one-branch trace would count as
+                    # missing what it never looked for
+                    {"harmonics": h, "projection": proj, "all_branches": True},
                 )
             )
     return out
@@ -790,6 +794,74 @@ def markdown_table(rows: Sequence[Row]) -> str:
     return "\n".join(lines)
 
 
+#: Accuracy levels of the summary table.
+SUMMARY_TARGETS = (1e-1, 1e-2, 1e-3, 1e-4, 1e-6)
+
+
+def _missed_count(text: str) -> int:
+    """``'2/13'`` -> 2 (missed of the reference's branches); ``''`` -> 0."""
+    head = text.split("/")[0].strip()
+    return int(head) if head.isdigit() else 0
+
+
+def cheapest_rows(
+    rows: Sequence[Row], targets: Sequence[float] = SUMMARY_TARGETS
+) -> list[tuple[str, float, Row | None]]:
+    """For every problem and accuracy target, the fastest row that meets it.
+
+    A row meets ``target`` when it ran (``status == 'ok'``), its max relative amplitude error
+    against the exact reference is at most ``target`` and it missed no branch of the
+    reference (a method that is accurate on the one branch it found does not answer the
+    question). The exact reference meets every target by construction, so each entry names
+    a method unless the exact run itself failed (then ``None``).
+
+    Returns
+    -------
+    list of (problem, target, row or None)
+    """
+    out = []
+    for prob in dict.fromkeys(r.problem for r in rows):
+        mine = [r for r in rows if r.problem == prob and r.status == "ok"]
+        for target in targets:
+            ok = [
+                r
+                for r in mine
+                if math.isfinite(r.time_s)
+                and math.isfinite(r.max_rel_error)
+                and r.max_rel_error <= target
+                and _missed_count(r.missed) == 0
+            ]
+            out.append((prob, float(target), min(ok, key=lambda r: r.time_s) if ok else None))
+    return out
+
+
+def summary_table(rows: Sequence[Row], targets: Sequence[float] = SUMMARY_TARGETS) -> str:
+    """Markdown table of :func:`cheapest_rows`: per problem and accuracy, the cheapest method,
+    its time, its error and its speed-up over the exact response of the same run."""
+    exact = {r.problem: r.time_s for r in rows if r.method == "exact" and r.status == "ok"}
+    lines = [
+        "| problem | max rel. error <= | cheapest method | setting | time [s] "
+        "| max rel. error | exact time / time |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for prob, target, r in cheapest_rows(rows, targets):
+        if r is None:
+            lines.append(f"| {prob} | {target:g} | – | – | – | – | – |")
+            continue
+        speed = exact.get(prob, math.nan) / r.time_s
+        cells = [
+            prob,
+            f"{target:g}",
+            r.method,
+            r.setting,
+            _fmt(r.time_s, "time"),
+            _fmt(r.max_rel_error, "err"),
+            f"{speed:.3g}" if math.isfinite(speed) else "–",
+        ]
+        lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
+    return "\n".join(lines)
+
+
 def _plot(rows: Sequence[Row], problem: str, path: Path) -> bool:
     import matplotlib
 
@@ -833,7 +905,8 @@ def _plot(rows: Sequence[Row], problem: str, path: Path) -> bool:
 
 
 def write_outputs(rows: Sequence[Row], out: str | Path, *, header: str = "") -> list[Path]:
-    """Write ``work_precision.md``, ``work_precision.csv`` and the PNGs into ``out``."""
+    """Write ``work_precision.md``, ``work_precision.csv``, ``work_precision_summary.md`` (the
+    cheapest method per accuracy, :func:`summary_table`) and the PNGs into ``out``."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     written = []
@@ -847,6 +920,14 @@ def write_outputs(rows: Sequence[Row], out: str | Path, *, header: str = "") -> 
     md = out / "work_precision.md"
     md.write_text(f"# Work-precision benchmark\n\n{header}\n\n{markdown_table(rows)}\n")
     written.append(md)
+    summary = out / "work_precision_summary.md"
+    summary.write_text(
+        "# Cheapest method per accuracy\n\n"
+        "Per problem and accuracy: the fastest method whose max relative amplitude error "
+        "against the exact response is at most the target and which missed none of its "
+        f"branches (from work_precision.csv).\n\n{summary_table(rows)}\n"
+    )
+    written.append(summary)
     for prob in dict.fromkeys(r.problem for r in rows):
         png = out / f"work_precision_{prob}.png"
         if _plot(rows, prob, png):
@@ -943,6 +1024,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     )
     for p in write_outputs(rows, args.out, header=header):
         print(f"wrote {p}")
+    print("\ncheapest method per accuracy:\n" + summary_table(rows))
     return 0
 
 

@@ -107,6 +107,34 @@ def test_errors_are_measured_against_the_exact_reference(fake, tmp_path):
     assert sum(line.startswith("| linear |") for line in md) == len(rows)
 
 
+def test_summary_names_the_cheapest_method_that_meets_each_accuracy(tmp_path):
+    """Hand-made rows: the answer for each target is known by construction. A fast row that
+    misses a branch, a failed row and a NaN error never qualify; exact always does."""
+    R = bench.Row
+    rows = [
+        R("p", "exact", "ref", time_s=10.0, max_rel_error=0.0, matched="3/3"),
+        R("p", "sweep", "brute", time_s=100.0, max_rel_error=1e-7, missed="1/3"),
+        R("p", "cheap", "a", time_s=0.01, max_rel_error=5e-2, missed="0/3"),
+        R("p", "partial", "b", time_s=0.001, max_rel_error=1e-9, missed="2/3"),
+        R("p", "mid", "c", time_s=0.5, max_rel_error=3e-4, missed="0/3"),
+        R("p", "mid2", "d", time_s=0.4, max_rel_error=2e-3, missed="0/3"),
+        R("p", "broken", "e", status="n/a (ValueError)", time_s=0.0001, max_rel_error=0.0),
+        R("p", "nan", "f", time_s=0.0001, max_rel_error=math.nan),
+        R("q", "exact", "ref", status="timeout", time_s=math.nan),
+    ]
+    got = {(p, t): (r.method if r else None) for p, t, r in bench.cheapest_rows(rows)}
+    assert got[("p", 1e-1)] == "cheap"
+    assert got[("p", 1e-2)] == "mid2" and got[("p", 1e-3)] == "mid"
+    assert got[("p", 1e-4)] == "exact" and got[("p", 1e-6)] == "exact"
+    assert all(got[("q", t)] is None for t in bench.SUMMARY_TARGETS)
+    table = bench.summary_table(rows).splitlines()
+    assert len(table) == 2 + 2 * len(bench.SUMMARY_TARGETS)
+    mid = next(line for line in table if "| mid |" in line)
+    assert mid.split("|")[-2].strip() == "20"  # exact 10 s / 0.5 s
+    bench.write_outputs(rows, tmp_path)
+    assert "| p | 0.01 | mid2 |" in (tmp_path / "work_precision_summary.md").read_text()
+
+
 def test_repeats_adapt_to_the_cost():
     calls = []
     t, out = bench._timed(lambda: calls.append(1) or 7, 5, budget=10.0)
