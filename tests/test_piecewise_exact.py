@@ -39,6 +39,7 @@ from perturb.simulate.piecewise_exact import (
     SwitchEvent,
     Trajectory,
     propagate,
+    sample_trajectories,
 )
 
 TWO_PI = 2.0 * math.pi
@@ -804,3 +805,80 @@ def test_scalar_rhs_matches_vectorised_force():
         f = (x + 0.5) if x >= 0.0 else (x - 0.5)  # right-continuous at the jump
         acc = math.cos(0.8 * t) - 0.05 * v - f
         np.testing.assert_allclose(system.rhs(t, [x, v]), [v, acc], rtol=1e-14, atol=1e-15)
+
+
+# ---------------------------------------------------------------------------------------------
+# sample_trajectories: the vectorised sampler of consecutive node trajectories
+# ---------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "system",
+    [
+        nsd(-3.0, 0.05, 2.0, 0.6),  # saddle middle segment (real roots), cross-well orbit
+        nsd(-2.0, 0.05, 2.0, 1.0),  # outer segments near resonance: the per-piece fallback
+        deadzone(1.3),
+        clearance(),
+    ],
+    ids=["nsd-saddle", "nsd-resonant", "deadzone", "clearance"],
+)
+def test_sample_trajectories_agrees_with_solve_ivp(system):
+    # one forcing period split into three node intervals, each propagated from the end of the
+    # previous one (one orbit), sampled at 129 equispaced times with the node that owns them;
+    # oracle: DOP853 at rtol 1e-12 restarted at every crossing, over the same period
+    W = system.forcing[0][1]
+    P = TWO_PI / W
+    y0 = settled_state(system)
+    nodes = [0.0, 0.3 * P, 0.7 * P, P]
+    trajs, y = [], np.array(y0)
+    for a, b in zip(nodes[:-1], nodes[1:], strict=True):
+        tr = propagate(system, y, (a, b))
+        trajs.append(tr)
+        y = np.array([tr.x[-1], tr.v[-1]])
+    t = P * np.arange(129) / 128
+    owner = np.clip(np.searchsorted(nodes, t, side="right") - 1, 0, 2)
+    t = np.clip(t, np.take(nodes, owner), np.take(nodes, owner + 1))
+    got = sample_trajectories(trajs, t, owner)
+    ref, _ = reference(system, y0, (0.0, P), t)
+    scale = max(1.0, float(np.max(np.abs(ref))))
+    assert got.shape == (2, t.size)
+    assert float(np.max(np.abs(got - ref))) <= 1e-9 * scale
+    # a sample on a node belongs to the node that starts there: exactly its initial state
+    k = int(np.flatnonzero(owner == 1)[0])
+    if t[k] == nodes[1]:
+        assert got[0, k] == trajs[1].pieces[0].x0
+
+
+def test_sample_trajectories_zero_slope_segment_against_textbook():
+    # s = 0 segment (the zero-IC constant-load form, sampled piece by piece): a free particle
+    # with damping under a constant load c, x = x0 + (v0 - c/mu)(1 - e^{-mu t})/mu + c t/mu
+    mu, c = 0.3, 0.7
+    system = PWLSystem([100.0], [0.0, 1.0], [0.0, -100.0], damping=mu, static_force=c)
+    x0, v0 = 0.2, -0.4
+    trs = [propagate(system, [x0, v0], (0.0, 1.5))]
+    y1 = (trs[0].x[-1], trs[0].v[-1])
+    trs.append(propagate(system, y1, (1.5, 4.0)))
+    t = np.linspace(0.0, 4.0, 41)
+    owner = (t >= 1.5).astype(int)
+    got = sample_trajectories(trs, t, owner)
+    e = np.exp(-mu * t)
+    x_ref = x0 + (v0 - c / mu) * (1.0 - e) / mu + c * t / mu
+    v_ref = (v0 - c / mu) * e + c / mu
+    np.testing.assert_allclose(got[0], x_ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got[1], v_ref, rtol=0, atol=1e-12)
+
+
+def test_continuity_and_scalar_field_against_hand_values():
+    # continuous nsd force, relay jump 2 f0 at 0 (hand-derived); with_forcing keeps the force
+    s = nsd(-3.0, 0.05, 2.0, 0.6)
+    assert s.continuous_at().tolist() == [True, True]
+    assert s.with_forcing(((1.0, 0.9, 0.0),)).continuous_at().tolist() == [True, True]
+    r = relay(0.5, 0.1, 1.0, 0.8)
+    assert r.continuous_at().tolist() == [False]
+    assert r.with_forcing(((2.0, 1.1, 0.3),)).continuous_at().tolist() == [False]
+    with pytest.raises(ValueError):
+        s.continuous_at()[0] = False  # read-only: shared by every flow of the system
+    # field1: (v, F cos(W t) - mu v - f(x)) with f from the segment of x, by hand
+    for t, x, v in [(0.3, 1.7, -0.2), (2.0, -0.4, 0.9), (5.1, -2.5, 0.0)]:
+        f = x + (-3.0 - 1.0) if x > 1 else (-3.0 * x if x >= -1 else x + 4.0)
+        want = 2.0 * math.cos(0.6 * t) - 0.05 * v - f
+        got = s.field1(t, x, v)
+        assert got[0] == v and math.isclose(got[1], want, rel_tol=1e-14, abs_tol=1e-14)

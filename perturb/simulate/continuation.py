@@ -141,6 +141,7 @@ from ..model import Oscillator
 from ..progress import Progress
 from ..response import Branch, Response
 from .flow import FlowFamily, ODEFlow
+from .piecewise_exact import sample_trajectories
 from .shooting import (
     PeriodicOrbit,
     ShootingError,
@@ -479,11 +480,14 @@ class _Pt:
         "source",
         "blocks",
         "fold",
+        "_zmax",
     )
 
     def __init__(self, p: float, Z: np.ndarray) -> None:
         self.p = float(p)
         self.Z = np.array(Z, dtype=float).reshape(-1, 2)
+        # max |Z| for R, asked for by every proximity test (Z is never changed in place)
+        self._zmax = float(np.max(np.abs(self.Z)))
         self.J: np.ndarray | None = None  # [G_z | G_p], unscaled, at (or next to) the point
         self.mult = np.zeros(2, dtype=complex)
         self.stats = (0.0, 0.0, 0.0)  # amplitude, first harmonic, mean
@@ -508,7 +512,7 @@ class _Pt:
 
     @property
     def R(self) -> float:
-        return max(1.0, float(np.max(np.abs(self.Z))), self.stats[0])
+        return max(1.0, self._zmax, self.stats[0])
 
     @property
     def max_mult(self) -> float:
@@ -698,28 +702,39 @@ class _Engine:
         dP = -P * self._dw[0] / flow.system.forcing[0][1] if Gp is not None else 0.0
         self.periods += self.m
         self.calls += N
+        system = flow.system if own else None
         for i in range(N):
             ta, tb = tn[i], tn[i + 1]
-            res = flow(Z[i], ta, tb, sensitivity=not own)
-            if trajs is not None:
-                trajs.append(flow.trajectory(Z[i], ta, tb))  # memoised: no propagation
             if own:
-                Mi, zeta = self._pieces(flow, trajs[-1], tb, Gp is not None)
+                # the trajectory itself (its end state and switches), without the flow's
+                # result object: a continuous force needs no saltation, and the sensitivity
+                # comes from the pieces below
+                traj = flow.trajectory(Z[i], ta, tb)
+                trajs.append(traj)
+                yb = np.array([traj.x[-1], traj.v[-1]], dtype=float)
+                n_ev = sum(1 for e in traj.events if not e.tangency)
+                Mi, zeta = self._pieces(flow, traj, tb, Gp is not None)
             else:
+                res = flow(Z[i], ta, tb, sensitivity=True)
+                if trajs is not None:
+                    trajs.append(flow.trajectory(Z[i], ta, tb))  # memoised: no propagation
+                yb, n_ev = res.y, res.n_events
                 Mi, zeta = np.asarray(res.sensitivity, dtype=float), None
             blocks.append(Mi)
             j = (i + 1) % N
-            r[2 * i : 2 * i + 2] = res.y - Z[j]
+            r[2 * i : 2 * i + 2] = yb - Z[j]
             Gz[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] += Mi
-            Gz[2 * i : 2 * i + 2, 2 * j : 2 * j + 2] -= np.eye(2)
+            Gz[2 * i, 2 * j] -= 1.0
+            Gz[2 * i + 1, 2 * j + 1] -= 1.0
             M = Mi @ M
-            switches += int(res.n_events)
+            switches += int(n_ev)
             if Gp is not None:
                 if zeta is None:
                     Gp = None
                 else:
-                    fb = np.asarray(flow.vector_field(tb, res.y), float)
-                    fa = np.asarray(flow.vector_field(ta, Z[i]), float)
+                    # the field at both ends (scalar: the same values as vector_field)
+                    fb = np.array(system.field1(float(tb), float(yb[0]), float(yb[1])))
+                    fa = np.array(system.field1(float(ta), float(Z[i, 0]), float(Z[i, 1])))
                     Gp[2 * i : 2 * i + 2] = zeta + fb * ((i + 1) / N) * dP - Mi @ fa * (i / N) * dP
         if not np.all(np.isfinite(M)):
             raise PerturbError("the monodromy overflows: the orbit is too unstable for its nodes")
@@ -842,23 +857,28 @@ class _Engine:
     def statistics(
         self, flow: Any, Z: np.ndarray, P: float, trajs: list[Any] | None = None
     ) -> tuple[float, float, float, np.ndarray]:
-        """(max |x|, first-harmonic amplitude, mean, signature) over one orbit period."""
+        """(max |x|, first-harmonic amplitude, mean, signature) over one orbit period.
+
+        Mean and first harmonic by the FFT of ``STAT_SAMPLES`` samples per forcing period,
+        the signature from every ``STAT_SAMPLES / SIG_PHASES``-th of them, the extrema of x
+        refined between the samples."""
         m, N = self.m, Z.shape[0]
         n = STAT_SAMPLES * m
         t = self.t0 + P * np.arange(n + 1) / n
-        X = np.empty((2, n + 1))
         node_t = self.node_times(P, N)
         idx = np.clip(np.searchsorted(node_t, t, side="right") - 1, 0, N - 1)
         if trajs is None and self.exact:
             trajs = [flow.trajectory(Z[i], node_t[i], node_t[i + 1]) for i in range(N)]
-        for i in range(N):
-            sel = idx == i
-            if not np.any(sel):
-                continue
-            a, b = node_t[i], node_t[i + 1]
-            if trajs is not None:
-                X[:, sel] = trajs[i](np.clip(t[sel], a, b))
-            else:
+        if trajs is not None:
+            # one vectorised evaluation per segment of the force over all node intervals
+            X = sample_trajectories(trajs, np.clip(t, node_t[idx], node_t[idx + 1]), idx)
+        else:
+            X = np.empty((2, n + 1))
+            for i in range(N):
+                sel = idx == i
+                if not np.any(sel):
+                    continue
+                a, b = node_t[i], node_t[i + 1]
                 X[:, sel] = self._samples(flow, Z[i], a, b, np.clip(t[sel], a, b))
                 self.periods += self.m / N
                 self.calls += 1
@@ -868,10 +888,8 @@ class _Engine:
         first = float(2.0 * abs(c[m])) if m < c.size else 0.0
         sig = X[:, : n : STAT_SAMPLES // SIG_PHASES].T.ravel().copy()
         # extrema of x: the quintic Hermite interpolant of (x, v, a) on the sample interval
-        # where v changes sign, O(h^6) accurate (~1e-10 relative at 128 samples; a switch
-        # inside the interval costs little accuracy because v, which multiplies the jump of
-        # the third derivative, vanishes at the extremum)
-        system = getattr(flow, "system", None)
+        # where v changes sign next to the extreme sample, O(h^6) (~1e-10 relative); the
+        # stored orbit differs from the sampled one by up to STATS_TOL anyway
         best = [float(x.max()), float(x.min())]
         for which, sign in enumerate((1.0, -1.0)):
             j = int(np.argmax(sign * x))
@@ -879,20 +897,30 @@ class _Engine:
                 ta, tb = t[a_i], t[b_i]
                 if not (sign * X[1, a_i] >= 0.0 >= sign * X[1, b_i] and tb > ta):
                     continue
-                h = tb - ta
-                ya, yb = X[:, a_i], X[:, b_i]
-                if system is not None:
-                    aa = float(system.rhs(float(ta), ya)[1])
-                    ab = float(system.rhs(float(tb), yb)[1])
-                else:
-                    aa = float(flow.vector_field(ta, ya)[1])
-                    ab = float(flow.vector_field(tb, yb)[1])
-                _, xr = _hermite5_extremum(
-                    ya[0], ya[1] * h, aa * h * h, yb[0], yb[1] * h, ab * h * h, sign
-                )
+                xr = self._hermite_extremum(flow, ta, tb, X[:, a_i], X[:, b_i], sign)
                 if sign * xr > sign * best[which]:
                     best[which] = xr
         return max(abs(best[0]), abs(best[1])), first, mean, sig
+
+    @staticmethod
+    def _hermite_extremum(
+        flow: Any, ta: float, tb: float, ya: np.ndarray, yb: np.ndarray, sign: float
+    ) -> float:
+        """Extreme value of x on ``[ta, tb]`` from the quintic Hermite interpolant of
+        (x, v, a) at the ends, O(h^6) accurate (~1e-10 relative at 128 samples per period; a
+        switch inside the interval costs little accuracy because v, which multiplies the
+        jump of the third derivative, vanishes at the extremum)."""
+        h = tb - ta
+        system = getattr(flow, "system", None)
+        if system is not None:
+            # the exact flow's scalar field (same arithmetic as its vector_field)
+            aa = system.field1(float(ta), float(ya[0]), float(ya[1]))[1]
+            ab = system.field1(float(tb), float(yb[0]), float(yb[1]))[1]
+        else:
+            aa = float(flow.vector_field(ta, ya)[1])
+            ab = float(flow.vector_field(tb, yb)[1])
+        _, xr = _hermite5_extremum(ya[0], ya[1] * h, aa * h * h, yb[0], yb[1] * h, ab * h * h, sign)
+        return xr
 
 
 def _hermite5_extremum(x0, d0, s0, x1, d1, s1, sign) -> tuple[float, float]:
@@ -1161,8 +1189,13 @@ class _Poly:
     def append(self, key: np.ndarray) -> None:
         if self.keys.n:
             prev = self.keys.arr[-1]
-            _, L = _segment_distance(key, prev[None, :], key[None, :], self.Sp)
-            grow = self.Sp * JOIN_FRACTION * max(float(L[0]), self.base)
+            # the segment's length in the metric of _segment_distance (a margin of the
+            # parameter prefilter only: computed without its array machinery)
+            inv = 1.0 / max(float(prev[-1]), float(key[-1]))
+            ab = key[:-2] * inv - prev[:-2] * inv
+            abp = (float(key[-2]) - float(prev[-2])) / self.Sp
+            L = math.sqrt(float(ab @ ab) + abp * abp)
+            grow = self.Sp * JOIN_FRACTION * max(L, self.base)
             lo, hi = min(prev[-2], key[-2]) - grow, max(prev[-2], key[-2]) + grow
             self.lo.append(lo)
             self.hi.append(hi)

@@ -126,6 +126,7 @@ __all__ = [
     "PropagationStats",
     "Trajectory",
     "propagate",
+    "sample_trajectories",
 ]
 
 _EPS = float(np.finfo(float).eps)
@@ -332,6 +333,9 @@ class PWLSystem:
                 )
             terms.append((amp, om, ph))
         object.__setattr__(out, "forcing", tuple(terms))
+        cont = self.__dict__.get("_continuous")
+        if cont is not None:  # the same force: the same continuity
+            object.__setattr__(out, "_continuous", cont)
         return out
 
     # -- queries -------------------------------------------------------------------------------
@@ -347,11 +351,17 @@ class PWLSystem:
         return (self.slopes[1:] - self.slopes[:-1]) * d + (self.offsets[1:] - self.offsets[:-1])
 
     def continuous_at(self) -> np.ndarray:
-        """Boolean per breakpoint: the jump is zero up to rounding of the two linear pieces."""
-        d = self.breakpoints
-        scale = np.abs(self.slopes[1:] * d) + np.abs(self.offsets[1:])
-        scale = scale + np.abs(self.slopes[:-1] * d) + np.abs(self.offsets[:-1])
-        return np.abs(self.jumps) <= 8.0 * _EPS * scale
+        """Boolean per breakpoint: the jump is zero up to rounding of the two linear pieces
+        (read-only; computed once per system, which every flow of a continuation asks)."""
+        out = self.__dict__.get("_continuous")
+        if out is None:
+            d = self.breakpoints
+            scale = np.abs(self.slopes[1:] * d) + np.abs(self.offsets[1:])
+            scale = scale + np.abs(self.slopes[:-1] * d) + np.abs(self.offsets[:-1])
+            out = np.abs(self.jumps) <= 8.0 * _EPS * scale
+            out.setflags(write=False)
+            object.__setattr__(self, "_continuous", out)
+        return out
 
     def segment_of(self, x: ArrayLike) -> np.ndarray:
         """Segment index of ``x`` (a point on a breakpoint belongs to the segment above)."""
@@ -381,6 +391,13 @@ class PWLSystem:
             seg = model.segments[bisect.bisect_right(model.bp_list, x)]
             return np.array([v, seg.accel_at(tt, x, v)])
         return np.array([v, self.load(t) - self.damping * v - self.force(x)], dtype=float)
+
+    def field1(self, t: float, x: float, v: float) -> tuple[float, float]:
+        """:meth:`rhs` of one state as a pair of floats, without array conversions (the
+        same arithmetic: callers that evaluate it per node or per extremum get identical
+        values)."""
+        model = _model_of(self)
+        return v, model.segments[bisect.bisect_right(model.bp_list, x)].accel_at(t, x, v)
 
     # -- identity -------------------------------------------------------------------------------
     def _key(self) -> tuple:
@@ -564,6 +581,83 @@ class Trajectory:
             hm = seg.half_mu * es
             out.append((ec + hm, es, -seg.s * es, ec - hm))
         return out
+
+
+def sample_trajectories(
+    trajs: Sequence[Trajectory], t: np.ndarray, owner: np.ndarray
+) -> np.ndarray:
+    """Exact states at the sorted times ``t``, time ``k`` taken on ``trajs[owner[k]]``.
+
+    The trajectories are consecutive pieces of one orbit (the node intervals of multiple
+    shooting) and ``owner`` is non-decreasing; every time must lie in its trajectory's span.
+    The result equals ``trajs[owner[k]](t[k])`` up to rounding, but the closed form is
+    evaluated once per *segment* of the force over all the samples of its pieces, not once
+    per piece: an orbit period has a handful of pieces in two or three segments, and the
+    per-call overhead of numpy, not the arithmetic, is what a per-piece evaluation pays.
+
+    Returns
+    -------
+    ndarray, shape (2, len(t))
+    """
+    t = np.asarray(t, dtype=float)
+    owner = np.asarray(owner)
+    pieces: list[_Piece] = []
+    gidx = np.empty(t.size, dtype=np.intp)
+    cuts = np.searchsorted(owner, np.arange(len(trajs) + 1), side="left").tolist()
+    for i, traj in enumerate(trajs):
+        lo, hi = cuts[i], cuts[i + 1]
+        ev = traj._evaluators
+        if hi > lo:
+            if len(ev) == 1:
+                gidx[lo:hi] = len(pieces)
+            else:
+                loc = np.searchsorted([q.t0 for q in ev], t[lo:hi], side="right") - 1
+                gidx[lo:hi] = np.maximum(loc, 0) + len(pieces)
+        pieces.extend(ev)
+    out = np.empty((2, t.size))
+    # one table of the per-piece data, gathered per sample in one indexing operation
+    width = max(len(q.th_list) for q in pieces)
+    rows = []
+    for q in pieces:
+        th = q.th_list + [0.0] * (width - len(q.th_list))
+        rows.append((q.t0, q.w0, q.n0, q.w1, q.n1, float(q.seg.idx), *th))
+    G = np.array(rows)[gidx]
+    segs = {q.seg.idx: q.seg for q in pieces}
+    for idx_s, seg in segs.items():
+        if len(segs) == 1:
+            sel = slice(None)
+            Gs = G
+        else:
+            sel = np.flatnonzero(G[:, 5] == idx_s)
+            if sel.size == 0:
+                continue
+            Gs = G[sel]
+        if seg.res or seg.const_mode == "zic":
+            # resonant harmonics and the zero-IC constant load carry per-piece terms: the
+            # piece's own evaluation (rare: near-resonant segments, zero slopes)
+            sel = np.arange(t.size)[sel]
+            for k, q in enumerate(pieces):
+                if q.seg is seg:
+                    sk = sel[gidx[sel] == k]
+                    if sk.size:
+                        out[0, sk], out[1, sk] = q.eval(t[sk] - q.t0)
+            continue
+        # the arithmetic of _Piece.eval, element by element
+        tau = t[sel] - Gs[:, 0]
+        ec, es = seg.ecs(tau)
+        x = ec * Gs[:, 1] + es * Gs[:, 2]
+        v = ec * Gs[:, 3] + es * Gs[:, 4]
+        for j, (_amp, om, _ph, P, Q) in enumerate(seg.std):
+            th = Gs[:, 6 + j] + om * tau
+            c = np.cos(th)
+            sn = np.sin(th)
+            x = x + (P * c + Q * sn)
+            v = v + om * (Q * c - P * sn)
+        if seg.const_mode == "std":
+            x = x + seg.xc
+        out[0, sel] = x
+        out[1, sel] = v
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -1332,10 +1426,12 @@ class _Model:
         return below if snap < 0.0 else above
 
     def initial_segment(self, t: float, x: float, v: float) -> tuple[int, int | None]:
-        b = int(np.searchsorted(self.bp, x, side="left"))
-        if b < self.bp.size and self.bp[b] == x:
+        # bisect on the list of breakpoints: np.searchsorted's semantics without its per-call
+        # overhead (called once per propagation)
+        b = bisect.bisect_left(self.bp_list, x)
+        if b < len(self.bp_list) and self.bp_list[b] == x:
             return self.side_at(b, t, v), b
-        return int(np.searchsorted(self.bp, x, side="right")), None
+        return bisect.bisect_right(self.bp_list, x), None
 
 
 # The segment data depend only on the (immutable) system; continuation and shooting propagate
