@@ -54,6 +54,22 @@ component as a function of the arclength from the point before it, each trial a 
 correction, so the reported point lies on the curve and its :math:`\lambda` (stationary there)
 is accurate to about the square of the arclength error.
 
+*Branch points* (``detect_branch_points``): the determinant of the augmented Jacobian
+:math:`\det\begin{pmatrix}F_u s_u & F_\lambda s_\lambda\\ t^T & 0\end{pmatrix}` is the test
+function. It vanishes where the curve meets another one (the null space of :math:`[F_u \mid
+F_\lambda]` becomes two-dimensional) and changes sign at a simple branch point, but not at a
+fold, where :math:`\det F_u` changes sign while the augmented matrix stays regular (the
+curve itself is regular there), so folds and branch points are told apart without looking
+at :math:`d\lambda/ds`. Its sign does not depend on the (positive) scales, so it is compared
+between consecutive points in whatever scaling is in force. A sign change is located by
+regula falsi (bisection when it creeps) on the determinant along the arclength from the
+point before it, each trial corrected onto the curve like a fold's; the second null vector
+of :math:`[F_u s_u \mid F_\lambda s_\lambda]` there, orthogonal to the tangent (two smallest
+right singular vectors), points off the traced curve (for a symmetry-breaking pitchfork:
+along the other curve). :func:`branch_off` steps along it and
+corrects onto the other curve. Cost: one LU (``slogdet``) of the augmented matrix per
+accepted point, plus 10-40 corrections per branch point; off by default.
+
 *Stopping*: at a window edge (the last point is placed exactly on the edge by Newton at fixed
 :math:`\lambda`), on returning to the starting point (a closed curve), after ``max_points``
 points, or when the step falls below ``ds_min``; :attr:`ContinuationCurve.stop_reason` says
@@ -75,8 +91,10 @@ from ..errors import ParameterError, PerturbError
 __all__ = [
     "ContinuationError",
     "FoldPoint",
+    "BranchPoint",
     "ContinuationCurve",
     "continue_curve",
+    "branch_off",
     "newton_fixed",
 ]
 
@@ -113,6 +131,47 @@ class FoldPoint:
 
 
 @dataclass(frozen=True, eq=False)
+class BranchPoint:
+    """A simple branch point (another solution curve crosses this one) between two
+    consecutive curve points.
+
+    Attributes
+    ----------
+    index : int
+        The branch point lies between ``curve.u[index]`` and ``curve.u[index + 1]``.
+    lam : float
+        Parameter value at the branch point.
+    u : numpy.ndarray
+        Unknowns at the branch point.
+    tangent : numpy.ndarray
+        Unit tangent of the traced curve there, scaled coordinates ``(u / u_scale, lam /
+        lam_scale)``.
+    direction : numpy.ndarray
+        The second null vector of ``[F_u u_scale | F_lam lam_scale]`` there, orthogonal to
+        ``tangent``, same coordinates; its sign is arbitrary. The other curve's tangent is a
+        combination of the two (found by :func:`branch_off`'s correction); it *is* this
+        vector at a symmetry-breaking pitchfork, where the two tangents lie in complementary
+        symmetry subspaces (symmetric and antisymmetric).
+    u_scale : numpy.ndarray
+        Scale of the unknowns of those coordinates.
+    lam_scale : float
+    refined : bool
+        False when the bracket of corrected trials did not shrink below ``1e-3`` of the step
+        and no trial's determinant fell below 1 % of its values at the two points; the
+        point is the secant estimate between the closest trials either way.
+    """
+
+    index: int
+    lam: float
+    u: np.ndarray
+    tangent: np.ndarray
+    direction: np.ndarray
+    u_scale: np.ndarray
+    lam_scale: float
+    refined: bool = True
+
+
+@dataclass(frozen=True, eq=False)
 class ContinuationCurve:
     """A traced solution curve, ordered along the arclength.
 
@@ -135,6 +194,8 @@ class ContinuationCurve:
     callback_values : tuple or None
         What ``callback`` returned at each point.
     folds : tuple of FoldPoint
+    branch_points : tuple of BranchPoint
+        Empty unless ``detect_branch_points``.
     stop_reason : str
         ``'window'`` (reached an edge of the window; the last point is on it), ``'closed'``
         (returned to the start), ``'max_points'``, ``'step_underflow'`` (the step fell below
@@ -157,6 +218,7 @@ class ContinuationCurve:
     u_scale: np.ndarray = field(default_factory=lambda: np.ones(1))
     lam_scale: float = 1.0
     callback_values: tuple[Any, ...] | None = None
+    branch_points: tuple[BranchPoint, ...] = ()
 
     def __len__(self) -> int:
         return int(self.lam.size)
@@ -493,6 +555,7 @@ def continue_curve(
     callback: Callable[[np.ndarray, float, np.ndarray, np.ndarray], Any] | None = None,
     predictor: str = "tangent",
     early_accept: bool = False,
+    detect_branch_points: bool = False,
 ) -> ContinuationCurve:
     """Trace the solution curve of :math:`F(u, \\lambda) = 0` through a window of
     :math:`\\lambda` by pseudo-arclength continuation.
@@ -559,6 +622,10 @@ def continue_curve(
         measured in the corrections of the last eight points (a point is corrected to the
         end whenever no such measurement is at hand, which refreshes it). With the Hermite
         predictor this makes about one residual and Jacobian evaluation per point.
+    detect_branch_points : bool
+        Watch the sign of the augmented determinant (module docstring) and locate the
+        branch points where it changes (:attr:`ContinuationCurve.branch_points`, ready for
+        :func:`branch_off`): one extra ``(n + 1)``-square LU per point.
 
     Returns
     -------
@@ -617,6 +684,9 @@ def continue_curve(
     jacs = [ju] if store_jacobians else None
     extras = [callback(u, lam0, ju, jl)] if callback is not None else None
     folds: list[FoldPoint] = []
+    bps: list[BranchPoint] = []
+    # sign of the augmented determinant at the last accepted point (None: not watched)
+    bp_sign = _augmented_slogdet(ju, jl, su, sl, t)[0] if detect_branch_points else None
     cos_turn = math.cos(float(max_turn))
     stop = "max_points"
     travelled = 0.0
@@ -670,10 +740,14 @@ def continue_curve(
                 # accept first: the callback runs while the caller's cache holds the point
                 accept(ce, te)
                 _record_fold(tr, folds, len(us) - 2, w, t, ce.w, te, refine_folds)
+                if bp_sign is not None:
+                    _record_branch_point(tr, bps, len(us) - 2, w, t, bp_sign, ce, te)
             stop = "window"
             break
         accept(c, t_new)
         _record_fold(tr, folds, len(us) - 2, w, t, c.w, t_new, refine_folds, float(t @ (c.w - w)))
+        if bp_sign is not None:
+            bp_sign = _record_branch_point(tr, bps, len(us) - 2, w, t, bp_sign, c, t_new)
         prev_wt = (w, t)
         w, t = c.w, t_new
         travelled += step
@@ -717,7 +791,225 @@ def continue_curve(
         u_scale=tr.su,
         lam_scale=sl,
         callback_values=None if extras is None else tuple(extras),
+        branch_points=tuple(bps),
     )
+
+
+def _augmented_slogdet(
+    ju: np.ndarray, jl: np.ndarray, su: np.ndarray, sl: float, t: np.ndarray
+) -> tuple[float, float]:
+    """``(sign, log|det|)`` of the augmented matrix ``[[F_u s_u, F_lam s_lam], [t^T]]``: the
+    branch-point test function (its sign is independent of the positive scales)."""
+    n = jl.size
+    a = np.empty((n + 1, n + 1))
+    a[:n, :n] = ju * su[None, :]
+    a[:n, n] = jl * sl
+    a[n] = t
+    sign, logdet = np.linalg.slogdet(a)
+    return float(sign), float(logdet)
+
+
+def _record_branch_point(
+    tr: _Tracer,
+    bps: list[BranchPoint],
+    index: int,
+    w0: np.ndarray,
+    t0: np.ndarray,
+    sign0: float,
+    c: _Corrected,
+    t_new: np.ndarray,
+) -> float:
+    """Append a branch point if the augmented determinant changes sign between the point
+    ``index`` (``w0, t0``, determinant sign ``sign0``) and the new point ``c``; return the
+    new point's sign."""
+    sign1, log1 = _augmented_slogdet(c.ju, c.jl, tr.su, tr.sl, t_new)
+    if sign0 == 0.0 or sign1 == 0.0 or sign0 == sign1:
+        return sign1 if sign1 != 0.0 else sign0
+    # the determinant at the old point is not stored (one LU per point is the budget), so
+    # the refinement measures it again, with a correction from the old point itself
+    located = _refine_branch_point(tr, w0, t0, float(t0 @ (c.w - w0)), c.w, t_new, (sign1, log1))
+    if located is None:
+        return sign1
+    w, t, ju, jl, refined = located
+    u, lam = tr.unscaled(w)
+    a = np.hstack([ju * tr.su[None, :], (jl * tr.sl)[:, None]])
+    # the two smallest right singular vectors span the null space of [F_u | F_lam] at a
+    # branch point; the other curve's tangent is the combination orthogonal to this one's
+    v = np.linalg.svd(a)[2][-2:].T
+    proj = v.T @ t
+    direction = v @ np.array([-proj[1], proj[0]])
+    t = v @ proj  # this curve's tangent, within the null space
+    t /= max(1e-300, float(np.linalg.norm(t)))
+    norm = float(np.linalg.norm(direction))
+    if not math.isfinite(norm) or norm == 0.0:
+        return sign1
+    bps.append(
+        BranchPoint(index, lam, u, t.copy(), direction / norm, tr.su.copy(), float(tr.sl), refined)
+    )
+    return sign1
+
+
+def _refine_branch_point(
+    tr: _Tracer,
+    w0: np.ndarray,
+    t0: np.ndarray,
+    s1: float,
+    w1: np.ndarray,
+    t1: np.ndarray,
+    end: tuple[float, float],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool] | None:
+    """Regula falsi (Illinois, with bisection whenever two trials did not halve the bracket)
+    on the augmented determinant along the arclength ``s`` in ``(0, s1)`` from ``w0``
+    (``w1``, ``t1``: the point at ``s1`` and its tangent, ``end``: its ``(sign,
+    log|det|)``); every trial is corrected onto the curve on the hyperplane ``t0 . (w - w0)
+    = s``.
+
+    The corrector's bordered matrix is the augmented one, singular at the branch point, so
+    the trials stop converging very close to it; the point returned is the secant zero of
+    the determinant between the two closest trials of opposite sign (linear interpolation
+    of the corrected points: error of the order of the curvature times the squared
+    bracket; a trial that fails is replaced by two at ``1e-4`` of the bracket on either
+    side), with ``(w, tangent, F_u, F_lam, refined)`` there; ``refined`` when the bracket
+    shrank below ``1e-3 s1`` or a trial's determinant fell below 1 % of its values at both
+    ends. None when no sign change is measured again.
+
+    The determinant is compared as ``sign exp(log|det| - log|det(w0)|)``: it varies by orders
+    of magnitude along a branch, but is smooth between two points."""
+    base = float(t0 @ w0)
+
+    def trial(s: float) -> tuple[np.ndarray, float, np.ndarray] | None:
+        c = tr.correct(w0 + s * t0, t0, base + s)
+        tc = None if c is None else tr.tangent(c, t0)
+        if c is None or tc is None:
+            return None
+        sign, logdet = _augmented_slogdet(c.ju, c.jl, tr.su, tr.sl, tc)
+        return c.w, sign * math.exp(max(-700.0, min(700.0, logdet - ld0))), tc
+
+    ld0 = 0.0
+    c0 = tr.correct(w0.copy(), t0, base)
+    tc0 = None if c0 is None else tr.tangent(c0, t0)
+    if c0 is None or tc0 is None:
+        return None
+    sg0, ld0 = _augmented_slogdet(c0.ju, c0.jl, tr.su, tr.sl, tc0)
+    g_end = end[0] * math.exp(max(-700.0, min(700.0, end[1] - ld0)))
+    if sg0 * g_end >= 0.0:
+        return None  # no sign change measured again: not a branch point
+    # bracket (s, true g, corrected point, tangent) on each side, and the Illinois-scaled
+    # values
+    lo, hi = (0.0, sg0, c0.w, tc0), (s1, g_end, w1, t1)
+    ga, gb = lo[1], hi[1]
+    small = 0.01 * min(abs(sg0), abs(g_end))
+    close = False
+    side = 0
+    widths = [s1, s1]
+    for _ in range(40):
+        width = hi[0] - lo[0]
+        if width > 0.5 * widths[-2]:
+            # the determinant can vary by orders of magnitude inside the bracket, where
+            # regula falsi creeps from one end: bisect when two trials did not halve it
+            s = 0.5 * (lo[0] + hi[0])
+        else:
+            s = (lo[0] * gb - hi[0] * ga) / (gb - ga)
+        widths.append(width)
+        got = trial(s)
+        if got is None:
+            # the trial fell (within Newton's reach) onto the branch point itself: trials a
+            # little to either side bracket it tightly instead
+            delta = 1e-4 * width
+            sides = [(x, trial(x)) for x in (s - delta, s + delta) if lo[0] < x < hi[0]]
+            sides = [(x, got) for x, got in sides if got is not None]
+            if not sides:
+                break
+        else:
+            sides = [(s, got)]
+        for s, (w, g, tc) in sides:
+            close = close or abs(g) <= small
+            if g * lo[1] > 0:
+                lo, ga = (s, g, w, tc), g
+                if side == -1:
+                    gb *= 0.5
+                side = -1
+            elif g * hi[1] > 0:
+                hi, gb = (s, g, w, tc), g
+                if side == 1:
+                    ga *= 0.5
+                side = 1
+            else:  # g == 0: the branch point itself
+                lo = hi = (s, g, w, tc)
+        if lo[1] == 0.0 or abs(hi[0] - lo[0]) <= 1e-10 * max(1.0, abs(s1)):
+            break
+    weight = 0.0 if lo[1] == hi[1] else lo[1] / (lo[1] - hi[1])
+    w = lo[2] + weight * (hi[2] - lo[2])
+    u, lam = tr.unscaled(w)
+    ju, jl = tr.fun.jacobian(u, lam)
+    # not the bordered tangent at w: its matrix is the singular augmented one there; the
+    # tangents of the two bracketing trials are regular and close
+    t = lo[3] + weight * (hi[3] - lo[3])
+    t = t / np.linalg.norm(t)
+    refined = close or abs(hi[0] - lo[0]) <= 1e-3 * abs(s1)
+    return w, t, ju, jl, refined
+
+
+def branch_off(
+    residual: Residual,
+    jacobian: Jacobian,
+    point: BranchPoint,
+    *,
+    step: float = 0.05,
+    tol: float = 1e-10,
+    max_newton: int = 8,
+) -> list[tuple[np.ndarray, float]]:
+    """Points on the other curve through a branch point, one on each side.
+
+    From the branch point ``w_b`` a predictor ``w_b +- step d`` along the other curve's
+    direction ``d`` (:attr:`BranchPoint.direction`) is corrected by Newton on the
+    hyperplane ``d . (w - w_b) = +-step`` (bordered system, scaled coordinates of the
+    branch point): the traced curve crosses that hyperplane only far away (it leaves the
+    branch point orthogonally to ``d``), so the corrector lands on the other curve. A
+    failed correction is retried with half the step, twice.
+
+    Parameters
+    ----------
+    residual, jacobian
+        As for :func:`continue_curve`.
+    point : BranchPoint
+        From :attr:`ContinuationCurve.branch_points`.
+    step : float
+        Distance from the branch point in its scaled coordinates (``u / u_scale``,
+        ``lam / lam_scale``).
+    tol, max_newton
+        As for :func:`continue_curve`.
+
+    Returns
+    -------
+    list of (numpy.ndarray, float)
+        ``(u, lam)`` of each side whose correction converged (at most two).
+
+    Raises
+    ------
+    ParameterError
+        For a ``point`` that is not a BranchPoint or a non-positive ``step`` or ``tol``.
+    """
+    if not isinstance(point, BranchPoint):
+        raise ParameterError(f"point = {point!r}: expected a BranchPoint")
+    step = _positive("step", step)
+    tol = _positive("tol", tol)
+    n = point.u.size
+    fun = _Counted(residual, jacobian, n)
+    tr = _Tracer(fun, np.asarray(point.u_scale, dtype=float), point.lam_scale, tol, max_newton)
+    wb = tr.scaled(point.u, point.lam)
+    d = point.direction
+    out = []
+    for sign in (1.0, -1.0):
+        h = step
+        for _ in range(3):
+            w_pred = wb + sign * h * d
+            c = tr.correct(w_pred, d, float(d @ w_pred))
+            if c is not None:
+                out.append(tr.unscaled(c.w))
+                break
+            h *= 0.5
+    return out
 
 
 def _record_fold(
