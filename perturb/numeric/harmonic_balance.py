@@ -2281,14 +2281,46 @@ def _linear_seeds(
     return out
 
 
+def _near_polyline(
+    branch: HarmonicBalanceBranch, u: np.ndarray, W: float, rtol: float, width: float
+) -> bool:
+    """Whether ``(u, W)`` lies within ``rtol`` of the polyline of ``branch`` in coordinates
+    scaled as the continuation scales them (coefficients by the point's largest, ``Omega`` by
+    the window width). Unlike :func:`_on_branch` it needs no segment that brackets ``W``, so
+    it also recognises a point at the tip of a fold, beyond every sample of the branch."""
+    scale = max(1e-12, float(np.abs(u).max()))
+    P = np.column_stack([branch.coefficients / scale, branch.omega / width])
+    q = np.append(np.asarray(u, dtype=float) / scale, W / width)
+    a, d = P[:-1], np.diff(P, axis=0)
+    dd = np.einsum("ij,ij->i", d, d)
+    t = np.clip(np.einsum("ij,ij->i", q - a, d) / np.where(dd > 0.0, dd, 1.0), 0.0, 1.0)
+    dist = np.sqrt(np.min(np.einsum("ij,ij->i", a + t[:, None] * d - q, a + t[:, None] * d - q)))
+    return bool(dist <= rtol)
+
+
 def _duplicate(
-    branch: HarmonicBalanceBranch, found: Sequence[HarmonicBalanceBranch], rtol: float
+    branch: HarmonicBalanceBranch,
+    found: Sequence[HarmonicBalanceBranch],
+    rtol: float,
+    width: float,
 ) -> bool:
     """Whether every one of nine points spread along ``branch`` lies on one of ``found``
-    (:func:`_on_branch`): a branch traced again from another start."""
+    (:func:`_near_polyline`): a branch traced again from another start, or the mirror image
+    of a branch that is its own image (a closed loop of an odd system traced the other way
+    round, whose end points are fold tips)."""
+    if len(branch) < 2:
+        return any(
+            len(b) >= 2 and _near_polyline(b, branch.coefficients[0], float(branch.omega[0]),
+                                           rtol, width)
+            for b in found
+        )  # fmt: skip
     idx = np.unique(np.linspace(0, len(branch) - 1, 9).round().astype(int))
     return all(
-        any(_on_branch(b, branch.coefficients[i], float(branch.omega[i]), rtol) for b in found)
+        any(
+            len(b) >= 2
+            and _near_polyline(b, branch.coefficients[i], float(branch.omega[i]), rtol, width)
+            for b in found
+        )
         for i in idx
     )
 
@@ -2468,6 +2500,7 @@ def harmonic_balance_branches(
         if br is not None:
             found.append(br)
 
+    width = window[1] - window[0]
     if detect:
         # each branch point is met from both branches through it: switch once
         done: list[BranchPoint] = []
@@ -2492,7 +2525,7 @@ def harmonic_balance_branches(
                     if any(_on_branch(b, u, W, 0.2 * step) for b in found):
                         continue
                     br = trace_from(u, W, "branch point")
-                    if br is not None and not _duplicate(br, found, 0.2 * step):
+                    if br is not None and not _duplicate(br, found, 0.2 * step, width):
                         found.append(br)
             i += 1
 
@@ -2502,7 +2535,7 @@ def harmonic_balance_branches(
             if len(found) >= max_branches:
                 break
             image = _mirror_branch(br, S)
-            if not _duplicate(image, found, 0.01):
+            if not _duplicate(image, found, 0.01, width):
                 found.append(image)
     return tuple(found)
 
