@@ -126,7 +126,7 @@ import cmath
 import math
 import time
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Literal
@@ -2240,20 +2240,50 @@ def _refine(tracer: _Tracer, a: _Pt, b: _Pt, target: float, steps: int = 8) -> _
     L = float(np.linalg.norm(ch))
     t, _ = _null_tangent(a, eng.Sp)
     t = -t if t @ ch < 0 else t
-    u0 = a.u()
-    sa, sb, fa, fb = 0.0, L, f(a), f(b)
+    fa, fb = f(a), f(b)
     best, fbest = (a, fa) if abs(fa) < abs(fb) else (b, fb)
+    best, _ = _illinois(tracer, a, t, D, L, f, fa, fb, steps, 1e-7, best, fbest)
+    return best
+
+
+def _illinois(
+    tracer: _Tracer,
+    a: _Pt,
+    t: np.ndarray,
+    D: np.ndarray,
+    L: float,
+    f: Callable[[_Pt], float],
+    fa: float,
+    fb: float,
+    steps: int,
+    s_tol: float,
+    best: _Pt | None,
+    fbest: float,
+    need_jacobian: bool = False,
+) -> tuple[_Pt | None, float]:
+    """Regula falsi (Illinois) for a sign change of ``f`` on ``s`` in ``[0, L]``: the point
+    ``a + s t`` (scaled by ``D``) corrected onto the branch on the hyperplane normal to ``t``
+    through it, ``f(a) = fa`` and ``f(end) = fb`` of opposite signs.  Returns the corrected
+    point with the smallest ``|f|`` seen (``best``/``fbest`` if none beats them) and its
+    value; stops after ``steps`` corrections, when the bracket is below ``s_tol * L``, when
+    ``f`` is exactly 0, or when a correction fails (or lacks its Jacobian and
+    ``need_jacobian``)."""
+    eng = tracer.eng
+    u0 = a.u()
+    sa, sb = 0.0, L
     side = 0
     for _ in range(steps):
         s = sb - fb * (sb - sa) / (fb - fa) if fb != fa else 0.5 * (sa + sb)
         if not sa < s < sb:
             s = 0.5 * (sa + sb)
         q, _ = _correct(eng, u0 + s * t * D, a.N, D, t, max(s, 1e-9), tracer.st, first_cap=10.0)
-        if q is None:
+        if q is None or (need_jacobian and q.J is None):
             break
         fq = f(q)
         if abs(fq) < abs(fbest):
             best, fbest = q, fq
+        if fq == 0.0:
+            break  # nothing can beat it
         if fq * fa > 0:
             sa, fa = s, fq
             if side == -1:
@@ -2264,9 +2294,9 @@ def _refine(tracer: _Tracer, a: _Pt, b: _Pt, target: float, steps: int = 8) -> _
             if side == 1:
                 fa *= 0.5
             side = 1
-        if sb - sa < 1e-7 * L:
+        if sb - sa < s_tol * L:
             break
-    return best
+    return best, fbest
 
 
 def _fold_point(tracer: _Tracer, a: _Pt, b: _Pt, steps: int = 12) -> _Pt | None:
@@ -2290,44 +2320,20 @@ def _fold_point(tracer: _Tracer, a: _Pt, b: _Pt, steps: int = 12) -> _Pt | None:
     if L == 0.0 or not math.isfinite(L):
         return None
     t = ch / L
-    u0 = a.u()
 
     def f(q: _Pt) -> float:
-        # the tangent's parameter component, oriented along the branch (the chord)
+        # the tangent's parameter component, oriented along the branch (the chord); below
+        # 1e-12 it is the fold to rounding: stop there (as at an exact zero)
         v, _ = _null_tangent(q, eng.Sp)
-        return float(-v[-1] if float(v @ ch) < 0 else v[-1])
+        value = float(-v[-1] if float(v @ ch) < 0 else v[-1])
+        return 0.0 if abs(value) <= 1e-12 else value
 
-    sa, sb = 0.0, L
     fa, fb = float(a.tangent[-1]), float(b.tangent[-1])
     if not fa * fb < 0:
         return None
-    best: _Pt | None = None
-    fbest = math.inf
-    side = 0
-    for _ in range(steps):
-        s = sb - fb * (sb - sa) / (fb - fa) if fb != fa else 0.5 * (sa + sb)
-        if not sa < s < sb:
-            s = 0.5 * (sa + sb)
-        q, _ = _correct(eng, u0 + s * t * D, a.N, D, t, max(s, 1e-9), tracer.st, first_cap=10.0)
-        if q is None or q.J is None:
-            break
-        fq = f(q)
-        if abs(fq) < abs(fbest):
-            best, fbest = q, fq
-        if abs(fq) <= 1e-12:
-            break
-        if fq * fa > 0:
-            sa, fa = s, fq
-            if side == -1:
-                fb *= 0.5
-            side = -1
-        else:
-            sb, fb = s, fq
-            if side == 1:
-                fa *= 0.5
-            side = 1
-        if sb - sa < 1e-10 * L:
-            break
+    best, _ = _illinois(
+        tracer, a, t, D, L, f, fa, fb, steps, 1e-10, None, math.inf, need_jacobian=True
+    )
     if best is None:
         return None
     v, sing = _null_tangent(best, eng.Sp)
