@@ -61,7 +61,7 @@ def split_reference(fields, d, y0, t_span, t_eval, tol=1e-13):
     t, y = t_span[0], np.asarray(y0, float)
     side = int(y[0] > d)
     ts, ys = [], []
-    while True:
+    for _restart in range(10_000):  # an oracle must end: a cap on restarts
 
         def ev(t, y):
             return y[0] - d
@@ -80,6 +80,8 @@ def split_reference(fields, d, y0, t_span, t_eval, tol=1e-13):
         t = float(sol.t_events[0][0])
         y = np.array([d, sol.y_events[0][0][1]])
         side = 1 - side
+    else:
+        raise AssertionError(f"split_reference: over 10 000 crossings before t = {t}")
     return np.concatenate(ts), np.concatenate(ys, axis=1)
 
 
@@ -100,7 +102,9 @@ def coulomb_forced_oracle(F, W, f0, t_end, x0=0.0):
         mode, s = "slip", math.copysign(1.0, r)
     v = 0.0
     grid = 2e-3
-    while t < t_end:
+    for _event in range(100_000):  # an oracle must end: a cap on events
+        if t >= t_end:
+            break
         if mode == "slip":
             ta, A = t, x + s * f0 - P * math.cos(W * t)
             B = v + P * W * math.sin(W * t)
@@ -142,6 +146,8 @@ def coulomb_forced_oracle(F, W, f0, t_end, x0=0.0):
             out.append(("slip", t, x))
             s = math.copysign(1.0, F * math.cos(W * t) - x)
             mode, v = "slip", 0.0
+    else:
+        raise AssertionError(f"coulomb_forced_oracle: over 100 000 events before t = {t}")
     return out
 
 

@@ -192,7 +192,9 @@ def coulomb_oracle(mu, c, F, W, y0, t_eval):
     x, v = map(float, y0)
     t = 0.0
     mode = int(np.sign(v))
-    while t < t1:
+    for _event in range(100_000):  # an oracle must end: a cap on stick/slip events
+        if t >= t1:
+            break
         if mode == 0:
             net = F * math.cos(W * t) - x
             if abs(net) > c:

@@ -97,6 +97,16 @@ def nsd_potential(x: np.ndarray, k: float) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------
 # independent oracle: solve_ivp restarted at every crossing
 # ---------------------------------------------------------------------------------------------
+#: the oracle's bounds: a test must fail or skip an example, never hang (a grazing example once
+#: held one CI run at t = 127.1268 for 20 minutes while memory grew to 3.7 GB)
+ORACLE_MAX_RESTARTS = 20_000
+ORACLE_MAX_STALLS = 50
+
+
+class OracleStalled(RuntimeError):
+    """The reference integrator cannot advance (chatter on a breakpoint) or needs too long."""
+
+
 def reference(system: PWLSystem, y0, t_span, t_eval, rtol=1e-12, atol=1e-12):
     """DOP853 on the current segment's linear field, events at its breakpoints, restarted.
 
@@ -133,7 +143,10 @@ def reference(system: PWLSystem, y0, t_span, t_eval, rtol=1e-12, atol=1e-12):
     i = segment(x, v, t0)
     t = t0
     pieces, crossings = [], []
-    while t < t1:
+    stalled = 0
+    for _restart in range(ORACLE_MAX_RESTARTS):
+        if t >= t1:
+            break
         s_i, o_i = float(sl[i]), float(of[i])
         lo = float(bp[i - 1]) if i > 0 else -math.inf
         hi = float(bp[i]) if i < bp.size else math.inf
@@ -179,9 +192,16 @@ def reference(system: PWLSystem, y0, t_span, t_eval, rtol=1e-12, atol=1e-12):
             continue
         t_c, d, v_c = crossing
         pieces.append((t, sol.sol))
+        # an orbit that chatters on a breakpoint (grazing at rounding level) restarts without
+        # advancing: the oracle cannot judge it, which is not a fault of the code under test
+        stalled = stalled + 1 if t_c - t <= 1e-12 * max(1.0, abs(t)) else 0
+        if stalled > ORACLE_MAX_STALLS:
+            raise OracleStalled(f"reference stalled at t = {t_c!r} on the breakpoint {d!r}")
         x, v, t = d, v_c, t_c  # restart exactly on the breakpoint
         i = i + 1 if d == hi else i - 1
         crossings.append((t_c, v_c))
+    else:
+        raise OracleStalled(f"reference needed over {ORACLE_MAX_RESTARTS} restarts (t = {t!r})")
     te = np.asarray(t_eval, dtype=float)
     starts = np.array([p[0] for p in pieces])
     idx = np.clip(np.searchsorted(starts, te, side="right") - 1, 0, len(pieces) - 1)
@@ -699,12 +719,18 @@ def _hypothesis_case(system, y0, periods):
     # sensitivity of the orbit (chaos, or undamped drift, makes any two integrators disagree):
     # measured with the reference integrator (at a cheaper tolerance, perturbation 1e-6), so
     # that the filter never relies on the code under test
-    a, _ = reference(system, y0, (0.0, T), t_eval, rtol=1e-10, atol=1e-10)
-    b, _ = reference(system, (y0[0] + 1e-6, y0[1]), (0.0, T), t_eval, rtol=1e-10, atol=1e-10)
+    try:
+        a, _ = reference(system, y0, (0.0, T), t_eval, rtol=1e-10, atol=1e-10)
+        b, _ = reference(system, (y0[0] + 1e-6, y0[1]), (0.0, T), t_eval, rtol=1e-10, atol=1e-10)
+    except OracleStalled:
+        assume(False)  # the oracle cannot judge this example; hypothesis draws another
     amplification = float(np.max(np.abs(b - a))) / 1e-6
     assume(amplification < 100.0)
     traj = propagate(system, y0, (0.0, T), t_eval=t_eval)
-    ref, crossings = reference(system, y0, (0.0, T), t_eval)
+    try:
+        ref, crossings = reference(system, y0, (0.0, T), t_eval)
+    except OracleStalled:
+        assume(False)
     scale = max(1.0, float(np.max(np.abs(ref))))
     assert max_diff(traj, ref) <= 1e-8 * scale
     # an orbit that grazes a breakpoint exactly (hypothesis builds them: y0 on a breakpoint,
