@@ -327,7 +327,12 @@ class Comparison:
 
 
 def _list(items: Sequence[int]) -> str:
-    return ", ".join(map(str, items)) if items else "none"
+    """``"none"``, or the count and the branch numbers: ``"1 (branch #0)"``, ``"2 (branches
+    #0, #3)"`` -- a bare ``0`` would read as a count."""
+    if not items:
+        return "none"
+    numbers = ", ".join(f"#{i}" for i in items)
+    return f"{len(items)} (branch{'es' if len(items) > 1 else ''} {numbers})"
 
 
 def _runs(dis: Sequence[StabilityDisagreement]) -> list[list[StabilityDisagreement]]:

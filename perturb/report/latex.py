@@ -68,7 +68,8 @@ def latex_document(
     Returns
     -------
     str
-        The document text (compiles with ``pdflatex``; packages: amsmath, amssymb, geometry).
+        The document text (compiles with ``pdflatex``; packages: fontenc, lmodern,
+        amsmath, amssymb, geometry); written atomically when ``path`` is given..
     """
     osc = approximation.oscillator
     title = title or f"{approximation.label} of the {osc.name} oscillator"
@@ -80,6 +81,9 @@ def latex_document(
         [
             r"\documentclass[11pt]{article}",
             r"\usepackage[T1]{fontenc}",
+            # scalable Type 1 text fonts: T1 with the default Computer Modern falls back to
+            # bitmap (Type 3) EC fonts in the PDF
+            r"\usepackage{lmodern}",
             r"\usepackage{amsmath,amssymb}",
             r"\usepackage[margin=2cm]{geometry}",
             r"\allowdisplaybreaks",
@@ -93,5 +97,7 @@ def latex_document(
         ]
     )
     if path is not None:
-        Path(path).write_text(doc)
+        from ..atomic import write_text
+
+        write_text(path, doc)  # complete or absent
     return doc

@@ -39,14 +39,17 @@ class TimeHistory:
         )
 
     def to_csv(self, path=None) -> str:
+        """The CSV text ``t,x,v``; with ``path`` also written there (atomically: a temporary
+        file in the same folder renamed over ``path`` once complete)."""
         lines = ["t,x,v"] + [
             f"{t!r},{x!r},{v!r}"
             for t, x, v in zip(self.t.tolist(), self.x.tolist(), self.v.tolist(), strict=True)
         ]
         text = "\n".join(lines) + "\n"
         if path is not None:
-            with open(path, "w") as fh:
-                fh.write(text)
+            from ..atomic import write_text
+
+            write_text(path, text)  # complete or absent, also when killed or the disk is full
         return text
 
 
