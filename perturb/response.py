@@ -24,7 +24,7 @@ import numpy as np
 
 from .errors import PerturbError
 
-__all__ = ["Branch", "Response", "CSV_COLUMNS"]
+__all__ = ["Branch", "Response", "CSV_COLUMNS", "responses_to_csv"]
 
 #: Column names of :meth:`Response.to_csv`, in order.
 CSV_COLUMNS = (
@@ -134,19 +134,57 @@ class Response:
     def to_csv(
         self, path: str | Path | None = None, extra: Mapping[str, Sequence] | None = None
     ) -> str:
-        """Write (and return) the CSV text; ``extra`` adds columns after the standard ones."""
-        buf = io.StringIO()
-        cols = list(CSV_COLUMNS) + list(extra or {})
-        writer = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
-        writer.writeheader()
-        for k, row in enumerate(self.rows()):
+        """Write (and return) the CSV text; ``extra`` adds columns after the standard ones.
+
+        The file is written atomically (:mod:`perturb.atomic`): complete or absent.
+        """
+        return responses_to_csv((self,), path, extra=extra)
+
+    def plot(self, ax=None, **options):
+        """Draw this response (stable solid, unstable dashed) and return the matplotlib Axes.
+
+        Same options as :func:`perturb.report.figures.plot` (``labels``, ``colors``,
+        ``title``, ``oscillator``, ``log_amplitude``, ``quantity``, ``legend``); several
+        responses on one Axes: :func:`perturb.report.figures.plot` or call ``plot(ax=ax)`` on
+        each. matplotlib is imported here, not by ``import perturb``.
+        """
+        from .report.figures import plot
+
+        return plot(self, ax=ax, **options)
+
+
+def responses_to_csv(
+    responses: Sequence[Response],
+    path: str | Path | None = None,
+    extra: Mapping[str, Sequence] | None = None,
+) -> str:
+    """One CSV (columns :data:`CSV_COLUMNS`, then ``extra``) of several responses.
+
+    Branches are numbered through all responses (the second response's first branch follows
+    the first's last), and each row's ``method`` says which response it belongs to. ``extra``
+    columns have one value per row, in row order. With ``path`` the text is also written, to
+    a temporary file renamed onto ``path`` (complete or absent).
+    """
+    buf = io.StringIO()
+    cols = list(CSV_COLUMNS) + list(extra or {})
+    writer = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
+    writer.writeheader()
+    k = 0
+    offset = 0
+    for resp in responses:
+        for row in resp.rows():
             for name, values in (extra or {}).items():
                 row[name] = values[k]
+            row["branch"] = int(row["branch"]) + offset
             row["stable"] = int(row["stable"])
             for key in ("omega", "amplitude", "first_harmonic_amplitude", "mean", "max_multiplier"):
                 row[key] = repr(row[key])
             writer.writerow(row)
-        text = buf.getvalue()
-        if path is not None:
-            Path(path).write_text(text)
-        return text
+            k += 1
+        offset += len(resp.branches)
+    text = buf.getvalue()
+    if path is not None:
+        from .atomic import write_text
+
+        write_text(path, text)
+    return text

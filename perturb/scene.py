@@ -12,7 +12,11 @@ parameter values, what is asked (``[ask] kind``), the method and where to write 
     omega = [0.2, 2.0]
     points = 2000
     [method]
-    name = "hb1"
+    name = "hb"             # numeric harmonic balance; every branch it finds
+    harmonics = 15
+    [compare]
+    reference = "exact"     # also every exact periodic orbit: drawn, and errors measured
+    methods = ["hb1"]       # further methods drawn and measured against the reference
     [output]
     csv = "frc.csv"
     png = "frc.png"
@@ -24,6 +28,13 @@ parameter values, what is asked (``[ask] kind``), the method and where to write 
     ``omega = [lo, hi]``, ``points``; any method of :func:`perturb.frequency_response`,
     including ``name = "auto"`` with ``[accuracy] rtol`` (the cheapest method that meets it at
     exact spot checks, :mod:`perturb.adaptive`; the choice goes to ``report.json``).
+    ``name = "hb"`` traces every branch numeric harmonic balance finds (``all_branches =
+    false`` for the connected one only). An optional ``[compare]`` table adds a ``reference``
+    (``"exact"``: continuation of the exact periodic orbits) and further ``methods``; all are
+    drawn in one figure and written to one CSV (branches numbered through, the ``method``
+    column telling them apart, a last column ``rel_error`` against the reference), and each
+    method's measured error against the reference (branches found, max relative error of
+    ``max |x|``) goes into the legend and ``report.json``.
 ``backbone``
     ``amplitude = [lo, hi]``, ``points``: the frequency of the free undamped oscillation
     (forcing and damping set to zero) against its amplitude, from the energy integral.
@@ -38,7 +49,10 @@ parameter values, what is asked (``[ask] kind``), the method and where to write 
     ``record_periods``: stroboscopic ``x`` of the attractors against the parameter.
 
 Each writes a CSV and a PNG into the output directory (``[output] csv`` / ``png``) and a JSON
-``report`` of what was computed. Peak maps are scenes with a ``[sweep]`` table
+``report`` of what was computed, every file complete or absent (:mod:`perturb.atomic`; two
+outputs with the same name are refused). What a run should not pass over in silence — no
+branch found, seeds that did not converge — is printed as a ``note:`` line and listed under
+``notes`` in the report. Peak maps are scenes with a ``[sweep]`` table
 (:mod:`perturb.sweep_cli`). Unknown sections or keys, and keys of another kind, are errors (a
 typo must not be silently ignored).
 """
@@ -55,6 +69,7 @@ from importlib import resources
 from pathlib import Path
 from types import MappingProxyType
 
+from .atomic import check_distinct, write_text
 from .errors import ParameterError, PerturbError
 from .methods import METHODS
 from .model import Oscillator, builtin_model, validate_parameter_value
@@ -85,7 +100,9 @@ _KEYS: dict[str, set[str]] = {
         "transient_periods",
         "record_periods",
     },
-    "method": {"name", "order", "harmonics"},
+    "method": {"name", "order", "harmonics", "all_branches"},
+    "compare": {"reference", "methods"},
+    "plot": {"zoom", "mean", "log_amplitude"},
     "output": {"csv", "png", "latex", "report"},
     "accuracy": {"rtol", "spots"},
 }
@@ -140,6 +157,10 @@ class Scene:
     values: tuple[float, float] | None = None
     transient_periods: int = 200
     record_periods: int = 16
+    all_branches: bool = True
+    reference: str | None = None
+    compare_methods: tuple[str, ...] = ()
+    plot: Mapping[str, object] = field(default_factory=lambda: MappingProxyType({}))
     outputs: Mapping[str, str] = field(
         default_factory=lambda: MappingProxyType(
             {"csv": "frc.csv", "png": "frc.png", "latex": "derivation.tex"}
@@ -271,6 +292,71 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
                     source, f"[method] {key} = {value!r}: expected a positive integer"
                 )
             fields[key] = value
+    if "all_branches" in method_table:
+        value = method_table["all_branches"]
+        if not isinstance(value, bool):
+            raise _scene_error(source, f"[method] all_branches = {value!r}: expected true or false")
+        fields["all_branches"] = value
+    compare_table = data.get("compare", {})
+    if compare_table and kind != "frequency_response":
+        raise _scene_error(source, f"[compare] does not apply to kind {kind!r}")
+    if "reference" in compare_table:
+        ref = compare_table["reference"]
+        if ref != "exact":
+            raise _scene_error(source, f"[compare] reference = {ref!r}: expected 'exact'")
+        if method == "exact":
+            raise _scene_error(
+                source,
+                "[compare] reference = 'exact' with [method] name = 'exact': compare "
+                "the exact response with what? Give another method or drop the reference",
+            )
+        fields["reference"] = ref
+    if "methods" in compare_table:
+        names = compare_table["methods"]
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise _scene_error(
+                source, f"[compare] methods = {names!r}: expected a list of method names"
+            )
+        for n in names:
+            if n == "auto" or (n not in METHODS and n not in _NUMERIC_METHODS):
+                raise _scene_error(
+                    source,
+                    f"[compare] methods: {n!r} is not a method: expected one of "
+                    + ", ".join(["hb", "exact", *METHODS]),
+                )
+        if len(set(names)) != len(names) or method in names:
+            raise _scene_error(source, f"[compare] methods = {names!r}: a method twice")
+        if "reference" in fields and "exact" in names:
+            raise _scene_error(source, "[compare] 'exact' is already the reference")
+        fields["compare_methods"] = tuple(names)
+    plot_table = data.get("plot", {})
+    if plot_table and kind != "frequency_response":
+        raise _scene_error(source, f"[plot] does not apply to kind {kind!r}")
+    plot_opts: dict = {}
+    for key in ("mean", "log_amplitude"):
+        if key in plot_table:
+            if not isinstance(plot_table[key], bool):
+                raise _scene_error(
+                    source, f"[plot] {key} = {plot_table[key]!r}: expected true or false"
+                )
+            plot_opts[key] = plot_table[key]
+    if "zoom" in plot_table:
+        z = plot_table["zoom"]
+        if not (
+            isinstance(z, list)
+            and len(z) == 4
+            and all(_is_number(v) and math.isfinite(v) for v in z)
+            and z[0] < z[1]
+            and z[2] < z[3]
+        ):
+            raise _scene_error(
+                source,
+                f"[plot] zoom = {z!r}: expected [omega_lo, omega_hi, amplitude_lo, "
+                "amplitude_hi] with lo < hi",
+            )
+        plot_opts["zoom"] = tuple(float(v) for v in z)
+    if plot_opts:
+        fields["plot"] = MappingProxyType(plot_opts)
     csv_name, png_name = _DEFAULT_NAMES[kind]
     outputs = {"csv": csv_name, "png": png_name, "report": "report.json"}
     if kind == "frequency_response":
@@ -281,6 +367,10 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
                 source, f"[output] {key} = {value!r}: expected a plain file name (no directories)"
             )
         outputs[key] = value
+    try:
+        check_distinct(outputs.values())
+    except ParameterError as exc:
+        raise ParameterError(f"scene {source}: [output] {exc}") from None
     accuracy = data.get("accuracy", {})
     rtol = accuracy.get("rtol")
     if rtol is not None:
@@ -369,17 +459,28 @@ def run_scene(scene: Scene, out_dir: str | Path = "out", *, log=None) -> dict[st
     -------
     dict
         The written paths by kind (``csv``, ``png``, ``report``, and ``latex`` for a
-        frequency response by a symbolic method).
+        frequency response with a symbolic method among its methods). Every file is written
+        to a temporary file beside it and renamed (complete or absent).
+
+    Raises
+    ------
+    ParameterError
+        Before any work, when two outputs would be written to the same file.
     """
 
     def say(msg: str) -> None:
         print(msg, file=log or sys.stderr, flush=True)
 
     out = Path(out_dir)
+    names = {"csv": scene.outputs["csv"], "png": scene.outputs["png"]}
+    names["report"] = scene.outputs.get("report", "report.json")
+    if scene.kind == "frequency_response" and "latex" in scene.outputs:
+        names["latex"] = scene.outputs["latex"]
+    check_distinct(out / n for n in names.values())
     out.mkdir(parents=True, exist_ok=True)
     osc = scene.oscillator()
     say(f"[perturb] scene {scene.source}: {osc}")
-    paths = {"csv": out / scene.outputs["csv"], "png": out / scene.outputs["png"]}
+    paths = {"csv": out / names["csv"], "png": out / names["png"]}
     runner = {
         "frequency_response": _run_frequency_response,
         "backbone": _run_backbone,
@@ -394,19 +495,34 @@ def run_scene(scene: Scene, out_dir: str | Path = "out", *, log=None) -> dict[st
         "params": dict(scene.params),
     }
     report.update(runner(scene, osc, out, paths, say))
-    paths["report"] = out / scene.outputs.get("report", "report.json")
-    paths["report"].write_text(json.dumps(report, indent=1, default=str) + "\n")
+    notes = list(report.get("notes", ()))
+    for note in notes:
+        if not _routine_note(note):
+            say(f"[perturb] note: {note}")
+    report["notes"] = notes
+    paths["report"] = out / names["report"]
+    write_text(paths["report"], json.dumps(report, indent=1, default=str) + "\n")
     for kind, p in paths.items():
         say(f"[perturb] wrote {kind}: {p}")
     return paths
 
 
-def _run_frequency_response(scene: Scene, osc: Oscillator, out: Path, paths: dict, say) -> dict:
-    from .report.figures import plot_frequency_response
+def _routine_note(note: str) -> bool:
+    """Notes kept in report.json but not printed: how each exact branch ended, workers."""
+    import re
 
-    info: dict = {"omega": list(scene.omega)}
+    return bool(re.search(r"(^|: )(branch \d+: |traced with \d+ worker)", note))
+
+
+def _trace(
+    scene: Scene, osc: Oscillator, method: str, say, *, primary: bool
+) -> tuple[object, object, dict]:
+    """One method's response over the scene's window: (response, approximation or None, info)."""
+    info: dict = {"method": method}
     approx = None
-    if scene.method == "auto":
+    harmonics = scene.harmonics if primary else None
+    order = scene.order if primary else None
+    if method == "auto":
         from .adaptive import auto_frequency_response
 
         say(f"[perturb] choosing a method for rtol = {scene.rtol:g} (spot checks) ...")
@@ -419,45 +535,204 @@ def _run_frequency_response(scene: Scene, osc: Oscillator, out: Path, paths: dic
             log=lambda line: say(f"[perturb]   {line}"),
         )
         say("[perturb] " + choice.summary().replace("\n", "\n[perturb] "))
-        info["method"] = "auto"
         info["auto"] = choice.to_dict()
         cand = choice.chosen.candidate
         if cand.method not in ("hb", "exact"):
             from .adaptive import _derive
 
             approx = _derive(cand, osc)
-    elif scene.method in ("hb", "exact"):
+    elif method in ("hb", "exact"):
         from .api import frequency_response
 
-        say(f"[perturb] tracing the {scene.method} frequency response over {scene.omega} ...")
-        extra = {"harmonics": scene.harmonics} if scene.method == "hb" else {}
-        resp = frequency_response(osc, scene.method, scene.omega, **extra)
-        info["method"] = scene.method
+        extra: dict = {}
+        if method == "hb":
+            extra = {"harmonics": 15 if harmonics is None else harmonics}
+            extra["all_branches"] = scene.all_branches
+            info["harmonics"] = extra["harmonics"]
+            info["all_branches"] = scene.all_branches
+        say(f"[perturb] tracing the {method} frequency response over Omega in {scene.omega} ...")
+        resp = frequency_response(osc, method, scene.omega, **extra)
     else:
         from .cache import cached_derivation
         from .numeric.frequency_response import frequency_response
         from .numeric.residual_response import residual_response
 
-        say(f"[perturb] deriving {scene.method} ...")
-        opts = {} if scene.order is None else {"order": scene.order}
-        approx = cached_derivation(scene.method, METHODS[scene.method], osc, **opts)
-        say(f"[perturb] tracing the frequency response over Omega in {scene.omega} ...")
+        say(f"[perturb] deriving {method} ...")
+        opts = {} if order is None else {"order": order}
+        approx = cached_derivation(method, METHODS[method], osc, **opts)
+        say(f"[perturb] tracing the {method} frequency response over Omega in {scene.omega} ...")
         poly = approx.frequency_polynomial
         if poly is None or len(poly) > 3 or approx.slow_flow is None:
             resp = residual_response(approx, scene.omega)
         else:
             resp = frequency_response(approx, scene.omega, points=scene.points)
-        info["method"] = scene.method
-    say(f"[perturb] {resp!r}".replace("\n", "\n[perturb] "))
-    resp.to_csv(paths["csv"])
-    plot_frequency_response(resp, paths["png"])
     info["response"] = resp.method
     info["branches"] = len(resp.branches)
+    info["points"] = int(sum(len(b) for b in resp.branches))
+    notes = [f"{resp.method}: {n}" for n in resp.notes]
+    if not resp.branches:
+        notes.append(
+            f"{resp.method}: no periodic solution found for Omega in "
+            f"[{scene.omega[0]:g}, {scene.omega[1]:g}] (an empty answer, not a proof that none "
+            "exists): check the damping and forcing, widen the window, or try method 'exact'"
+        )
+    info["notes"] = notes
+    return resp, approx, info
+
+
+def _errors_against(resp, ref, tolerance: float = 0.02) -> dict:
+    """Branches of ``ref`` that ``resp`` finds, and its errors on them (:func:`compare`)."""
+    import numpy as np
+
+    from .numeric.compare import compare
+
+    if not resp.branches or not ref.branches:
+        return {
+            "reference_branches": len(ref.branches),
+            "branches": len(resp.branches),
+            "found": 0,
+            "missed": list(range(len(ref.branches))),
+            "spurious": list(range(len(resp.branches))),
+            "max_error": None,
+            "rms_error": None,
+            "stability_disagreements": 0,
+            "tolerance": tolerance,
+        }
+    c = compare(resp, ref, tolerance=tolerance)
+    found = [r.branch for r in c.reference_branches if r.matched_by]
+    errs = [b.max_error for b in c.branches if b.matched is not None and np.isfinite(b.max_error)]
+    return {
+        "reference_branches": len(ref.branches),
+        "branches": len(resp.branches),
+        "found": len(found),
+        "not_found": [r.branch for r in c.reference_branches if not r.matched_by],
+        "missed": list(c.missed),
+        "spurious": list(c.spurious),
+        "max_error": float(max(errs)) if errs else None,
+        "rms_error": float(c.rms_error) if np.isfinite(c.rms_error) else None,
+        # stability against the nearest exact orbit within compare's default 20 %: an
+        # approximation a few percent off must not escape the check by being off
+        "stability_disagreements": len(compare(resp, ref).stability_disagreements),
+        "tolerance": tolerance,
+    }
+
+
+def _legend_label(resp, errors: dict | None) -> str:
+    from .report.figures import method_label
+
+    label = method_label(resp.method)
+    if errors is None:
+        return f"{label}: {len(resp.branches)} branches"
+    n = errors["reference_branches"]
+    if errors["max_error"] is None:
+        return f"{label}: none of the {n} exact branches"
+    found = "all" if errors["found"] == n else f"{errors['found']} of"
+    text = f"{label}:\n  {found} {n} exact branches, max error {errors['max_error']:.1e} on them"
+    if errors["spurious"]:
+        text += f", {len(errors['spurious'])} spurious"
+    if errors["stability_disagreements"]:
+        text += f",\n  stability differs from exact at {errors['stability_disagreements']} points"
+    return text
+
+
+def _run_frequency_response(scene: Scene, osc: Oscillator, out: Path, paths: dict, say) -> dict:
+    from .report.figures import equation_title, frequency_response_figure
+    from .response import responses_to_csv
+
+    info: dict = {"omega": list(scene.omega), "method": scene.method}
+    notes: list[str] = []
+    resp, approx, main = _trace(scene, osc, scene.method, say, primary=True)
+    info["response"] = resp.method
+    info["branches"] = len(resp.branches)
+    if "auto" in main:
+        info["auto"] = main.pop("auto")
+    notes += main.pop("notes")
+    responses = [resp]
+    runs = [main]
+    for name in scene.compare_methods:
+        r, a, i = _trace(scene, osc, name, say, primary=False)
+        notes += i.pop("notes")
+        responses.append(r)
+        runs.append(i)
+        approx = approx if approx is not None else a
+    ref = None
+    if scene.reference == "exact":
+        ref, _, i = _trace(scene, osc, "exact", say, primary=False)
+        notes += i.pop("notes")
+        i["role"] = "reference"
+        runs.append(i)
+    for r in responses:
+        say(f"[perturb] {r!r}".replace("\n", "\n[perturb] "))
+    extra = None
+    labels = None
+    if ref is not None:
+        from .numeric.compare import relative_errors
+
+        say(f"[perturb] {ref!r}".replace("\n", "\n[perturb] "))
+        errors = [_errors_against(r, ref) for r in responses]
+        labels = [_legend_label(r, e) for r, e in zip(responses, errors, strict=True)]
+        labels.append(f"exact periodic orbits: {len(ref.branches)} branches (the reference)")
+        for run, e in zip(runs, errors, strict=False):
+            run["against_exact"] = e
+            found = "all" if e["found"] == e["reference_branches"] else f"{e['found']} of"
+            err = "-" if e["max_error"] is None else f"{e['max_error']:.2e}"
+            say(
+                f"[perturb] {run['response']} against exact: finds {found} "
+                f"{e['reference_branches']} exact branches, max relative error {err} on them, "
+                f"{len(e['spurious'])} spurious branches"
+            )
+        rel = []
+        for r in responses:
+            rel += [float(v) for v in relative_errors(r, ref)] if r.branches else []
+        rel += [0.0] * sum(len(b) for b in ref.branches)
+        extra = {"rel_error": rel}
+        drawn = [*responses, ref]
+    else:
+        drawn = responses
+    info["responses"] = runs
+    responses_to_csv(drawn if ref is None else [*responses, ref], paths["csv"], extra=extra)
+    title = equation_title(osc, dict(scene.params))
+    if ref is not None:
+        title += "\nerrors: relative, of the amplitude $\\max\\,|x|$, against the exact orbits"
+    # the reference underneath (thick, dark), the approximations on top
+    order = list(range(len(drawn)))
+    if ref is not None:
+        order = [len(drawn) - 1, *range(len(drawn) - 1)]
+    palette = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd"]
+    colors = [palette[k % len(palette)] for k in range(len(responses))]
+    widths = [1.3 if k == 0 else 1.0 for k in range(len(responses))]
+    if ref is not None:
+        colors.append("0.15")
+        widths.append(2.8)
+    amps = [float(a) for r in drawn for b in r.branches for a in b.amplitude if a > 0]
+    # amplitudes spanning decades (a resonance peak over small in-well orbits): log axis
+    log_axis = bool(amps) and max(amps) > 30 * max(min(amps), 1e-12)
+    info["legend"] = None if labels is None else list(labels)
+    fig = frequency_response_figure(
+        [drawn[k] for k in order],
+        paths["png"],
+        title=title,
+        zoom=scene.plot.get("zoom"),
+        mean=bool(scene.plot.get("mean", False)),
+        labels=None if labels is None else [labels[k] for k in order],
+        colors=[colors[k] for k in order],
+        linewidths=[widths[k] for k in order],
+        log_amplitude=scene.plot.get("log_amplitude", log_axis),
+        legend_kw={"fontsize": 7, "loc": "upper right"},
+    )
+    _close(fig)
     if approx is not None and "latex" in scene.outputs:
         from .report.latex import latex_document
 
         paths["latex"] = out / scene.outputs["latex"]
-        latex_document(approx, paths["latex"])
+        write_text(paths["latex"], latex_document(approx))
+        info["derivation"] = approx.label
+    elif "latex" in scene.outputs:
+        notes.append(
+            "no derivation.tex: none of the scene's methods is symbolic (add a symbolic method "
+            "such as 'hb1' to [compare] methods for its derivation)"
+        )
+    info["notes"] = notes
     return info
 
 
@@ -562,14 +837,23 @@ def _run_backbone(scene: Scene, osc: Oscillator, out: Path, paths: dict, say) ->
     lines = [",".join(cols)] + [
         ",".join(repr(bb[c][i]) for c in cols) for i in range(len(bb["x0"]))
     ]
-    paths["csv"].write_text("\n".join(lines) + "\n")
+    write_text(paths["csv"], "\n".join(lines) + "\n")
+    from .report.figures import equation_title, save_figure
+
     fig, ax = _figure()
-    ax.plot(bb["omega"], bb["amplitude"], ".", ms=2)
-    ax.set_xlabel("free-vibration frequency omega")
-    ax.set_ylabel("amplitude max|x|")
-    ax.set_title(f"backbone: {osc}", fontsize=7)
-    fig.savefig(paths["png"])
-    return {"amplitude": [lo, hi], "points": len(bb["x0"]), "method": "energy quadrature"}
+    ax.plot(bb["omega"], bb["amplitude"], "o", ms=2, mew=0)
+    ax.set_xlabel(r"free-vibration frequency $\omega$")
+    ax.set_ylabel(r"amplitude $\max\,|x|$")
+    ax.set_title("backbone (free, undamped) of\n" + equation_title(osc), fontsize=8)
+    save_figure(fig, paths["png"])
+    _close(fig)
+    info = {"amplitude": [lo, hi], "points": len(bb["x0"]), "method": "energy quadrature"}
+    if not bb["x0"]:
+        info["notes"] = [
+            f"no bounded free oscillation from any turning point in [{lo:g}, {hi:g}]: the "
+            "backbone is empty (is the restoring force confining there?)"
+        ]
+    return info
 
 
 def _figure():
@@ -578,9 +862,16 @@ def _figure():
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4.5), dpi=110)
+    fig, ax = plt.subplots(figsize=(7, 4.8), dpi=110, layout="constrained")
     ax.grid(alpha=0.3)
     return fig, ax
+
+
+def _close(fig) -> None:
+    """Release a saved figure (pyplot keeps every open figure alive)."""
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
 
 
 def step_oscillator(osc: Oscillator) -> Oscillator:
@@ -605,8 +896,12 @@ def _run_time_history(scene: Scene, osc: Oscillator, out: Path, paths: dict, say
     say(f"[perturb] integrating over t in {scene.t} from y0 = {scene.y0} ({scene.method}) ...")
     hist = time_history(osc, scene.y0, scene.t, method=scene.method, samples=scene.samples)
     say(f"[perturb] {hist!r}")
-    hist.to_csv(paths["csv"])
-    plot_time_history(hist, paths["png"], title=str(osc))
+    from .atomic import atomic_path
+    from .report.figures import equation_title
+
+    with atomic_path(paths["csv"]) as tmp:
+        hist.to_csv(tmp)
+    _close(plot_time_history(hist, paths["png"], title=equation_title(osc)))
     return {"t": list(scene.t), "y0": list(scene.y0), "integrator": hist.method}
 
 
@@ -637,15 +932,27 @@ def _run_bifurcation(scene: Scene, osc: Oscillator, out: Path, paths: dict, say)
         for j, p in enumerate(diag.values):
             for x, v in zip(diag.x[i, j], diag.v[i, j], strict=True):
                 lines.append(f"{float(p)!r},{i},{float(x)!r},{float(v)!r},{int(diag.period[i, j])}")
-    paths["csv"].write_text("\n".join(lines) + "\n")
+    write_text(paths["csv"], "\n".join(lines) + "\n")
+    from .report.figures import _param_tex, equation_title, save_figure
+
     fig, ax = _figure()
     p, x = diag.points()
-    ax.plot(p, x, ",k")
-    ax.set_xlabel(scene.parameter)
-    ax.set_ylabel(f"x at phase {diag.phase:g} of each forcing period")
-    ax.set_title(f"bifurcation diagram: {osc}", fontsize=7)
-    fig.savefig(paths["png"])
+    ax.plot(p, x, "o", color="k", ms=1.8, mew=0, alpha=0.7)
+    ax.set_xlabel(f"${_param_tex(scene.parameter)}$")
+    ax.set_ylabel(f"$x$ at phase {diag.phase:g} of each forcing period")
+    params = {k: v for k, v in osc.params.items() if k != scene.parameter}
+    ax.set_title(
+        f"bifurcation diagram over ${_param_tex(scene.parameter)}$ of\n"
+        + equation_title(osc, params),
+        fontsize=8,
+    )
+    save_figure(fig, paths["png"])
+    _close(fig)
+    notes = []
+    if not len(p):
+        notes.append("no attractor recorded at any parameter value: the diagram is empty")
     return {
+        "notes": notes,
         "parameter": scene.parameter,
         "values": list(scene.values),
         "points": scene.points,
