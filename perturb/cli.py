@@ -307,9 +307,16 @@ def _atomic_figure(path: str) -> Iterator[Path]:
         yield tmp
 
 
+def _describe(resp, width: int = 400) -> str:
+    """``repr(resp)`` with each line cut to ``width`` characters (a response near an exact
+    resonance can list thousands of folds)."""
+    lines = repr(resp).split("\n")
+    return "\n".join(line if len(line) <= width else line[: width - 4] + " ..." for line in lines)
+
+
 def _frc_summary(resp, kind: str) -> str:
     """A few lines about a response, for the terminal when the CSV is not wanted there."""
-    lines = [repr(resp)]
+    lines = [_describe(resp)]
     n = sum(len(b) for b in resp.branches)
     lines.append(f"{len(resp.branches)} branches, {n} points")
     lines += [f"note: {note}" for note in resp.notes]
@@ -370,11 +377,7 @@ def _cmd_frc(args: argparse.Namespace) -> int:
     else:
         resp = frequency_response(osc, method, frequencies=omegas, **extra)
     quiet_csv = args.out is None and args.plot
-    if not quiet_csv:
-        print(repr(resp), file=sys.stderr)
-        for note in resp.notes:
-            print(f"note: {note}", file=sys.stderr)
-    rel = None
+    rel = comparison = None
     if args.compare == "exact":
         from .numeric.compare import compare, relative_errors
 
@@ -383,8 +386,9 @@ def _cmd_frc(args: argparse.Namespace) -> int:
         else:
             ref = frequency_response(osc, "exact", frequencies=omegas)
         rel = relative_errors(resp, ref)
-        print(str(compare(resp, ref)), file=sys.stderr)
+        comparison = compare(resp, ref)
     text = resp.to_csv(None, extra=None if rel is None else {"rel_error": rel})
+    # the files first, the report after: a run that fails while writing says only why
     if args.out is not None:
         _write_text(args.out, text)
     if args.plot:
@@ -392,6 +396,12 @@ def _cmd_frc(args: argparse.Namespace) -> int:
 
         with _atomic_figure(args.plot) as tmp:
             plot_frequency_response(resp, tmp)
+    if not quiet_csv:
+        print(_describe(resp), file=sys.stderr)
+        for note in resp.notes:
+            print(f"note: {note}", file=sys.stderr)
+    if comparison is not None:
+        print(str(comparison), file=sys.stderr)
     if quiet_csv:
         # the picture was asked for, not 3 000 CSV rows on the terminal
         sys.stdout.write(_frc_summary(resp, kind))
@@ -451,15 +461,15 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                 f"expected at most {MAX_LCP_STEPS}"
             )
     hist = time_history(osc, y0, (t0, t1), method=args.method, samples=args.samples, h=args.h)
-    print(repr(hist), file=sys.stderr)
     text = hist.to_csv(args.out)
-    if args.out is None:
-        sys.stdout.write(text)
     if args.plot:
         from .report.figures import plot_time_history
 
         with _atomic_figure(args.plot) as tmp:
             plot_time_history(hist, tmp, title=str(osc))
+    print(repr(hist), file=sys.stderr)
+    if args.out is None:
+        sys.stdout.write(text)
     return 0
 
 

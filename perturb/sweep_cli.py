@@ -89,6 +89,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix not in (".nc", ".zarr"):
         raise ParameterError(f"--out {args.out!r}: expected a file name ending in .nc or .zarr")
+    png_path = None if args.no_plot else (Path(args.plot) if args.plot else out.with_suffix(".png"))
+    _check_outputs(args.out, png_path)
     if args.workers is not None and args.workers < 1:
         raise ParameterError(f"--workers {args.workers}: expected at least 1")
     ss = load_sweep_scene(args.scene)
@@ -142,18 +144,53 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     finally:
         if client is not None:
             client.close()
-    save_dataset(ds, out)
+    if out.suffix == ".zarr":
+        save_dataset(ds, out)  # a folder of chunks: not renamed into place
+    else:
+        from .atomic import atomic_path
+
+        with atomic_path(out) as tmp:  # complete or absent
+            save_dataset(ds, tmp)
     shutil.rmtree(checkpoint, ignore_errors=True)
     shape = " x ".join(f"{n} {d}" for d, n in ((d, ds.sizes[d]) for d in ds.attrs["swept"].split()))
     print(
         f"[perturb] wrote {out} ({shape}; {ds.attrs.get('failed_cells', 0)} failed cells)",
         file=sys.stderr,
     )
-    if not args.no_plot:
-        png = Path(args.plot) if args.plot else out.with_suffix(".png")
-        plot_map(ds, png, args.variable)
-        print(f"[perturb] wrote {png}", file=sys.stderr)
+    if png_path is not None:
+        from .atomic import atomic_path
+
+        with atomic_path(png_path) as tmp:
+            plot_map(ds, tmp, args.variable)
+        print(f"[perturb] wrote {png_path}", file=sys.stderr)
     return 0
+
+
+def _check_outputs(out: str, png: Path | None) -> None:
+    """Refuse, before any work, a map and a picture with one path, or a missing or
+    read-only output folder.
+
+    Raises
+    ------
+    ParameterError
+        Naming the path.
+    """
+    import os
+
+    from .atomic import check_distinct
+
+    for flag, path in (("--out", Path(out)), ("--plot", png)):
+        if path is None:
+            continue
+        folder = path.parent if str(path.parent) else Path(".")
+        if not folder.is_dir():
+            raise ParameterError(f"{flag} {str(path)!r}: the folder {str(folder)!r} does not exist")
+        if not os.access(folder, os.W_OK | os.X_OK):
+            raise ParameterError(
+                f"{flag} {str(path)!r}: the folder {str(folder)!r} is not writable"
+            )
+    if png is not None:
+        check_distinct([out, png])
 
 
 def build_args(scene: str, out: str) -> argparse.Namespace:
@@ -166,14 +203,10 @@ def build_args(scene: str, out: str) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m perturb.sweep_cli SCENE ...`` (the same as ``perturb sweep SCENE ...``)."""
-    parser = argparse.ArgumentParser(prog="perturb")
-    add_parser(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(["sweep", *(sys.argv[1:] if argv is None else argv)])
-    try:
-        return int(args.func(args))
-    except PerturbError as exc:
-        print(f"perturb: error: {exc}", file=sys.stderr)
-        return 2
+    from .cli import main as cli_main
+
+    # the command's own error handling: one line, exit status 2, 130 on Ctrl-C
+    return cli_main(["sweep", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":  # pragma: no cover
