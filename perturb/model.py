@@ -31,11 +31,10 @@ from types import MappingProxyType
 from typing import Any
 
 import sympy as sp
-from sympy.simplify.fu import TR8
 
 from .errors import ModelError, ParameterError
 from .nonsmooth import PiecewiseLinear, is_nonsmooth, to_pwl
-from .parsing import parse_equation, real_symbol
+from .parsing import MAX_MAGNITUDE, MIN_MAGNITUDE, parse_equation, real_symbol
 from .printing import latex
 
 __all__ = [
@@ -52,13 +51,17 @@ ParamValue = float | None
 
 
 def validate_parameter_value(name: str, value: Any) -> float:
-    """Return ``value`` as a float if it is a finite real number, else raise.
+    """Return ``value`` as a float if it is a finite real number in range, else raise.
+
+    The range is the parser's (:data:`perturb.parsing.MIN_MAGNITUDE` to
+    :data:`perturb.parsing.MAX_MAGNITUDE`, or 0): a parameter of ``1e-320`` is a subnormal float
+    that the numeric layer treats as 0, and one of ``1e308`` overflows as soon as it is squared.
 
     Raises
     ------
     ParameterError
-        For booleans, strings, complex numbers, NaN and infinities; the message names the
-        parameter and the value.
+        For booleans, strings, complex numbers, NaN and infinities, and magnitudes out of
+        range; the message names the parameter and the value.
     """
     if isinstance(value, bool) or not isinstance(value, numbers.Real | sp.Basic):
         raise ParameterError(
@@ -66,16 +69,34 @@ def validate_parameter_value(name: str, value: Any) -> float:
             "expected a finite real number"
         )
     if isinstance(value, sp.Basic):
-        if not value.is_number or value.is_real is False:
-            raise ParameterError(f"parameter {name!r} = {value}: expected a finite real number")
+        if not value.is_number or value.is_real is False or value.has(sp.nan, sp.zoo):
+            raise ParameterError(
+                f"parameter {name!r} = {_short_repr(value)}: expected a finite real number"
+            )
         value = complex(value)
         if value.imag != 0:
             raise ParameterError(f"parameter {name!r} = {value}: expected a real number")
         value = value.real
-    value = float(value)
+    try:
+        value = float(value)
+    except (OverflowError, TypeError, ValueError):  # a Python int beyond the float range
+        raise ParameterError(
+            f"parameter {name!r} = {_short_repr(value)}: expected a finite real number "
+            f"of magnitude at most {MAX_MAGNITUDE:g}"
+        ) from None
     if not math.isfinite(value):
         raise ParameterError(f"parameter {name!r} = {value}: expected a finite real number")
+    if value != 0 and not MIN_MAGNITUDE <= abs(value) <= MAX_MAGNITUDE:
+        raise ParameterError(
+            f"parameter {name!r} = {value:g}: expected 0 or a magnitude from "
+            f"{MIN_MAGNITUDE:g} to {MAX_MAGNITUDE:g}"
+        )
     return value
+
+
+def _short_repr(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 @dataclass(frozen=True)
@@ -568,15 +589,86 @@ def _harmonic_of(term: sp.Expr, t: sp.Symbol, source: str) -> Harmonic | None:
     )
 
 
+#: Most terms a product of sines and cosines in the forcing (or in a parametric coefficient)
+#: may expand to. Products are multiplied out as complex exponentials one factor at a time,
+#: merging equal frequencies after each step, so commensurate forcings stay small
+#: (``cos(t)*cos(2*t)*...*cos(12*t)`` has 39 harmonics); incommensurate ones double with every
+#: factor and are refused here instead of expanding to 2**49 terms.
+MAX_FORCING_TERMS = 1_000
+
+
+def _product_to_sum(term: sp.Expr, source: str) -> sp.Expr:
+    """``term``, a product of sines, cosines (and factors free of them), as a sum of single
+    sines and cosines.
+
+    Each factor is written as exponentials, ``cos(a) = (E(a) + E(-a))/2`` and
+    ``sin(a) = (E(a) - E(-a))/(2i)``; the product is a dictionary angle -> coefficient,
+    multiplied in one factor at a time (the work is the number of distinct angles, not
+    ``2**factors`` as for a pairwise product-to-sum rewrite).
+    """
+    rest: list[sp.Expr] = []
+    trig: list[sp.Expr] = []
+    for factor in sp.Mul.make_args(term):
+        base, exponent = factor.as_base_exp()
+        if isinstance(base, sp.sin | sp.cos) and exponent.is_Integer and exponent > 0:
+            # the parser bounds exponents (MAX_EXPONENT), so this list is short
+            trig.extend([base] * int(exponent))
+        else:
+            rest.append(factor)
+    if len(trig) < 2:
+        return term
+    half, ihalf = sp.Rational(1, 2), sp.I / 2
+    acc: dict[sp.Expr, sp.Expr] = {sp.Integer(0): sp.Integer(1)}
+    for factor in trig:
+        angle = factor.args[0]
+        pair = (
+            ((angle, half), (-angle, half))
+            if isinstance(factor, sp.cos)
+            else (
+                (angle, -ihalf),
+                (-angle, ihalf),
+            )
+        )
+        out: dict[sp.Expr, sp.Expr] = {}
+        for a, c in acc.items():
+            for b, d in pair:
+                key = a + b
+                out[key] = out.get(key, 0) + c * d
+        acc = {a: c for a, c in out.items() if c != 0}
+        if len(acc) > 2 * MAX_FORCING_TERMS:
+            raise ModelError(
+                f"the product of sines and cosines {term} in {source!r} expands to more than "
+                f"{MAX_FORCING_TERMS} harmonics: expected a forcing with fewer, commensurate "
+                "factors"
+            )
+    # back to real form: c E(a) + c' E(-a) = (c + c') cos(a) + i (c - c') sin(a)
+    total: list[sp.Expr] = []
+    done: set[sp.Expr] = set()
+    for a, c in acc.items():
+        if a in done:
+            continue
+        if a == 0:
+            total.append(sp.expand(c))
+            done.add(a)
+            continue
+        c2 = acc.get(-a, sp.Integer(0))
+        done.update((a, -a))
+        total.append(sp.expand(c + c2) * sp.cos(a) + sp.expand(sp.I * (c - c2)) * sp.sin(a))
+    return sp.expand(sp.Mul(*rest) * sp.Add(*total))
+
+
 def _forcing(expr: sp.Expr, t: sp.Symbol, source: str) -> Forcing:
     # Products and powers of harmonics (cos(t)*sin(2t), cos(t)**2) are periodic too:
     # turn them into sums first.
     expr = sp.expand(expr)
-    if any(
-        isinstance(a, sp.Mul | sp.Pow) and len(a.atoms(sp.sin, sp.cos)) > 0
-        for a in sp.Add.make_args(expr)
-    ):
-        expr = sp.expand(TR8(expr))
+    expr = sp.Add(
+        *(
+            _product_to_sum(a, source)
+            if isinstance(a, sp.Mul | sp.Pow) and a.has(sp.sin, sp.cos)
+            else a
+            for a in sp.Add.make_args(expr)
+        )
+    )
     harmonics: list[Harmonic] = []
     constant: sp.Expr = sp.Integer(0)
     for term in sp.Add.make_args(expr):
@@ -588,7 +680,9 @@ def _forcing(expr: sp.Expr, t: sp.Symbol, source: str) -> Forcing:
     if len(harmonics) > 1:
         ref = harmonics[0].frequency
         for h in harmonics[1:]:
-            ratio = sp.simplify(h.frequency / ref)
+            ratio = h.frequency / ref
+            if not ratio.is_Rational:  # simplify only when the quotient is not plainly rational
+                ratio = sp.simplify(ratio)
             if not ratio.is_Rational:
                 raise ModelError(
                     f"forcing in {source!r} is not periodic: frequencies {ref} and "
