@@ -242,7 +242,9 @@ def hill_exponents(
     solution, its singularity at ``lambda = 0`` coincides with the solution's folds, so the
     stability it reports changes exactly where the approximate branch turns. Of the
     ``2(2H+1)`` eigenvalues the two with the smallest ``|Im lambda|`` are the Floquet exponents
-    (the others are copies shifted by multiples of ``i w``).
+    (the others are copies shifted by multiples of ``i w``), the second chosen among the next
+    few by Liouville's formula ``lambda_1 + lambda_2 = -mean(p)`` modulo ``i w`` so that two
+    real negative multipliers are not replaced by one of them counted twice.
 
     Returns
     -------
@@ -288,4 +290,15 @@ def hill_exponents(
     big[:, size:, size:] = -C
     lam = np.linalg.eigvals(big)
     order = np.argsort(np.abs(lam.imag) + 1e-12 * np.abs(lam.real), axis=1)
-    return np.take_along_axis(lam, order[:, :2], axis=1)
+    # the first exponent has the smallest |Im|; its partner is not the runner-up but the one
+    # of the next few that satisfies Liouville's formula lam1 + lam2 = -mean(p) modulo i w:
+    # for real negative multipliers a + i w/2 and a - i w/2 tie on |Im| yet are one multiplier
+    # counted twice (they differ by i w), and the other multiplier would be lost
+    ranked = np.take_along_axis(lam, order, axis=1)
+    first = ranked[:, 0]
+    pool = ranked[:, 1 : min(ranked.shape[1], 8)]
+    d = pool - (-pk[:, 2 * H].real - first)[:, None]
+    d = d - 1j * w[:, None] * np.round(d.imag / w[:, None])
+    score = np.abs(d) + 1e-9 * (np.abs(first) + w)[:, None] * np.arange(pool.shape[1])
+    second = np.take_along_axis(pool, np.argmin(score, axis=1)[:, None], axis=1)[:, 0]
+    return np.column_stack([first, second])

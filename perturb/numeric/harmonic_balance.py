@@ -1157,7 +1157,7 @@ class HarmonicBalanceSystem:
             lam = self._hill_newton(u, w, C, J_u, pieces, refine_complex)
             if lam is not None:
                 return _principal(lam, w)
-        return _principal(_hill_full(self.basis, C, J_u), w)
+        return _principal(_hill_full(self.basis, C, J_u, w), w)
 
     def monodromy(self, u: ArrayLike, Omega: float) -> np.ndarray:
         """Exact monodromy matrix of the linearisation about the (PWL) HB orbit ``u``:
@@ -1289,8 +1289,15 @@ def _ruhe(C: np.ndarray, K: np.ndarray, seed: complex, w: float) -> complex | No
     return None
 
 
-def _hill_full(basis: HarmonicBasis, C: np.ndarray, K: np.ndarray) -> np.ndarray:
+def _hill_full(basis: HarmonicBasis, C: np.ndarray, K: np.ndarray, w: float) -> np.ndarray:
     n = K.shape[0]
+    # mean of dg/dx' (Liouville: the two exponents sum to -p0 modulo i w): the diagonal of
+    # C = 2 w D + P is that of P (D has none), p0 + Re p_2k and p0 - Re p_2k at a_k, b_k
+    if basis.bias:
+        p0 = float(C[0, 0])
+    else:
+        ia, ib = basis.a_index[0], basis.b_index[0]
+        p0 = 0.5 * float(C[ia, ia] + C[ib, ib])
     A = np.zeros((2 * n, 2 * n))
     A[:n, n:] = np.eye(n)
     A[n:, :n] = -K
@@ -1306,7 +1313,32 @@ def _hill_full(basis: HarmonicBasis, C: np.ndarray, K: np.ndarray) -> np.ndarray
     weight = plus.sum(0) + minus.sum(0) + (np.abs(c[0]) ** 2 if basis.bias else 0.0)
     centre = (ks * (plus - minus)).sum(0) / np.where(weight > 0, weight, 1.0)
     order = np.lexsort((np.abs(lam.imag), np.round(np.abs(centre), 6)))
-    return lam[order[:2]]
+    return _distinct_pair(lam, order, w, p0)
+
+
+def _distinct_pair(lam: np.ndarray, order: np.ndarray, w: float, p0: float) -> np.ndarray:
+    """The two physical exponents from eigenvalues ``lam`` ranked by ``order`` (best first).
+
+    The first is the best ranked. The second is not simply the runner-up: where the
+    multipliers are real and negative, ``a + i w/2`` and its conjugate ``a - i w/2`` are
+    equally centred, yet they are one multiplier ``-e^{aT}`` counted twice (they differ by
+    ``i w``), and the other multiplier would be lost. Liouville's formula fixes the partner:
+    ``lam1 + lam2 = -p0`` modulo ``i w`` (``p0`` the mean of ``dg/dx'``; for constant damping
+    the truncated pencil has this symmetry exactly), so among the best-ranked few the
+    partner is the one closest to ``-p0 - lam1`` modulo ``i w``. A complex pair (``lam2 =
+    conj lam1``, real part ``-p0/2``) and a real positive pair are chosen as before; a copy
+    ``lam1 + i k w`` satisfies the relation only where both multipliers coincide anyway.
+    """
+    first = order[0]
+    pool = order[1 : min(order.size, 8)]
+    if pool.size == 0:
+        return lam[order[:2]]
+    target = -p0 - lam[first]
+    d = lam[pool] - target
+    d = d - 1j * w * np.round(d.imag / w)
+    # ranking breaks near-ties (within rounding of the eigensolver) in favour of centredness
+    score = np.abs(d) + 1e-9 * (np.abs(lam[first]) + w) * np.arange(pool.size)
+    return lam[[first, pool[int(np.argmin(score))]]]
 
 
 def _principal(lam: np.ndarray, w: float) -> np.ndarray:
