@@ -180,6 +180,8 @@ SIG_PHASES = 8
 JOIN_FRACTION = 0.25
 #: Largest last Newton correction (scaled) whose iterate supplies the orbit statistics.
 STATS_TOL = 1.0e-7
+#: Largest number of predictor-corrector attempts for one continuation step.
+_MAX_STEP_ATTEMPTS = 400
 #: A multiplier modulus above this is reported as this (e^700 would overflow later products).
 MAX_MULTIPLIER = 1.0e300
 
@@ -1278,6 +1280,9 @@ class _Settings:
     max_points: int
     max_periods: float
     max_iter: int = 6
+    #: time.monotonic() after which marches stop ("time budget"); the same clock in forked
+    #: workers
+    deadline: float = math.inf
 
 
 def _spacing(a: _Pt, b: _Pt, Sp: float) -> float:
@@ -1669,6 +1674,9 @@ class _Tracer:
             if eng.periods - periods0 > st.max_periods:
                 reason = "work budget"
                 break
+            if time.monotonic() > st.deadline:
+                reason = "time budget"
+                break
             final = False
             if cur.mode == "closed" and cur.J is None:
                 dirp = 1.0 if dir3[2] >= 0 else -1.0
@@ -1738,8 +1746,12 @@ class _Tracer:
         underflow = f"step size underflow at {eng.family.parameter} = {cur.p:.8g}"
         herm = self._hermite(pts, cur, d, D)
         jumped = False
-        while True:
+        # the step shrinks geometrically on every redo and failure (to ds_min): the cap is
+        # only reached when a NaN keeps it from shrinking
+        for _attempt in range(_MAX_STEP_ATTEMPTS):
             ds = ctl.ds
+            if not (math.isfinite(ds) and ds > 0.0):
+                return None, f"non-finite step at {eng.family.parameter} = {cur.p:.8g}"
             if herm is not None:
                 uh, dh = herm(ds)
                 new, evals = _correct(eng, uh * D, cur.N, D, dh, ds, st, ctl=ctl)
@@ -1766,6 +1778,8 @@ class _Tracer:
             if new is not None:
                 break
             return None, underflow
+        else:
+            return None, f"step control did not settle at {eng.family.parameter} = {cur.p:.8g}"
         self.set_tangent(new, cur, dir3)
         return new, ""
 
@@ -2729,6 +2743,45 @@ class _Job:
         self.bwd: Any = None
 
 
+#: seconds between checks of the watchdog thread of a worker process
+_WATCHDOG_PERIOD = 0.5
+
+
+def _die_with_parent(parent: int) -> None:
+    """Initializer of the tracing workers: end the worker when the process that started the
+    pool dies (SIGKILL included, which runs no clean-up of the parent's): on Linux the kernel
+    sends SIGTERM (``prctl(PR_SET_PDEATHSIG)``); everywhere a daemon thread polls the parent
+    id and exits when the worker has been re-parented."""
+    import os
+    import signal
+    import sys
+    import threading
+
+    # a handler the parent installed (e.g. to finish writing on SIGTERM) is inherited by fork:
+    # a worker has nothing to finish and must end on the signal below
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            pr_set_pdeathsig = 1
+            libc.prctl(pr_set_pdeathsig, int(signal.SIGTERM), 0, 0, 0)
+        except (OSError, AttributeError):
+            pass  # the watchdog below still applies
+    if os.getppid() != parent:  # the parent died before the signal was armed
+        os._exit(1)
+
+    def watch() -> None:
+        # (a daemon thread: it ends with the worker, or ends the worker)
+        while True:
+            time.sleep(_WATCHDOG_PERIOD)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="perturb-parent-watchdog", daemon=True).start()
+
+
 class _Speculator:
     """Traces branches for :func:`exact_branches`, in worker processes when it may.
 
@@ -2757,9 +2810,15 @@ class _Speculator:
         if self.pool is None:
             import concurrent.futures as cf
             import multiprocessing as mp
+            import os
 
             _FORKED[self.key] = self.tracer
-            self.pool = cf.ProcessPoolExecutor(self.workers, mp_context=mp.get_context("fork"))
+            self.pool = cf.ProcessPoolExecutor(
+                self.workers,
+                mp_context=mp.get_context("fork"),
+                initializer=_die_with_parent,
+                initargs=(os.getpid(),),
+            )
         return self.pool
 
     def submit(self, start: _Pt, parent_m: int | None = None) -> _Job:
@@ -2886,6 +2945,7 @@ def exact_branches(
     closed_form: bool = True,
     max_branches: int = 40,
     max_periods: float = 2e5,
+    max_seconds: float | None = 300.0,
     progress: bool | None = None,
     workers: int | None = None,
 ) -> ExactBranches:
@@ -2923,6 +2983,10 @@ def exact_branches(
         Switches of the stages above.
     max_branches, max_periods
         Budgets: branches, and propagated time in forcing periods (all stages).
+    max_seconds
+        Wall-clock budget (None: none).  When it runs out, the march in progress stops
+        (stop reason ``"time budget"``), no further seed or sweep is tried, and a note says
+        so: the branches traced so far are returned.
     progress
         Progress line (default: on unless ``PERTURB_PROGRESS=0``).
     workers
@@ -2954,9 +3018,32 @@ def exact_branches(
     ):
         if isinstance(v, bool) or not isinstance(v, int) or v < 0:
             raise ParameterError(f"{name} = {v!r}: expected a non-negative integer")
+    if max_seconds is not None and not (
+        isinstance(max_seconds, int | float)
+        and not isinstance(max_seconds, bool)
+        and max_seconds > 0
+        and not math.isnan(max_seconds)
+    ):
+        raise ParameterError(f"max_seconds = {max_seconds!r}: expected a positive number or None")
     n_workers = _resolve_workers(workers)
     family = FlowFamily(oscillator)
     st = _settings(ds_max, 1e-7, tol, 20000, max_periods)
+    if max_seconds is not None:
+        st.deadline = time.monotonic() + float(max_seconds)
+    undamped = _undamped_note(family, (lo, hi))
+    if undamped is not None:
+        return ExactBranches(
+            branches=(),
+            mirror_of=(),
+            notes=(undamped,),
+            periods=0.0,
+            seconds=time.perf_counter() - t_begin,
+            model=oscillator.name,
+            params=MappingProxyType(
+                {k: float(v) for k, v in oscillator.params.items() if v is not None}
+            ),
+            method="exact" if family.exact else "shooting",
+        )
     tracer = _Tracer(family, 1, 0.0, (lo, hi), st, closed_form=closed_form)
     spec = _Speculator(tracer, n_workers)
     try:
@@ -3011,7 +3098,11 @@ def _exact_branches(
     notes: list[str] = []
 
     def budget_left() -> bool:
-        return eng.periods < max_periods and len(branches) < max_branches
+        return (
+            eng.periods < max_periods
+            and len(branches) < max_branches
+            and time.monotonic() <= st.deadline
+        )
 
     def register(br: ContinuationBranch, pts: list[_Pt], mo: int | None, tr: _Tracer) -> None:
         branches.append(br)
@@ -3163,7 +3254,13 @@ def _exact_branches(
                     br, pts = child.trace(q, parent_m=1)
                     add(br, pts, child)
             eng.periods += child.eng.periods
-    if not budget_left():
+    if time.monotonic() > st.deadline:
+        notes.append(
+            f"time budget reached ({time.perf_counter() - t_begin:.0f} s): the search for "
+            f"branches stopped early, {len(branches)} branches traced so far may be incomplete "
+            "(raise max_seconds, narrow the window, or use a cheaper method)"
+        )
+    elif not budget_left():
         notes.append(
             f"budget reached: {len(branches)} branches (max {max_branches}), "
             f"{eng.periods:.0f} periods (max {max_periods:g})"
@@ -3184,6 +3281,35 @@ def _exact_branches(
             {k: float(v) for k, v in oscillator.params.items() if v is not None}
         ),
         method="exact" if family.exact else "shooting",
+    )
+
+
+def _undamped_note(family: FlowFamily, window: tuple[float, float]) -> str | None:
+    """A note when the oscillator dissipates no energy (no term depends on x'), else None.
+
+    Forced orbits of such a system are at best neutrally stable (det M = 1: the Floquet
+    multipliers lie on the unit circle or come in pairs mu, 1/mu), no transient decays, and
+    the free oscillations form families of periodic orbits rather than isolated ones; the
+    sweeps, seeds and stability tests of the exact continuation all assume damping."""
+    osc = family.oscillator
+    if family.exact:
+        try:
+            mu = float(family.at(0.5 * (window[0] + window[1])).system.damping)
+        except PerturbError:
+            return None
+        dissipative = mu != 0.0
+    else:
+        subs = {s: v for s, v in osc.substitutions().items() if s.name != family.parameter}
+        dissipative = osc.v in osc.g.xreplace(subs).free_symbols
+    if dissipative:
+        return None
+    return (
+        "no branches traced: the system is undamped (no term in x' dissipates energy), so no "
+        "transient decays and every periodic orbit is at best neutrally stable (Floquet "
+        "multipliers on the unit circle); the free oscillations form families of periodic "
+        "orbits, not isolated ones, and the sweeps, seeds and stability tests of the exact "
+        "continuation assume damping. Add damping (e.g. a small mu*x') for the damped "
+        "response, or use an approximation (hb1, hb, mlp) or a backbone for the undamped one"
     )
 
 
@@ -3311,6 +3437,84 @@ def _polish_at(branch: ContinuationBranch, j: int, w: float) -> PeriodicOrbit | 
         return None
 
 
+#: the window traced around a single requested frequency: [w / f, w * f]
+_ONE_WINDOW = 1.25
+#: wall-clock budget of that tracing (seconds) unless the caller gives max_seconds
+_ONE_SECONDS = 120.0
+
+
+def _same_orbit(a: PeriodicOrbit, b: PeriodicOrbit) -> bool:
+    if a.m != b.m:
+        return False
+    scale = max(1.0, float(np.max(np.abs(a.y0))), float(np.max(np.abs(b.y0))))
+    return float(np.max(np.abs(np.asarray(a.y0) - np.asarray(b.y0)))) <= 1e-6 * scale
+
+
+def _solutions_at_one(oscillator: Oscillator, w: float, options: dict[str, Any]) -> Response:
+    """Every orbit at the single frequency ``w``: the brute-force search of
+    :func:`~perturb.simulate.orbits.periodic_orbits`, and every crossing of ``w`` by the
+    branches that :func:`exact_branches` traces over ``[w / 1.25, w * 1.25]`` (seeded with
+    the orbits found), polished by shooting at exactly ``w``; duplicates removed."""
+    from .orbits import periodic_orbits
+
+    family = FlowFamily(oscillator)
+    notes: list[str] = []
+    orbits: list[PeriodicOrbit] = list(periodic_orbits(oscillator, w))
+    n_search = len(orbits)
+    undamped = _undamped_note(family, (w, w))
+    if undamped is not None:
+        notes.append(undamped.replace("no branches traced", "no continuation"))
+    else:
+        opts = dict(options)
+        seeds = list(opts.pop("seeds", ()))
+        seeds += [(w, o.y0) for o in orbits if o.m == 1]
+        opts.setdefault("max_seconds", _ONE_SECONDS)
+        lo, hi = w / _ONE_WINDOW, w * _ONE_WINDOW
+        try:
+            found = exact_branches(oscillator, (lo, hi), seeds=seeds, **opts)
+        except PerturbError as exc:
+            found = None
+            notes.append(f"continuation over [{lo:.6g}, {hi:.6g}] failed: {exc}")
+        added = 0
+        if found is not None:
+            notes += [n for n in found.notes if not n.startswith("traced with")]
+            for bi, br in enumerate(found.branches):
+                p = br.parameters
+                for j in range(len(p) - 1):
+                    a, b = sorted((p[j], p[j + 1]))
+                    if not a <= w <= b or (w == p[j + 1] and j + 1 < len(p) - 1):
+                        continue
+                    orbit = _polish_at(br, j, w)
+                    if orbit is None:
+                        notes.append(f"branch {bi}: shooting at Omega = {w!r} failed")
+                        continue
+                    if not any(_same_orbit(orbit, o) for o in orbits):
+                        orbits.append(orbit)
+                        added += 1
+        notes.append(
+            f"{n_search} orbits from periodic_orbits, {added} more where the branches traced "
+            f"over [{lo:.6g}, {hi:.6g}] cross Omega = {w!r}"
+        )
+    orbits.sort(key=lambda o: (o.amplitude, o.mean))
+    params = {k: v for k, v in oscillator.params.items() if k != family.parameter}
+    branches = tuple(
+        Branch(
+            omega=[w],
+            amplitude=[o.amplitude],
+            first_harmonic_amplitude=[o.first_harmonic_amplitude],
+            mean=[o.mean],
+            # max |mu| < 1, as on traced branches: is_stable is False within unit_tol of
+            # the unit circle, which every lightly damped orbit is (mu -> 0)
+            stable=[o.max_multiplier < 1.0],
+            max_multiplier=[o.max_multiplier],
+        )
+        for o in orbits
+    )
+    method = "exact" if family.exact else "shooting"
+    notes.insert(0, f"{len(orbits)} orbits at Omega = {w!r} (one per branch)")
+    return Response(branches, method, oscillator.name, params, notes=tuple(notes))
+
+
 def exact_solutions_at(
     oscillator: Oscillator,
     frequencies: Sequence[float],
@@ -3323,7 +3527,9 @@ def exact_solutions_at(
     requested frequency is polished by shooting at that frequency, so the output holds the
     requested values exactly and keeps the branch structure (a branch that folds back meets a
     frequency more than once).  A single frequency is answered by
-    :func:`~perturb.simulate.orbits.periodic_orbits` (each orbit its own branch).
+    :func:`~perturb.simulate.orbits.periodic_orbits` together with the crossings of the
+    branches traced over ``[w / 1.25, w * 1.25]`` (each orbit its own branch; the tracing
+    has a wall-clock budget of 120 s unless ``max_seconds`` is given).
 
     Raises
     ------
@@ -3344,32 +3550,7 @@ def exact_solutions_at(
 
     targets = np.unique(w_all)
     if targets.size == 1:
-        w = float(targets[0])
-        orbits = periodic_orbits(oscillator, w)
-        family = FlowFamily(oscillator)
-        params = {k: v for k, v in oscillator.params.items() if k != family.parameter}
-        branches = tuple(
-            Branch(
-                omega=[w],
-                amplitude=[o.amplitude],
-                first_harmonic_amplitude=[o.first_harmonic_amplitude],
-                mean=[o.mean],
-                # max |mu| < 1, as on traced branches: is_stable is False within unit_tol of
-                # the unit circle, which every lightly damped orbit is (mu -> 0)
-                stable=[o.max_multiplier < 1.0],
-                max_multiplier=[o.max_multiplier],
-            )
-            for o in orbits
-        )
-        method = "exact" if family.exact else "shooting"
-        return Response(
-            branches,
-            method,
-            oscillator.name,
-            params,
-            notes=(f"{len(orbits)} orbits at Omega = {w!r} from periodic_orbits (one per branch)",),
-        )
-    from .orbits import periodic_orbits
+        return _solutions_at_one(oscillator, float(targets[0]), options)
 
     # a short window gives the sweeps and closed-form seeds few chances to meet every branch,
     # so the orbits found at the middle frequency (brute force over initial conditions plus

@@ -98,6 +98,7 @@ sensitivity of grazing, not a defect of the method).
 
 from __future__ import annotations
 
+import copy
 import itertools
 import math
 from collections import deque
@@ -115,7 +116,7 @@ from sympy.logic.boolalg import BooleanFalse, BooleanTrue
 from ..errors import ModelError, ParameterError, PerturbError
 from ..model import Oscillator, validate_parameter_value
 from .flow import FlowResult
-from .system import first_order_rhs, parameter_values
+from .system import first_order_rhs, forcing_period_expr, parameter_values
 
 __all__ = [
     "Surface",
@@ -439,7 +440,8 @@ class _Registry:
         """``expr`` with every switch replaced by its value in mode ``sigma``, and the set of
         surfaces that were read."""
         active: set[int] = set()
-        while True:
+        # each pass removes the innermost layer of switches: at most one pass per level
+        for _ in range(_MAX_NESTED + 64):
             atoms = expr.atoms(*_SWITCHES)
             if not atoms:
                 return expr, frozenset(active)
@@ -453,6 +455,7 @@ class _Registry:
                         active.add(idx)
                 reps[atom] = value
             expr = expr.xreplace(reps)
+        raise ModelError(f"switch functions nested too deeply in {expr}")
 
 
 # --------------------------------------------------------------------------------------------
@@ -525,6 +528,7 @@ class EventFlow:
         rtol: float = 1e-11,
         atol: float = 1e-12,
         max_events: int = 100_000,
+        parameter: str | None = None,
     ) -> None:
         if not isinstance(oscillator, Oscillator):
             raise ParameterError(f"oscillator = {oscillator!r}: expected an Oscillator")
@@ -538,11 +542,20 @@ class EventFlow:
         self.max_events = max_events
         osc = oscillator
         subs = parameter_values(osc, Omega)
+        # ``parameter``: one parameter kept as an argument of the compiled fields, so that
+        # flows at other values (:meth:`at`) share the surfaces and the compiled modes
+        self._p: sp.Symbol | None = None
+        self._p_value = 0.0
+        self._period_fn: Callable[[float], float] | None = None
+        if parameter is not None:
+            psym = next((q for q in subs if q.name == parameter), None)
+            if psym is None:
+                raise ParameterError(f"parameter {parameter!r} has no value in {osc.name!r}")
+            self._p, self._p_value = psym, float(subs.pop(psym))
         g = osc.g.xreplace(subs)
         forcing = osc.forcing.expr(osc.t).xreplace(subs)
-        free = sorted(
-            s.name for s in (g.free_symbols | forcing.free_symbols) - {osc.x, osc.v, osc.t}
-        )
+        own = {osc.x, osc.v, osc.t} | ({self._p} if self._p is not None else set())
+        free = sorted(s.name for s in (g.free_symbols | forcing.free_symbols) - own)
         if free:
             raise ParameterError(
                 f"model {osc.name!r} needs values for {', '.join(free)}: pass them as params"
@@ -557,12 +570,49 @@ class EventFlow:
         self._registry = _Registry(osc.x, osc.v, osc.t)
         self._registry.collect(g)
         self.surfaces: tuple[Surface, ...] = tuple(self._registry.surfaces)
-        self.period: float | None = first_order_rhs(osc, Omega).period
+        if self._p is None:
+            self.period: float | None = first_order_rhs(osc, Omega).period
+        else:
+            period = forcing_period_expr(osc)
+            if period is not None:
+                period = period.xreplace(subs)
+                if period.free_symbols - {self._p}:
+                    raise ParameterError(f"the forcing period of {osc.name!r} needs values")
+                self._period_fn = sp.lambdify(self._p, period, modules="math")
+            self.period = self._period_at(self._p_value)
         self._modes: dict[tuple[int, ...], _Mode] = {}
+        # shared with the flows of at(): frozen fields per mode, compiled fields per field
+        self._frozen: dict[tuple[int, ...], tuple[sp.Expr, frozenset[int]]] = {}
         self._compiled: dict[sp.Expr, tuple[Callable, Callable]] = {}
         self._slide_max_step = (
             self.period / _SLIDE_STEPS_PER_PERIOD if self.period is not None else np.inf
         )
+
+    def _period_at(self, value: float) -> float | None:
+        if self._period_fn is None:
+            return None
+        period = float(self._period_fn(value))
+        if not (math.isfinite(period) and period > 0.0):
+            raise ParameterError(
+                f"{self._p} = {value!r} gives the forcing period {period!r}: expected a positive "
+                "finite period"
+            )
+        return period
+
+    def at(self, value: float) -> EventFlow:
+        """The flow at another value of the ``parameter`` given at construction, sharing the
+        surfaces and the compiled modes (nothing is recompiled)."""
+        if self._p is None:
+            raise ParameterError("EventFlow.at needs a flow built with parameter=")
+        value = validate_parameter_value(self._p.name, value)
+        new = copy.copy(self)
+        new._p_value = float(value)
+        new.period = self._period_at(new._p_value)
+        new._modes = {}
+        new._slide_max_step = (
+            new.period / _SLIDE_STEPS_PER_PERIOD if new.period is not None else np.inf
+        )
+        return new
 
     def __repr__(self) -> str:
         return (
@@ -575,18 +625,33 @@ class EventFlow:
         key = tuple(sigma)
         mode = self._modes.get(key)
         if mode is None:
-            frozen, active = self._registry.freeze(self._acc_expr, key)
+            hit = self._frozen.get(key)
+            if hit is None:
+                hit = self._frozen[key] = self._registry.freeze(self._acc_expr, key)
+            frozen, active = hit
             fns = self._compiled.get(frozen)
             if fns is None:
                 x, v, t = self._x, self._v, self._t
                 derivs = [frozen, sp.diff(frozen, x), sp.diff(frozen, v), sp.diff(frozen, t)]
                 mods = ["math", "numpy"]
+                args = (t, x, v) if self._p is None else (t, x, v, self._p)
                 fns = (
-                    sp.lambdify((t, x, v), frozen, modules=mods),
-                    sp.lambdify((t, x, v), derivs, modules=mods),
+                    sp.lambdify(args, frozen, modules=mods),
+                    sp.lambdify(args, derivs, modules=mods),
                 )
                 self._compiled[frozen] = fns
-            mode = _Mode(acc=fns[0], derivs=fns[1], active=active)
+            if self._p is None:
+                mode = _Mode(acc=fns[0], derivs=fns[1], active=active)
+            else:
+                acc_p, derivs_p, pv = fns[0], fns[1], self._p_value
+
+                def acc(t: float, x: float, v: float) -> float:
+                    return acc_p(t, x, v, pv)
+
+                def derivs_fn(t: float, x: float, v: float):
+                    return derivs_p(t, x, v, pv)
+
+                mode = _Mode(acc=acc, derivs=derivs_fn, active=active)
             self._modes[key] = mode
         return mode
 
@@ -796,8 +861,18 @@ class EventFlow:
                 done = self._slide_segment(st, t1, out)
             if done:
                 break
+            if not (math.isfinite(st.t) and np.all(np.isfinite(st.y))):
+                raise PerturbError(
+                    f"integration of {self.oscillator.name!r} produced t = {st.t!r}, "
+                    f"y = {st.y.tolist()!r} (overflow or NaN: the orbit may escape to infinity)"
+                )
             out.advance(st.t)
             out.n_restarts += 1
+            if out.n_restarts > 10 * self.max_events:
+                raise PerturbError(
+                    f"more than {10 * self.max_events} restarts before t = {t1!r} (reached "
+                    f"t = {st.t!r}); raise max_events or shorten the interval"
+                )
             recent.append(st.t)
             if len(out.events) > self.max_events:
                 raise PerturbError(

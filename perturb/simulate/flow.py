@@ -220,11 +220,20 @@ class FlowFamily:
             raise ModelError(f"model {osc.name!r} is not piecewise linear: no exact flow")
         self.exact = use_exact
         self._pwl = _compile_pwl(osc, parameter) if use_exact else None
-        self._rhs = None if use_exact else _compile_rhs(osc, parameter)
+        # a field with switches (sign(x'), Heaviside of a non-PWL force, ...) that is not
+        # piecewise linear: the event-driven flow, which locates the switches and applies the
+        # saltation matrices and sliding projections to the sensitivity (the ODE flow steps
+        # over the jumps: its monodromy misses them, and sticking makes it chatter)
+        self._event = None
+        self.event = False
+        if not use_exact and exact is None and _has_switches(osc):
+            self._event = _event_template(osc, parameter, rtol, atol)
+            self.event = self._event is not None
+        self._rhs = None if (use_exact or self.event) else _compile_rhs(osc, parameter)
         self._recent: dict[float, Flow] = {}
 
     def __repr__(self) -> str:
-        kind = "exact" if self.exact else "ode"
+        kind = "exact" if self.exact else ("event" if self.event else "ode")
         return f"FlowFamily({self.oscillator.name}, {self.parameter}, {kind})"
 
     def at(self, value: float) -> Flow:
@@ -245,11 +254,33 @@ class FlowFamily:
                     self._recent.pop(next(iter(self._recent)))
                 self._recent[value] = flow
             return flow
+        if self._event is not None:
+            return self._event.at(value)
         assert self._rhs is not None
         return ODEFlow(self.oscillator, rhs=self._rhs(value), rtol=self.rtol, atol=self.atol)
 
 
 _RECENT_FLOWS = 64
+
+
+def _has_switches(osc: Oscillator) -> bool:
+    import sympy as sp
+
+    return bool(osc.g.atoms(sp.Heaviside, sp.sign, sp.Abs, sp.Max, sp.Min, sp.Piecewise))
+
+
+def _event_template(osc: Oscillator, parameter: str, rtol: float, atol: float):
+    """An event-driven flow with ``parameter`` kept as an argument, or None when the model is
+    outside the event-driven integrator's reach (switching arguments that depend on the
+    parameter or on time, Dirac terms): the ODE flow is used then."""
+    from .event_driven import EventFlow
+
+    try:
+        if osc.params.get(parameter) is None:
+            osc = osc.with_params({parameter: 1.0})  # a placeholder: at() sets the value
+        return EventFlow(osc, rtol=rtol, atol=atol, parameter=parameter)
+    except (ModelError, ParameterError):
+        return None
 
 
 def _others(osc: Oscillator, parameter: str) -> dict:

@@ -1298,7 +1298,21 @@ def _scan_piece(
     tau, x, v = 0.0, piece.x0, piece.v0
     a = seg.accel_at(piece.t0, x, v)
     counter.grid += 1
+    if not (h > 0.0 and math.isfinite(h) and math.isfinite(tau_end)):
+        raise PerturbError(
+            f"segment {seg.idx}: step {h!r} over {tau_end!r} (a non-finite or zero time scale; "
+            "are the parameters finite and of moderate size?)"
+        )
+    # every pass advances tau by at least h (or returns): a cap that only a NaN can reach
+    passes = 0
+    max_passes = 4 * math.ceil(tau_end / h) + 1000
     while tau < tau_end:
+        passes += 1
+        if passes > max_passes or not math.isfinite(tau):
+            raise PerturbError(
+                f"segment {seg.idx}: the scan for switches stalled at tau = {tau!r} of "
+                f"{tau_end!r} after {passes} steps (a NaN in the propagation?)"
+            )
         if bounded:
             tb = min(tau_end, tau + reach)
             amax = _accel_bound(piece, tau, tb) * (1.0 + 1e-12)
@@ -1548,6 +1562,11 @@ def propagate(
         _, v_new, _, _ = piece.eval1(tau)
         d = float(model.bp[bp])
         t_new = t + tau
+        if not (math.isfinite(t_new) and math.isfinite(v_new)) or t_new < t:
+            raise PerturbError(
+                f"a switch at t = {t_new!r} with x' = {v_new!r} after t = {t!r}: the "
+                "propagation produced a non-finite or backward time (overflow or NaN)"
+            )
         going_up = bp == seg.hi_bp
         if v_new == 0.0:
             new_i = model.side_at(bp, t_new, 0.0)

@@ -136,12 +136,21 @@ def first_order_rhs(osc: Oscillator, Omega: float | None = None) -> NumericRHS:
         return np.array([[0.0, 1.0], [float(a), float(b)]])
 
     period = None
+    expr = forcing_period_expr(osc)
+    if expr is not None:
+        period = 2 * np.pi / _number(2 * sp.pi / expr.xreplace(subs), "forcing frequency", osc)
+    return NumericRHS(fun=fun, jac=jac, period=period)
+
+
+def forcing_period_expr(osc: Oscillator) -> sp.Expr | None:
+    """The period of the forcing (and of parametric terms) as an expression in the
+    parameters: ``2 pi / |base frequency|``, or None when the system is autonomous."""
     base = osc.forcing.base_frequency
     if osc.parametric != 0:
         freqs = [sp.expand(a.args[0]).coeff(osc.t) for a in osc.parametric.atoms(sp.cos, sp.sin)]
         if base is not None:
             freqs.append(base)
         base = Forcing(tuple(Harmonic(sp.Integer(1), w) for w in freqs)).base_frequency
-    if base is not None:
-        period = 2 * np.pi / _number(sp.Abs(base).xreplace(subs), "forcing frequency", osc)
-    return NumericRHS(fun=fun, jac=jac, period=period)
+    if base is None:
+        return None
+    return 2 * sp.pi / sp.Abs(base)
