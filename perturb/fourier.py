@@ -1336,22 +1336,36 @@ class FourierSeries:
                 return expr
         return self.an.subs(self.n, k)
 
-    def partial_sum(self, psi: sp.Expr, N: int) -> sp.Expr:
+    def partial_sum(self, psi: sp.Expr | str, N: int) -> sp.Expr:
         r"""The truncated series :math:`a_0/2 + \sum_{k=1}^{N} a_k \cos k\psi`.
 
         Parameters
         ----------
         psi : sympy.Expr or str
-            The phase variable (a symbol or any expression).
+            The phase variable (a symbol or any expression). A string that is a plain name
+            (``"psi"``) becomes ``Symbol(psi)``; any other string is read by the safe parser
+            :func:`perturb.parsing.parse_expression` (never ``sympify``).
         N : int
-            Number of harmonics ``>= 0``.
+            Number of harmonics, ``0 <= N <=`` :data:`MAX_PARTIAL_SUM_HARMONICS`.
 
         Returns
         -------
         sympy.Expr
+
+        Raises
+        ------
+        FourierError
+            For a bad ``N`` or a ``psi`` that is neither an expression nor a number.
+        ParseError
+            For a string ``psi`` the parser refuses.
         """
         N = _check_k(N)
-        psi = sp.sympify(psi)
+        if N > MAX_PARTIAL_SUM_HARMONICS:
+            raise FourierError(
+                f"partial_sum: N = {N} harmonics, expected at most {MAX_PARTIAL_SUM_HARMONICS} "
+                "(a symbolic sum that long is unusable; evaluate coefficients numerically)"
+            )
+        psi = _phase(psi)
         return self.a0 / 2 + sp.Add(
             *(self.coefficient(k) * sp.cos(k * psi) for k in range(1, N + 1))
         )
@@ -1465,11 +1479,49 @@ class FourierSeries:
         return float(result)
 
 
-def _sym(value: sp.Expr | float | str, name: str) -> sp.Expr:
+#: Longest symbolic partial sum :meth:`FourierSeries.partial_sum` builds (each term is a
+#: substituted coefficient; 1000 of them take about a second, 1e9 would never finish).
+MAX_PARTIAL_SUM_HARMONICS = 1000
+
+
+def _name_symbol(value: str, name: str, **assumptions: bool) -> sp.Symbol:
+    """A symbol from a caller's string, which must be a plain name (never parsed)."""
+    if len(value) > 100 or not value.isidentifier():
+        shown = value if len(value) <= 40 else value[:37] + "..."
+        raise FourierError(
+            f"{name} = {shown!r}: expected a plain name (letters, digits, _), a number or a "
+            "SymPy expression"
+        )
+    return sp.Symbol(value, **assumptions)
+
+
+def _phase(psi: sp.Expr | str) -> sp.Expr:
+    """The phase argument of :meth:`FourierSeries.partial_sum` as a SymPy expression."""
+    if isinstance(psi, str):
+        if psi.isidentifier() and len(psi) <= 100:
+            return sp.Symbol(psi)
+        from .parsing import parse_expression
+
+        return parse_expression(psi)
     try:
-        expr = sp.sympify(value, strict=True) if not isinstance(value, str) else sp.Symbol(value)
+        out = sp.sympify(psi, strict=True)  # strict: numbers and SymPy objects only
     except (sp.SympifyError, TypeError) as exc:
-        raise FourierError(f"{name} must be a SymPy expression or number, got {value!r}") from exc
+        raise FourierError(f"psi must be a SymPy expression or a number, got {psi!r}") from exc
+    if not isinstance(out, sp.Expr):
+        raise FourierError(f"psi must be a scalar SymPy expression, got {out!r}")
+    return out
+
+
+def _sym(value: sp.Expr | float | str, name: str) -> sp.Expr:
+    if isinstance(value, str):
+        expr = _name_symbol(value, name)
+    else:
+        try:
+            expr = sp.sympify(value, strict=True)  # strict: numbers and SymPy objects only
+        except (sp.SympifyError, TypeError) as exc:
+            raise FourierError(
+                f"{name} must be a SymPy expression or number, got {value!r}"
+            ) from exc
     if expr.is_number:
         if expr.has(sp.nan, sp.zoo, sp.oo, -sp.oo) or expr.is_real is False:
             raise FourierError(f"{name} must be finite and real, got {name}={expr}")
@@ -1486,7 +1538,7 @@ def _theta_symbol(theta: sp.Symbol | str | None) -> sp.Symbol:
     if theta is None:
         return sp.Symbol("theta", positive=True)
     if isinstance(theta, str):
-        return sp.Symbol(theta, positive=True)
+        return _name_symbol(theta, "theta", positive=True)
     if isinstance(theta, sp.Symbol):
         return theta
     raise FourierError(f"theta must be a SymPy Symbol or a name, got {theta!r}")

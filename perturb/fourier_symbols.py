@@ -15,6 +15,8 @@ terms plus a piecewise-linear part — into such an expression.
 
 from __future__ import annotations
 
+import math
+import numbers
 from collections.abc import Mapping
 
 import numpy as np
@@ -34,7 +36,36 @@ __all__ = [
     "series_coefficient",
     "series_coefficients",
     "closed_form",
+    "MAX_SERIES_ORDER",
+    "MAX_SYMBOLIC_POWER",
 ]
+
+#: Highest harmonic index :func:`series_coefficients` evaluates (``n_max``): the numeric forms
+#: are accurate to ``n`` ~ 1e4 and 1e5 coefficients take well under a second, while
+#: ``n_max = 1e9`` would allocate 8 GB before computing anything.
+MAX_SERIES_ORDER = 100_000
+
+#: Largest exponent ``m`` of :func:`power_coefficient` (exact binomial sums grow with ``m``; the
+#: parser allows degrees up to 50, ``m = 1000`` takes about two seconds).
+MAX_SYMBOLIC_POWER = 1000
+
+
+def _as_sympy(value: object, name: str) -> sp.Expr:
+    """A caller's amplitude or bias as a SymPy expression: strings through the safe parser
+    (never ``sympify``), other values only if they are numbers or SymPy expressions."""
+    if isinstance(value, str):
+        from .parsing import parse_expression
+
+        return parse_expression(value)
+    try:
+        out = sp.sympify(value, strict=True)  # strict: no string parsing
+    except (sp.SympifyError, TypeError) as exc:
+        raise FourierError(f"{name} must be a SymPy expression or a number, got {value!r}") from exc
+    if not isinstance(out, sp.Expr):
+        raise FourierError(f"{name} must be a scalar SymPy expression, got {out!r}")
+    if out.is_number and (out.has(sp.nan, sp.zoo, sp.oo, -sp.oo) or out.is_real is False):
+        raise FourierError(f"{name} must be finite and real, got {name}={out}")
+    return out
 
 
 def _mirror(n: sp.Expr) -> sp.Expr:
@@ -143,7 +174,20 @@ def power_coefficient(m: int, n: int, A: sp.Expr, b: sp.Expr) -> sp.Expr:
 
     Uses :math:`\\cos^k\\psi = 2^{1-k}\\sum_j \\binom{k}{j}\\cos((k-2j)\\psi)` (with the
     ``k = 2j`` term halved), so only harmonics ``n <= m`` appear.
+
+    Raises
+    ------
+    FourierError
+        For ``m`` or ``n`` that are not integers ``>= 0``, or ``m >`` :data:`MAX_SYMBOLIC_POWER`.
     """
+    for label, value in (("m", m), ("n", n)):
+        if isinstance(value, bool) or int(value) != value or value < 0:
+            raise FourierError(f"power_coefficient: {label} = {value!r}, expected an integer >= 0")
+    if m > MAX_SYMBOLIC_POWER:
+        raise FourierError(
+            f"power_coefficient: exponent m = {m}, expected at most {MAX_SYMBOLIC_POWER}"
+        )
+    m, n = int(m), int(n)
     total = sp.Integer(0)
     for k in range(n, m + 1):
         if (k - n) % 2:
@@ -230,7 +274,8 @@ def series_coefficient(
     if n < 0 or int(n) != n:
         raise FourierError(f"harmonic index n = {n}: expected an integer >= 0")
     n = int(n)
-    b = sp.sympify(b)
+    A = _as_sympy(A, "A")
+    b = _as_sympy(b, "b")
     poly_terms, pwl_terms, dirac_terms = _classify(force, x)
     expr = sp.Add(*(c * DiracCoefficient(n, A, b, d) for c, d in dirac_terms))
     for term in poly_terms:
@@ -248,27 +293,54 @@ def series_coefficients(
 
     The same decomposition as :func:`series_coefficient`, evaluated by the stable numeric
     forms of :mod:`perturb.fourier` in one pass (fast for ``n_max`` in the thousands).
+
+    Raises
+    ------
+    FourierError
+        For ``n_max`` not an integer in ``[0, MAX_SERIES_ORDER]``, an amplitude ``A`` that is
+        not finite and ``>= 0`` or a bias ``b`` that is not finite, free parameters, and for
+        coefficients that overflow (``x**3`` at ``A = 1e200``: the message names ``A`` and
+        ``b``).
     """
-    if int(n_max) != n_max or n_max < 0:
+    if isinstance(n_max, bool) or not isinstance(n_max, numbers.Real):
+        raise FourierError(f"n_max = {n_max!r}: expected an integer >= 0")
+    if not math.isfinite(n_max) or int(n_max) != n_max or n_max < 0:
         raise FourierError(f"n_max = {n_max}: expected an integer >= 0")
+    if n_max > MAX_SERIES_ORDER:
+        raise FourierError(f"n_max = {n_max}: expected at most {MAX_SERIES_ORDER} harmonics")
+    A = fourier._as_scalar("A", A)
+    b = fourier._as_scalar("b", b)
+    if A < 0:
+        raise FourierError(f"A must be a finite real number >= 0, got A={A!r}")
     n = np.arange(int(n_max) + 1)
     poly_terms, pwl_terms, dirac_terms = _classify(force, x)
     out = np.zeros(n.size)
     try:
-        for c, d in dirac_terms:
-            out += float(c) * fourier.dirac_coefficients(n, A, b, float(d))
-        for term in poly_terms:
-            for (deg,), coeff in sp.Poly(term, x).terms():
-                out += float(coeff) * fourier.power_coefficients(n, A, b, int(deg))
-        if pwl_terms:
-            rs = _pwl_of(pwl_terms, x, None).numeric().ramp_step_form()
-            out += fourier.pwl_coefficients(n, A, b, *rs)
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported below
+            _accumulate(out, n, A, b, x, poly_terms, pwl_terms, dirac_terms)
     except TypeError:
         free = sorted(str(s) for s in force.free_symbols - {x})
         raise FourierError(
             f"force {force} has parameters without values ({', '.join(free)})"
         ) from None
+    if not np.all(np.isfinite(out)):
+        raise FourierError(
+            f"the Fourier coefficients of {force} overflow at A = {A:g}, b = {b:g}: expected "
+            "an amplitude and bias for which the force stays below ~1e300"
+        )
     return out
+
+
+def _accumulate(out, n, A, b, x, poly_terms, pwl_terms, dirac_terms) -> None:
+    """Add the coefficients of each kind of term to ``out`` (see :func:`series_coefficients`)."""
+    for c, d in dirac_terms:
+        out += float(c) * fourier.dirac_coefficients(n, A, b, float(d))
+    for term in poly_terms:
+        for (deg,), coeff in sp.Poly(term, x).terms():
+            out += float(coeff) * fourier.power_coefficients(n, A, b, int(deg))
+    if pwl_terms:
+        rs = _pwl_of(pwl_terms, x, None).numeric().ramp_step_form()
+        out += fourier.pwl_coefficients(n, A, b, *rs)
 
 
 _SERIES = {
