@@ -360,3 +360,56 @@ def test_pool_workers_die_when_the_parent_is_killed():
     for p in left:  # do not leave them behind if the test fails
         os.kill(p, signal.SIGKILL)
     assert not left, f"workers {left} outlived their killed parent"
+
+
+# --------------------------------------------------------------------------------------------
+# 5. all orbits at one frequency include those continuation traces through it
+# --------------------------------------------------------------------------------------------
+def test_solutions_at_one_frequency_include_the_one_well_orbits():
+    """nsd, k = -2, Omega = 1.5: the one-well orbits are the linear responses of the outer
+    segments, x = +-3 + A cos(Omega t - phi) with A = F / |1 - Omega^2 + i mu Omega|
+    (closed form; x stays beyond +-1), stable; the saddle-type in-well orbit as well."""
+    from perturb.model import builtin_model
+    from perturb.simulate.continuation import exact_solutions_at
+
+    k, mu, F_, W = -2.0, 0.05, 2.0, 1.5
+    osc = builtin_model("nsd", k=k, mu=mu, F=F_)
+    resp = exact_solutions_at(osc, [W], progress=False)
+    rows = resp.rows()
+    A = F_ / abs(complex(1.0 - W * W, mu * W))
+    assert 3.0 - A > 1.0  # the closed form is an orbit of the whole system
+    wells = [r for r in rows if abs(abs(r["mean"]) - 3.0) < 1e-6]
+    assert len(wells) == 2 and {round(r["mean"]) for r in wells} == {-3, 3}
+    for r in wells:
+        assert r["amplitude"] == pytest.approx(3.0 + A, rel=1e-9)
+        assert r["stable"]
+    # the in-well orbit: the linear response of the middle segment (slope k), unstable
+    A0 = F_ / abs(complex(k - W * W, mu * W))
+    assert any(r["amplitude"] == pytest.approx(A0, rel=1e-9) and not r["stable"] for r in rows)
+    # no orbit twice
+    keys = sorted((round(r["amplitude"], 8), round(r["mean"], 8)) for r in rows)
+    assert len(keys) == len(set(keys))
+
+
+def test_solutions_at_one_frequency_from_the_traced_branches_alone(monkeypatch):
+    """With the brute-force search returning nothing, the crossings of the traced branches
+    still give the three orbits of nsd (k = -2) at Omega = 1.5 (closed forms as above)."""
+    import perturb.simulate.orbits as orbits_module
+    from perturb.model import builtin_model
+    from perturb.simulate.continuation import exact_solutions_at
+
+    monkeypatch.setattr(orbits_module, "periodic_orbits", lambda *a, **k: ())
+    k, mu, F_, W = -2.0, 0.05, 2.0, 1.5
+    resp = exact_solutions_at(builtin_model("nsd", k=k, mu=mu, F=F_), [W], progress=False)
+    rows = resp.rows()
+    A = F_ / abs(complex(1.0 - W * W, mu * W))
+    A0 = F_ / abs(complex(k - W * W, mu * W))
+    got = sorted((round(r["amplitude"], 9), round(r["mean"], 9), r["stable"]) for r in rows)
+    want = sorted(
+        [(round(A0, 9), 0.0, False), (round(3 + A, 9), -3.0, True), (round(3 + A, 9), 3.0, True)]
+    )
+    assert len(got) == 3
+    for g, w_ in zip(got, want, strict=True):
+        assert g[0] == pytest.approx(w_[0], rel=1e-8)
+        assert g[1] == pytest.approx(w_[1], abs=1e-7)
+        assert g[2] == w_[2]
