@@ -444,3 +444,163 @@ def test_bifurcation_scene_period_one_points_are_periodic_orbits(tmp_path):
         assert min(abs(o.y0[0] - x) for o in orbits if o.t0 == 0) < 1e-6
         checked += 1
     assert checked
+
+
+# ---------------------------------------------------------------------------------------------
+# issue 18: friction of the command line (item 8), every HB branch by default (item 5)
+NSD_HALF = {"k": -0.5, "mu": 0.05, "F": 2.0}
+
+
+def _solutions(resp):
+    """``(omega, amplitude, mean)`` of every point, sorted (a mirror pair, equal amplitudes,
+    by its mean)."""
+    return sorted(
+        (
+            (float(w), float(a), float(m))
+            for b in resp.branches
+            for w, a, m in zip(b.omega, b.amplitude, b.mean, strict=True)
+        ),
+        key=lambda s: (s[0], round(s[1], 3), s[2]),
+    )
+
+
+def test_hb_at_listed_frequencies_against_exact_orbits():
+    """Numeric HB at exactly the requested frequencies: the same solutions as the exact orbits
+    (independent: shooting on the exact flow), to within the H = 15 truncation error."""
+    import perturb
+
+    osc = builtin_model("nsd", **NSD_HALF)
+    ws = [0.9, 1.3]  # one orbit at 0.9; at 1.3 an in-well one and an asymmetric mirror pair
+    hb = perturb.frequency_response(osc, "hb", frequencies=ws)
+    exact = perturb.frequency_response(osc, "exact", frequencies=ws)
+    got, ref = _solutions(hb), _solutions(exact)
+    assert {w for w, _, _ in got} == set(ws)  # exactly the requested values, nothing else
+    assert len(got) == len(ref) == 4
+    for (w, a, m), (we, ae, me) in zip(got, ref, strict=True):
+        assert w == we
+        assert a == pytest.approx(ae, rel=1e-3)
+        assert m == pytest.approx(me, abs=1e-3 * ae)
+    assert sum(abs(m) > 0.1 for _, _, m in got) == 2  # the asymmetric pair is there
+
+
+def test_residual_traced_approximation_at_listed_frequencies():
+    """Second-order mLP (residual-traced) at exact frequencies: the values of its own traced
+    curve there (continuation, a different route) and of the exact orbits to its error."""
+    import numpy as np
+
+    import perturb
+
+    osc = builtin_model("nsd", **NSD_HALF)
+    ws = [0.5, 0.9]
+    at = perturb.frequency_response(osc, "mlp", order=2, frequencies=ws)
+    got = _solutions(at)
+    assert [w for w, _, _ in got] == ws
+    traced = perturb.frequency_response(osc, "mlp", (0.45, 1.0), order=2)
+    for w, a, _ in got:
+        near = []
+        for b in traced.branches:
+            for j in range(len(b) - 1):
+                w0, w1 = b.omega[j], b.omega[j + 1]
+                if min(w0, w1) <= w <= max(w0, w1):
+                    near.append(
+                        np.interp(
+                            w,
+                            sorted([w0, w1]),
+                            [b.amplitude[j], b.amplitude[j + 1]][:: 1 if w0 <= w1 else -1],
+                        )
+                    )
+        assert near and min(abs(v / a - 1) for v in near) < 2e-3
+    exact = _solutions(perturb.frequency_response(osc, "exact", frequencies=ws))
+    for (w, a, _), (we, ae, _) in zip(got, exact, strict=True):
+        assert w == we and a == pytest.approx(ae, rel=1e-2)
+
+
+def test_frc_hb_returns_every_branch_by_default_and_one_with_one_branch(tmp_path, capsys):
+    base = ["frc", "nsd", "--method", "hb", "--harmonics", "5", "--omega", "0.2:2"]
+    every, one = tmp_path / "every.csv", tmp_path / "one.csv"
+    assert main([*base, "--out", str(every)]) == 0
+    assert main([*base, "--one-branch", "--out", str(one)]) == 0
+    rows_every = list(csv.DictReader(every.open()))
+    rows_one = list(csv.DictReader(one.open()))
+    assert {r["branch"] for r in rows_one} == {"0"}
+    assert len({r["branch"] for r in rows_every}) >= 3
+    # the 42-amplitude cross-well resonance that the connected branch alone misses
+    assert max(float(r["amplitude"]) for r in rows_every) > 30
+    assert max(float(r["amplitude"]) for r in rows_one) < 10
+    capsys.readouterr()
+
+
+def test_frc_plot_without_out_prints_a_summary_not_the_csv(tmp_path, capsys):
+    png = tmp_path / "f.png"
+    assert main(["frc", "nsd", "--plot", str(png)]) == 0
+    out = capsys.readouterr().out
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    assert "branch,omega" not in out and len(out.splitlines()) < 30
+    assert "branches," in out and "points" in out and str(png) in out
+
+
+def test_frc_without_plot_or_out_still_prints_the_csv(capsys):
+    assert main(["frc", "nsd", "--omega", "0.6,0.9"]) == 0
+    assert capsys.readouterr().out.startswith(",".join(CSV_COLUMNS))
+
+
+def test_frc_method_auto_is_dispatched(monkeypatch, tmp_path, capsys):
+    import perturb.api
+    from perturb.response import Branch, Response
+
+    calls = []
+
+    def fake(osc, method, *args, **kwargs):
+        calls.append((method, args, kwargs))
+        return Response(
+            (Branch([1.0, 1.1], [1.0, 1.2], [1.0, 1.2], [0, 0], [1, 1], [0.5, 0.5]),), "auto"
+        )
+
+    monkeypatch.setattr(perturb.api, "frequency_response", fake)
+    assert (
+        main(
+            ["frc", "nsd", "--method", "auto", "--omega", "0.5:2", "--out", str(tmp_path / "a.csv")]
+        )
+        == 0
+    )
+    assert calls == [("auto", ([0.5, 2.0],), {"points": 2000})]
+    capsys.readouterr()
+
+
+@pytest.mark.slow
+def test_frc_method_auto_end_to_end(tmp_path, capsys):
+    out = tmp_path / "auto.csv"
+    assert main(["frc", "duffing", "--method", "auto", "--omega", "0.5:2", "--out", str(out)]) == 0
+    rows = list(csv.DictReader(out.open()))
+    assert rows and "note: " in capsys.readouterr().err
+
+
+def test_help_lists_methods_and_defaults(capsys):
+    from perturb.methods import METHODS
+
+    with pytest.raises(SystemExit) as info:
+        main(["derive", "--help"])
+    assert info.value.code == 0
+    text = capsys.readouterr().out
+    for name in METHODS:
+        assert f"\n  {name} " in text
+    assert "modified Lindstedt-Poincare" in text and "multiple scales" in text
+    with pytest.raises(SystemExit):
+        main(["frc", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for default in ("(default: hb1)", "(default: 0.2:2.0)", "(default: 2000)", "(default: 15"):
+        assert default in text
+    assert "auto " in text and "--one-branch" in text
+
+
+def test_compare_names_branch_numbers_not_a_bare_count():
+    from perturb.numeric.compare import compare
+    from perturb.response import Branch, Response
+
+    w = [1.0, 1.5, 2.0]
+    ref = Response((Branch(w, [1.0] * 3, [1.0] * 3, [0.0] * 3, [True] * 3, [0.5] * 3),), "ref")
+    far = Branch(w, [9.0] * 3, [9.0] * 3, [0.0] * 3, [True] * 3, [0.5] * 3)
+    near = Branch(w, [1.0] * 3, [1.0] * 3, [0.0] * 3, [True] * 3, [0.5] * 3)
+    text = str(compare(Response((far, near), "x"), ref))
+    assert "spurious branches: 1 (branch #0)" in text
+    assert "missed reference branches: none" in text
