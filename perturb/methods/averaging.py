@@ -75,6 +75,7 @@ from ..fourier_symbols import (
 from ..model import Oscillator
 from ..nonsmooth import is_nonsmooth, to_pwl
 from ..parsing import real_symbol
+from .applicability import expression_argument, require_centred
 from .trig import harmonics
 
 __all__ = [
@@ -197,8 +198,10 @@ def fourier_components(
     orders = sorted({int(n) for n in orders})
     if not orders or orders[0] < 0:
         raise PerturbError(f"orders = {orders}: expected harmonic indices >= 0")
-    a, w, b = sp.sympify(amplitude), sp.sympify(frequency), sp.sympify(bias)
-    expr = sp.sympify(expr)
+    a = expression_argument(amplitude, "amplitude")
+    w = expression_argument(frequency, "frequency")
+    b = expression_argument(bias, "bias")
+    expr = expression_argument(expr, "expr", allow_derivatives=True)
     values = _switch_values(expr, values)
     psi = sp.Dummy("psi", real=True)
     on_orbit = {x: b + a * sp.cos(psi), v: -a * w * sp.sin(psi)}
@@ -393,7 +396,7 @@ def equivalent_linearisation(
         g, x, v = model.g, model.x, model.v
         values = _values(model) if values is None else values
     else:
-        g = sp.sympify(model)
+        g = expression_argument(model, "model", allow_derivatives=True)
         x = x if x is not None else real_symbol("x")
         v = v if v is not None else real_symbol("x'")
     a = amplitude if amplitude is not None else sp.Symbol("a", positive=True)
@@ -422,12 +425,9 @@ def _setup(osc: Oscillator, generating_frequency: sp.Expr | float | None, name: 
             f"{name} here covers x'' + g(x, x') = F cos(Omega t + p); model {osc.name!r} has "
             f"parametric terms {osc.parametric}"
         )
-    if osc.forcing.constant != 0:
-        raise ModelError(
-            f"model {osc.name!r} has a static load {osc.forcing.constant}: the response has a "
-            "bias, which first-order averaging about x = a cos(psi) leaves out; use "
-            "harmonic_balance(oscillator, bias=True)"
-        )
+    # a static load or a one-sided (non-odd piecewise-linear) force: the orbit has a mean,
+    # which first-order averaging about x = a cos(psi) leaves out
+    require_centred(osc, f"first-order {name}")
     if len(osc.forcing.harmonics) > 1:
         raise ModelError(
             f"{name} handles one forcing harmonic; model {osc.name!r} has "
@@ -448,7 +448,7 @@ def _setup(osc: Oscillator, generating_frequency: sp.Expr | float | None, name: 
             )
         return _Setup(True, h.frequency, h.amplitude, h.phase, values)
     if generating_frequency is not None:
-        omega = sp.sympify(generating_frequency)
+        omega = expression_argument(generating_frequency, "generating_frequency")
     else:
         k = osc.linear_stiffness
         k_value = k.xreplace(osc.substitutions())
@@ -569,7 +569,8 @@ def krylov_bogoliubov(
     Raises
     ------
     ModelError
-        For parametric terms, several forcing harmonics, a static load, forces without
+        For parametric terms, several forcing harmonics, a static load or a force whose
+        piecewise-linear part is not odd (the message names what applies), forces without
         closed-form coefficients, or a free system without a positive generating frequency.
     """
     osc = oscillator

@@ -64,6 +64,7 @@ from ..fourier_symbols import closed_form, series_coefficient
 from ..model import Oscillator
 from ..nonsmooth import is_nonsmooth
 from ..parsing import real_symbol
+from .applicability import check_order, expression_argument, require_centred
 from .averaging import _frequency_polynomial, _response_frequency, fourier_components
 from .trig import harmonics as trig_harmonics
 
@@ -76,24 +77,6 @@ __all__ = [
     "backbone_series",
     "solve_residuals",
 ]
-
-
-def _is_odd(f: sp.Expr, x: sp.Symbol, values: dict) -> bool:
-    diff = f + f.subs(x, -x)
-    if sp.simplify(diff) == 0:
-        return True
-    # Piecewise forms do not always simplify: check numerically at the parameter values
-    # (free parameters at two random draws) over a wide range of x.
-    rng = np.random.default_rng(12345)
-    pts = np.linspace(-7.3, 7.3, 211) * max(1.0, *(abs(float(v)) for v in values.values()))
-    for _ in range(2):
-        subs = dict(values)
-        for s in diff.free_symbols - {x} - set(subs):
-            subs[s] = sp.Float(rng.uniform(0.3, 1.7))
-        fn = sp.lambdify(x, diff.xreplace(subs), modules=["numpy"])
-        if not np.all(np.abs(np.asarray(fn(pts), dtype=float)) < 1e-12):
-            return False
-    return True
 
 
 def single_harmonic_balance(oscillator: Oscillator) -> Approximation:
@@ -115,7 +98,9 @@ def single_harmonic_balance(oscillator: Oscillator) -> Approximation:
     ------
     ModelError
         If the oscillator has terms this method does not cover (nonlinear damping,
-        parametric excitation, several forcing harmonics, an even part of ``f``).
+        parametric excitation, several forcing harmonics, a static load, an even part of
+        ``f``); the message names the methods that apply
+        (:func:`~perturb.methods.applicability.require_centred`).
     """
     osc = oscillator
     x = osc.x
@@ -124,17 +109,14 @@ def single_harmonic_balance(oscillator: Oscillator) -> Approximation:
             f"single-harmonic balance covers x'' + mu x' + f(x) = F cos(Omega t); model "
             f"{osc.name!r} also has {osc.velocity + osc.parametric}"
         )
-    if len(osc.forcing.harmonics) > 1 or osc.forcing.constant != 0:
+    if len(osc.forcing.harmonics) > 1:
         raise ModelError(
-            f"single-harmonic balance needs at most one forcing harmonic and no static load; "
-            f"model {osc.name!r} has forcing {osc.forcing.expr(osc.t)}"
+            f"single-harmonic balance needs at most one forcing harmonic; model {osc.name!r} "
+            f"has forcing {osc.forcing.expr(osc.t)}: use numeric harmonic balance ('hb') or "
+            "'exact'"
         )
     f = osc.restoring_force
-    if not _is_odd(f, x, osc.substitutions()):
-        raise ModelError(
-            f"the restoring force {f} of model {osc.name!r} is not odd, so its response has a "
-            "bias; this zero-bias single-harmonic method does not apply"
-        )
+    require_centred(osc, "single-harmonic balance without bias (hb1)", polynomial=False)
     if osc.forcing.harmonics:
         harmonic = osc.forcing.harmonics[0]
         F, Omega = harmonic.amplitude, harmonic.frequency
@@ -323,7 +305,8 @@ def harmonic_balance(
         harmonics that are not multiples of the ansatz's base frequency, or forces without
         closed-form coefficients.
     ParameterError
-        For a bad harmonic set.
+        For a bad harmonic set, or more harmonics than
+        :data:`~perturb.methods.applicability.ORDER_LIMITS` ``["hb"]``.
 
     Notes
     -----
@@ -352,6 +335,12 @@ def harmonic_balance(
             f"model {osc.name!r} has a static load {osc.forcing.constant}: its response has a "
             "mean; pass bias=True"
         )
+    if not bias:
+        try:
+            require_centred(osc, "harmonic balance without bias")
+        except ModelError as exc:
+            raise ModelError(f"{exc} (here: pass bias=True)") from None
+    check_order("hb", len(hs), "number of harmonics")
     if hs == (Fraction(1),):
         return _single(osc, bias)
     return _multi(osc, hs, bias)
@@ -948,7 +937,9 @@ def solve_residuals(
     approx = approximation
     unknowns = [_resolve(approx, k) for k in guess]
     fixed_syms = {_resolve(approx, k): float(val) for k, val in (fixed or {}).items()}
-    eqs = list(approx.residuals) + [sp.sympify(e) for e in extra]
+    eqs = list(approx.residuals) + [
+        expression_argument(e, f"extra[{i}]") for i, e in enumerate(extra)
+    ]
     if len(eqs) != len(unknowns):
         raise ParameterError(
             f"{len(eqs)} equations for {len(unknowns)} unknowns "
@@ -1005,7 +996,7 @@ def _scale(osc: Oscillator, F: float) -> float:
     if osc.nonsmooth != 0:
         try:
             bps = osc.piecewise_linear().numeric().breakpoints
-            scale = max(scale, *(abs(float(d)) for d in bps))
+            scale = max([scale, *(abs(float(d)) for d in bps)])
         except PerturbError:
             pass
     return scale

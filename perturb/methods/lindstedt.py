@@ -68,6 +68,7 @@ from ..fourier_symbols import DiracCoefficient, RampCoefficient, StepCoefficient
 from ..model import Oscillator
 from ..nonsmooth import to_pwl
 from ..parsing import parse_expression, real_symbol
+from .applicability import check_order, expression_argument, require_centred
 from .trig import from_harmonics
 
 __all__ = ["lindstedt_poincare", "AMPLITUDES", "SCALINGS", "PWL_MAX_ORDER"]
@@ -743,8 +744,12 @@ def _parse_omega0(omega0: Any) -> sp.Expr:
         w0 = None
     else:
         try:
-            w0 = sp.nsimplify(omega0) if isinstance(omega0, float) else sp.sympify(omega0)
-        except (sp.SympifyError, TypeError):
+            w0 = (
+                sp.nsimplify(omega0)
+                if isinstance(omega0, float)
+                else expression_argument(omega0, "omega0")
+            )
+        except (sp.SympifyError, TypeError, ParameterError):
             w0 = None
     if w0 is None or (w0.is_number and not (w0.is_extended_real and w0 > 0)):
         raise ParameterError(f"omega0 = {omega0!r}: expected a positive number or expression")
@@ -916,15 +921,21 @@ def lindstedt_poincare(
     ------
     ModelError
         Damped, forced, velocity-dependent or parametric models, non-polynomial smooth terms,
-        a non-positive reference stiffness, ``scaling="amplitude"`` on a PWL force.
+        a non-positive reference stiffness, ``scaling="amplitude"`` on a PWL force, a
+        piecewise-linear part that is not odd (or one with a static load).
     ParameterError
-        Bad options; a piecewise-linear force above :data:`PWL_MAX_ORDER`.
+        Bad options; a piecewise-linear force above :data:`PWL_MAX_ORDER`; an order above
+        :data:`~perturb.methods.applicability.ORDER_LIMITS` ``["lp"]``.
     """
     osc = oscillator
     order = _check_options(order, amplitude, harmonics)
     if scaling not in SCALINGS:
         raise ParameterError(f"scaling = {scaling!r}: expected one of {', '.join(SCALINGS)}")
     _require_free(osc, "Lindstedt-Poincare")
+    order = check_order("lp", order)
+    # a polynomial force with a static load is expanded consistently; a one-sided
+    # piecewise-linear force (or one with a load) has an orbit whose mean is of order one
+    require_centred(osc, "Lindstedt-Poincare (lp)", load=True)
     model = _model(osc, omega0)
     if model.ramps and order > PWL_MAX_ORDER:
         raise ParameterError(

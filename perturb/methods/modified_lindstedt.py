@@ -80,6 +80,7 @@ from ..approximation import Approximation, Step
 from ..errors import ModelError, ParameterError
 from ..model import Oscillator
 from ..parsing import real_symbol
+from .applicability import check_order, require_centred
 from .lindstedt import (
     _ONE,
     _ZERO,
@@ -177,13 +178,16 @@ def modified_lindstedt(
     ------
     ModelError
         Free damped systems (no periodic orbit), several forcing harmonics, velocity or
-        parametric terms, non-polynomial smooth terms, non-positive reference stiffness.
+        parametric terms, non-polynomial smooth terms, non-positive reference stiffness, a
+        static load or a force whose piecewise-linear part is not odd (its orbit has a mean;
+        the message names what applies).
     ParameterError
         Bad options, ``amplitude="initial"`` for a forced system, a piecewise-linear force
-        above :data:`PWL_MAX_ORDER`.
+        above :data:`PWL_MAX_ORDER`, an order above
+        :data:`~perturb.methods.applicability.ORDER_LIMITS` ``["mlp"]``.
     """
     osc = oscillator
-    order = _check_options(order, amplitude, harmonics)
+    order = check_order("mlp", _check_options(order, amplitude, harmonics))
     if osc.velocity != 0 or osc.parametric != 0:
         raise ModelError(
             f"the modified Lindstedt-Poincare method covers x'' + mu x' + f(x) = F cos(Omega t); "
@@ -201,6 +205,10 @@ def modified_lindstedt(
             f"amplitude = {amplitude!r} is for free systems; a forced response is "
             "parametrised by its first-harmonic amplitude and phase"
         )
+    # a static load: the alpha-expansion gives the mean as F0/Omega**2 instead of F0/omega0**2
+    # (the series of 1/(1 - alpha) cut at the first term), even on a linear oscillator;
+    # a one-sided piecewise-linear force: its mean is of order one, not a correction
+    require_centred(osc, "the modified Lindstedt-Poincare method (mlp)")
     model = _model(osc, omega0)
     if model.ramps and order > PWL_MAX_ORDER:
         raise ParameterError(

@@ -122,6 +122,7 @@ from ..fourier_symbols import NUMERIC_IMPLEMENTATIONS, closed_form, series_coeff
 from ..model import Oscillator
 from ..nonsmooth import is_nonsmooth
 from ..parsing import real_symbol
+from .applicability import check_order, expression_argument, require_centred
 
 __all__ = [
     "ModulationEquations",
@@ -583,7 +584,7 @@ class ModulationEquations:
     def in_frequency(self, expr: sp.Expr) -> sp.Expr:
         r"""``expr`` with the detuning replaced by the forcing frequency (and
         :math:`\varepsilon = 1` when the scaling was automatic)."""
-        expr = sp.sympify(expr)
+        expr = expression_argument(expr, "expr")
         if self.definitions:
             expr = expr.xreplace({d.lhs: d.rhs for d in self.definitions})
         if self.sigma is not None and self.detuning_relation is not None:
@@ -816,12 +817,14 @@ def modulation_equations(
     Raises
     ------
     ParameterError
-        For a bad order, resonance, detuning or epsilon name.
+        For a bad order (above :data:`~perturb.methods.applicability.ORDER_LIMITS`
+        ``["ms"]`` too), resonance, detuning or epsilon name.
     ModelError
         For models outside the method (terms at order one other than the linear operator and
         a hard forcing, damping at order one, hard forcing at the resonant frequency, smooth
         non-polynomial terms, nonsmooth terms above first order or together with hard forcing,
-        a non-positive or undefined :math:`\omega_0^2` with frequency detuning).
+        a non-positive or undefined :math:`\omega_0^2` with frequency detuning, a static load
+        or a piecewise-linear force that is not odd (the message names what applies)).
     """
     return _derive(oscillator, order, resonance, epsilon, detuning, hard_forcing)
 
@@ -864,8 +867,7 @@ def _derive(
     hard_forcing: bool | None,
 ) -> ModulationEquations:
     t_start = _time.perf_counter()
-    if isinstance(order, bool) or not isinstance(order, int) or order < 1:
-        raise ParameterError(f"order = {order!r}: expected an integer >= 1")
+    order = check_order("ms", order)
     if detuning not in _DETUNINGS:
         raise ParameterError(f"detuning = {detuning!r}: expected one of {', '.join(_DETUNINGS)}")
     x, v, t = osc.x, osc.v, osc.t
@@ -887,6 +889,10 @@ def _derive(
             "here handles polynomial and piecewise-linear terms (expand the function into a "
             "polynomial in the model if that is intended)"
         )
+
+    # a static load or a one-sided piecewise-linear force: the orbit's mean is of order one
+    # (the nonsmooth terms are expanded about x = a cos(psi), first order only)
+    require_centred(osc, "multiple scales (ms)")
 
     # ---- frequencies -----------------------------------------------------------------
     freqs = [h.frequency for h in osc.forcing.harmonics]

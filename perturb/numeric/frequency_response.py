@@ -342,6 +342,42 @@ def solutions_at(
     a_lo, a_hi = (float(a) for a in amplitude_range)
     if not (0 < a_lo < a_hi and np.isfinite(a_hi)):
         raise ParameterError(f"amplitude_range = {amplitude_range!r}: expected 0 < low < high")
+    wr, roots = _roots_at(cp, w_all, a_lo, a_hi)
+    # Link the solutions into branches along the amplitude-parametrised curve: each solution
+    # joins the traced branch passing nearest to it, ordered by position along that branch
+    # (nearest-amplitude linking between frequencies fails on coarse grids near folds).
+    span = (float(w_all.min()) * 0.95, float(w_all.max()) * 1.05)
+    traced = frequency_response(cp, span, points=2000, stability="slow_flow")
+    branches: list[list[tuple[float, float, float]]] = [[] for _ in traced.branches]
+    for w, a in zip(wr, roots, strict=True):
+        best = (np.inf, -1, 0)
+        for b, br in enumerate(traced.branches):
+            d = np.hypot(np.log(br.omega / w), np.log(br.first_harmonic_amplitude / a))
+            k = int(np.argmin(d))
+            if d[k] < best[0]:
+                best = (d[k], b, k)
+        if best[1] < 0 or best[0] > 0.1:  # no traced curve passes here: a branch of its own
+            branches.append([(0, float(w), float(a))])
+        else:
+            branches[best[1]].append((best[2], float(w), float(a)))
+    groups = [sorted(pts) for pts in branches if pts]
+    out: list[Branch] = []
+    if groups:
+        sizes = [len(pts) for pts in groups]
+        a_all = np.array([p[2] for pts in groups for p in pts])
+        w_b = np.array([p[1] for pts in groups for p in pts])
+        U = cp.atoms.evaluate(a_all, cp.branch_rows(stability))
+        out = _branches(cp, a_all, w_b, U, sizes, stability)
+    notes = response_notes(approx, out, (float(w_all.min()), float(w_all.max())))
+    return Response(tuple(out), approx.label, approx.oscillator.name, _params(approx), notes=notes)
+
+
+def _roots_at(
+    cp: FrequencyResponseSolver, w_all: np.ndarray, a_lo: float, a_hi: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every root ``A`` of the amplitude equation at each frequency of ``w_all``:
+    ``(frequencies, amplitudes)``, one entry per root, bracketed on a logarithmic scan of
+    ``[a_lo, a_hi]`` and refined to full precision."""
     poly = cp.poly
     if (a_lo, a_hi) == _SCAN_RANGE:
         grid, (c0, c1, c2) = cp.scan
@@ -371,33 +407,7 @@ def solutions_at(
 
     lo_a, hi_a, _, _ = _bracketed_roots(residual, lo_a, hi_a, f_lo, f_hi)
     roots = 0.5 * (lo_a + hi_a)
-    # Link the solutions into branches along the amplitude-parametrised curve: each solution
-    # joins the traced branch passing nearest to it, ordered by position along that branch
-    # (nearest-amplitude linking between frequencies fails on coarse grids near folds).
-    span = (float(w_all.min()) * 0.95, float(w_all.max()) * 1.05)
-    traced = frequency_response(cp, span, points=2000, stability="slow_flow")
-    branches: list[list[tuple[float, float, float]]] = [[] for _ in traced.branches]
-    wr = w_all[iw]
-    for w, a in zip(wr, roots, strict=True):
-        best = (np.inf, -1, 0)
-        for b, br in enumerate(traced.branches):
-            d = np.hypot(np.log(br.omega / w), np.log(br.first_harmonic_amplitude / a))
-            k = int(np.argmin(d))
-            if d[k] < best[0]:
-                best = (d[k], b, k)
-        if best[1] < 0 or best[0] > 0.1:  # no traced curve passes here: a branch of its own
-            branches.append([(0, float(w), float(a))])
-        else:
-            branches[best[1]].append((best[2], float(w), float(a)))
-    groups = [sorted(pts) for pts in branches if pts]
-    out: list[Branch] = []
-    if groups:
-        sizes = [len(pts) for pts in groups]
-        a_all = np.array([p[2] for pts in groups for p in pts])
-        w_b = np.array([p[1] for pts in groups for p in pts])
-        U = cp.atoms.evaluate(a_all, cp.branch_rows(stability))
-        out = _branches(cp, a_all, w_b, U, sizes, stability)
-    return Response(tuple(out), approx.label, approx.oscillator.name, _params(approx))
+    return w_all[iw], roots
 
 
 def _hidden_root_pairs(poly, grid: np.ndarray, vals: np.ndarray, W: np.ndarray):
@@ -536,13 +546,7 @@ def frequency_response(
         near = np.append(through, False) | np.insert(through, 0, False)
         hits = np.nonzero(in_lo | in_hi | near)[0]
         if hits.size == 0:
-            return Response(
-                (),
-                approx.label,
-                approx.oscillator.name,
-                _params(approx),
-                notes=("no periodic solution in the frequency window",),
-            )
+            return _fixed_frequency_response(cp, lo, hi, stability)
         a_lo = scan[max(hits[0] - 1, 0)]
         a_hi = scan[min(hits[-1] + 1, scan.size - 1)]
     else:
@@ -596,13 +600,123 @@ def frequency_response(
         branches = _branches(cp, grid.a[gi], w_all, U, sizes, stability)
         for seg_i, seg_w in segments:
             folds.extend(_folds(grid.a[seg_i], seg_w))
+    if not branches and amplitude_range is None:
+        return _fixed_frequency_response(cp, lo, hi, stability)
     return Response(
         tuple(branches),
         approx.label,
         approx.oscillator.name,
         _params(approx),
         folds=tuple(folds),
+        notes=response_notes(approx, branches, (lo, hi)),
     )
+
+
+#: Frequencies solved one by one when amplitude parametrisation finds nothing in a window.
+_FIXED_FREQUENCIES = 41
+
+
+def _fixed_frequency_response(
+    cp: FrequencyResponseSolver, lo: float, hi: float, stability: str
+) -> Response:
+    """The response at ``_FIXED_FREQUENCIES`` frequencies solved one by one.
+
+    Amplitude parametrisation resolves ``W = Omega**2`` only to the rounding of the amplitude
+    equation's coefficients: a window such as ``Omega`` in ``[1e-9, 1e-8]`` (``W`` below
+    ``1e-16``) is crossed between two amplitudes that differ in the last bit, so no point lands
+    in it. At a fixed frequency the equation in ``A`` is well conditioned; when every
+    frequency has the same number of solutions they are joined in amplitude order."""
+    approx = cp.approx
+    w_grid = np.linspace(lo, hi, _FIXED_FREQUENCIES)
+    wr, roots = _roots_at(cp, w_grid, *_SCAN_RANGE)
+    counts = np.array([np.count_nonzero(wr == w) for w in w_grid])
+    branches: list[Branch] = []
+    notes: tuple[str, ...] = ()
+    if roots.size and np.all(counts == counts[0]):
+        m = int(counts[0])
+        order = np.lexsort((roots, wr))  # by frequency, then amplitude
+        table = roots[order].reshape(w_grid.size, m)
+        a_all = table.T.reshape(-1)
+        w_b = np.tile(w_grid, m)
+        U = cp.atoms.evaluate(a_all, cp.branch_rows(stability))
+        branches = list(_branches(cp, a_all, w_b, U, [w_grid.size] * m, stability))
+        notes = (
+            f"solved at {w_grid.size} fixed frequencies: amplitude parametrisation cannot "
+            f"resolve Omega**2 in [{lo * lo:.3g}, {hi * hi:.3g}] (the window is too narrow or too "
+            "close to 0 for the rounding of the amplitude equation)",
+        )
+    elif roots.size:
+        notes = (
+            f"no branch traced: amplitude parametrisation cannot resolve Omega**2 in "
+            f"[{lo * lo:.3g}, {hi * hi:.3g}], and the number of solutions changes across the "
+            "window (between "
+            f"{int(counts.min())} and {int(counts.max())}); ask for the solutions at given "
+            "frequencies (frequencies=[...], `--omega w1,w2,...`) or widen the window",
+        )
+    return Response(
+        tuple(branches),
+        approx.label,
+        approx.oscillator.name,
+        _params(approx),
+        notes=notes + response_notes(approx, branches, (lo, hi)),
+    )
+
+
+def _undamped(approx: Approximation) -> bool:
+    """True when the oscillator has neither viscous damping (at its parameter values) nor
+    velocity-dependent terms: a conservative system."""
+    osc = approx.oscillator
+    damping = sp.sympify(osc.damping).xreplace(osc.substitutions())
+    return damping.is_zero is True and osc.velocity == 0
+
+
+def response_notes(
+    approx: Approximation, branches: Sequence[Branch], window: tuple[float, float]
+) -> tuple[str, ...]:
+    """What a reader of a response must know that the numbers do not say.
+
+    - no branch at all: why, and what to try instead;
+    - a conservative (undamped) forced model: stability is marginal and undecided;
+    - a force with an even polynomial part under a first-order zero-mean method.
+
+    Used by :func:`frequency_response`, :func:`solutions_at` and
+    :func:`perturb.numeric.residual_response.residual_response`.
+    """
+    from ..methods.applicability import APPLIES_OFF_CENTRE, even_part
+
+    notes: list[str] = []
+    lo, hi = window
+    if not branches:
+        notes.append(
+            f"0 branches: {approx.label} has no periodic solution with Omega in "
+            f"[{lo:.6g}, {hi:.6g}] (its amplitude equation has no root there); try a wider "
+            "window, check the parameter values, or use numeric harmonic balance ('hb') or "
+            "'exact'"
+        )
+    osc = approx.oscillator
+    if osc.forcing.harmonics and _undamped(approx):
+        notes.append(
+            "no damping: the model is conservative, so the Floquet multipliers of every forced "
+            "orbit lie on the unit circle (up to rounding) and stability is marginal, not "
+            "decided by linearisation: the 'stable' column is not meaningful here. Add damping "
+            "(e.g. --param mu=0.01) to decide stability, or compute the backbone (the free "
+            "undamped response)"
+        )
+    zero_mean = not approx.options.get("bias", False) and (
+        approx.method in ("kb", "vdp", "hb", "hb1") or approx.options.get("order", 1) == 1
+    )
+    try:
+        kinds = even_part(osc) if zero_mean else frozenset()
+    except PerturbError:  # pragma: no cover - the method already accepted the model
+        kinds = frozenset()
+    if "polynomial" in kinds:
+        notes.append(
+            f"the force of model {osc.name!r} has an even polynomial part: {approx.label} (an "
+            "orbit centred on x = 0, to first order) leaves out the mean it causes and its "
+            "effect on the frequency (second order in the amplitude); for a strong even part "
+            f"use {APPLIES_OFF_CENTRE}"
+        )
+    return tuple(notes)
 
 
 def _params(approx: Approximation) -> dict[str, float]:

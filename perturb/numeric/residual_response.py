@@ -34,7 +34,13 @@ from ..errors import ParameterError, PerturbError
 from ..response import Branch, Response
 from .compile import bind_parameters, lambdify
 from .continuation import ContinuationError, continue_curve
-from .frequency_response import _FLOQUET_SAMPLES, _WAVEFORM_SAMPLES, _floquet_in_chunks, _Waveform
+from .frequency_response import (
+    _FLOQUET_SAMPLES,
+    _WAVEFORM_SAMPLES,
+    _floquet_in_chunks,
+    _Waveform,
+    response_notes,
+)
 
 __all__ = ["residual_response", "ResidualSystem"]
 
@@ -432,7 +438,13 @@ def residual_response(
             near = np.argmin(np.abs(w_c - f.lam) + np.abs(u_c[:, amp] - f.u[amp]))
             if ok[near]:
                 fold_pts.append((float(f.lam), float(f.u[amp])))
-    notes = () if branches else ("no solution found on the seeding grid",)
+    notes: tuple[str, ...] = ()
+    if not branches:
+        notes += (
+            f"no solution found on the seeding grid ({seed_frequencies} frequencies in "
+            f"[{lo:.6g}, {hi:.6g}])",
+        )
+    notes += response_notes(approx, branches, (lo, hi))
     if dropped:
         notes += (
             f"{dropped} points left out where the waveform's correction exceeds "
