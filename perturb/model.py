@@ -228,6 +228,7 @@ class Oscillator:
         ParameterError
             Bad parameter values or names.
         """
+        _check_name(time, "time")
         parsed = parse_equation(text)
         if parsed.state is None or parsed.derivative_order < 2:
             raise ModelError(
@@ -266,12 +267,14 @@ class Oscillator:
                 f"{type(equation).__name__}"
             )
         tname = t if isinstance(t, str) else str(t)
+        _check_name(tname, "t")
         if isinstance(x, sp.core.function.AppliedUndef):
             xname = x.func.__name__
         elif isinstance(x, sp.core.function.UndefinedFunction):
             xname = x.__name__
         else:
             xname = str(x)
+        _check_name(xname, "x")
         xs, vs, as_, ts = (
             real_symbol(xname),
             real_symbol(xname + "'"),
@@ -469,6 +472,16 @@ class Oscillator:
 
     def _repr_latex_(self) -> str:
         return f"$\\displaystyle {latex(self.equation)}$"
+
+
+def _check_name(name: str, what: str) -> None:
+    """Names of the state and of time end up in generated code (``lambdify``): plain names
+    only."""
+    if not isinstance(name, str) or len(name) > 100 or not name.isidentifier():
+        raise ModelError(
+            f"{what} = {str(name)[:40]!r}: expected a plain name (letters, digits, _) for the "
+            "variable"
+        )
 
 
 def _replace(obj: Oscillator, **changes: Any) -> Oscillator:
