@@ -252,8 +252,10 @@ class AutoChoice:
 
     def write_json(self, path: str | Path) -> Path:
         """Write :meth:`to_dict` as JSON to ``path``."""
+        from .atomic import write_text
+
         p = Path(path)
-        p.write_text(json.dumps(self.to_dict(), indent=1) + "\n")
+        write_text(p, json.dumps(self.to_dict(), indent=1) + "\n")
         return p
 
 

@@ -34,7 +34,11 @@ parameter values, what is asked (``[ask] kind``), the method and where to write 
     drawn in one figure and written to one CSV (branches numbered through, the ``method``
     column telling them apart, a last column ``rel_error`` against the reference), and each
     method's measured error against the reference (branches found, max relative error of
-    ``max |x|``) goes into the legend and ``report.json``.
+    ``max |x|``) goes into the legend and ``report.json``. An optional ``[plot]`` table:
+    ``zoom = [omega_lo, omega_hi, amplitude_lo, amplitude_hi]`` (a panel enlarging where
+    branches crowd), ``mean = true`` (a panel of the orbits' means, which separates
+    asymmetric orbits from symmetric ones of equal amplitude), ``log_amplitude`` (default:
+    logarithmic when the amplitudes span more than a factor 30).
 ``backbone``
     ``amplitude = [lo, hi]``, ``points``: the frequency of the free undamped oscillation
     (forcing and damping set to zero) against its amplitude, from the energy integral.
@@ -536,6 +540,7 @@ def _trace(
         )
         say("[perturb] " + choice.summary().replace("\n", "\n[perturb] "))
         info["auto"] = choice.to_dict()
+        info["auto"]["summary"] = choice.summary()
         cand = choice.chosen.candidate
         if cand.method not in ("hb", "exact"):
             from .adaptive import _derive
@@ -569,7 +574,9 @@ def _trace(
     info["response"] = resp.method
     info["branches"] = len(resp.branches)
     info["points"] = int(sum(len(b) for b in resp.branches))
-    notes = [f"{resp.method}: {n}" for n in resp.notes]
+    # the auto choice's summary heads the notes; it is printed above and in the report
+    printed = set(info["auto"]["summary"].splitlines()) if "auto" in info else set()
+    notes = [f"{resp.method}: {n}" for n in resp.notes if n not in printed]
     if not resp.branches:
         notes.append(
             f"{resp.method}: no periodic solution found for Omega in "
@@ -689,6 +696,16 @@ def _run_frequency_response(scene: Scene, osc: Oscillator, out: Path, paths: dic
         drawn = [*responses, ref]
     else:
         drawn = responses
+        if "auto" in info:
+            from .report.figures import method_label
+
+            ch = info["auto"]
+            spot = ch["chosen"]["max_spot_error"]
+            spot_text = f"{spot:.1e}" if isinstance(spot, float) else str(spot)
+            labels = [
+                f"{method_label(resp.method)}:\n  chosen for rtol {ch['rtol']:g}, max error "
+                f"{spot_text} at {len(ch['spot_frequencies'])} exact spot checks"
+            ] + [method_label(r.method) for r in responses[1:]]
     info["responses"] = runs
     responses_to_csv(drawn if ref is None else [*responses, ref], paths["csv"], extra=extra)
     title = equation_title(osc, dict(scene.params))
@@ -718,7 +735,7 @@ def _run_frequency_response(scene: Scene, osc: Oscillator, out: Path, paths: dic
         colors=[colors[k] for k in order],
         linewidths=[widths[k] for k in order],
         log_amplitude=scene.plot.get("log_amplitude", log_axis),
-        legend_kw={"fontsize": 7, "loc": "upper right"},
+        legend_kw={"fontsize": 7, "loc": "upper right" if ref is not None else "best"},
     )
     _close(fig)
     if approx is not None and "latex" in scene.outputs:
@@ -728,9 +745,9 @@ def _run_frequency_response(scene: Scene, osc: Oscillator, out: Path, paths: dic
         write_text(paths["latex"], latex_document(approx))
         info["derivation"] = approx.label
     elif "latex" in scene.outputs:
-        notes.append(
-            "no derivation.tex: none of the scene's methods is symbolic (add a symbolic method "
-            "such as 'hb1' to [compare] methods for its derivation)"
+        info["latex"] = (
+            "not written: none of the scene's methods is symbolic (add one, 'hb1' say, to "
+            "[compare] methods for its derivation)"
         )
     info["notes"] = notes
     return info
@@ -805,7 +822,14 @@ def backbone(osc: Oscillator, amplitudes) -> dict[str, list[float]]:
             if g_next >= g0:
                 if i == 0:
                     break  # at (numerically) an equilibrium: no oscillation to time
-                x1 = brentq(lambda q, g0=g0: G(q) - g0, z, z_next, xtol=1e-14, rtol=1e-14)
+                fa, fb = G(z) - g0, G(z_next) - g0
+                if fa * fb <= 0:
+                    x1 = brentq(lambda q, g0=g0: G(q) - g0, z, z_next, xtol=1e-14, rtol=1e-14)
+                else:
+                    # the step-by-step sum crossed G(x0) and the direct integral, rounded
+                    # differently, did not (a turning point at a hilltop of the potential,
+                    # where G touches G(x0)): the end nearer to it
+                    x1 = z if abs(fa) <= abs(fb) else z_next
                 break
             z, gz = z_next, g_next
         if x1 is None:
@@ -937,13 +961,12 @@ def _run_bifurcation(scene: Scene, osc: Oscillator, out: Path, paths: dict, say)
 
     fig, ax = _figure()
     p, x = diag.points()
-    ax.plot(p, x, "o", color="k", ms=1.8, mew=0, alpha=0.7)
+    ax.plot(p, x, "o", color="k", ms=2.5, mew=0, alpha=0.7)
     ax.set_xlabel(f"${_param_tex(scene.parameter)}$")
     ax.set_ylabel(f"$x$ at phase {diag.phase:g} of each forcing period")
-    params = {k: v for k, v in osc.params.items() if k != scene.parameter}
     ax.set_title(
         f"bifurcation diagram over ${_param_tex(scene.parameter)}$ of\n"
-        + equation_title(osc, params),
+        + equation_title(osc, skip=(scene.parameter,)),
         fontsize=8,
     )
     save_figure(fig, paths["png"])

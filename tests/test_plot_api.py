@@ -216,3 +216,41 @@ def test_bifurcation_figure_title_fits_and_markers_are_visible(tmp_path, monkeyp
         assert "\n" in ax.get_title()
     finally:
         matplotlib.pyplot.close("all")
+
+
+@pytest.mark.parametrize(
+    "text, fragment",
+    [
+        ("[compare]\nreference = 'hb1'", "expected 'exact'"),
+        ("[compare]\nmethods = ['magic']", "'magic' is not a method"),
+        ("[compare]\nmethods = ['hb1', 'hb1']", "a method twice"),
+        ("[method]\nname = 'exact'\n[compare]\nreference = 'exact'", "compare the exact"),
+        ("[plot]\nzoom = [0.5, 0.2, 1, 2]", "zoom"),
+        ("[plot]\nmean = 1", "expected true or false"),
+        ("[plot]\ncolour = 'red'", "unknown key 'colour'"),
+        ("[method]\nname = 'hb'\nall_branches = 'yes'", "all_branches"),
+        ("[ask]\nkind = 'backbone'\n[compare]\nreference = 'exact'", "does not apply"),
+    ],
+)
+def test_bad_compare_and_plot_tables(text, fragment):
+    from perturb.errors import PerturbError
+
+    with pytest.raises(PerturbError, match=fragment):
+        parse_scene("[model]\nname = 'nsd'\n" + text, "bad.toml")
+
+
+def test_auto_scene_legend_carries_the_measured_spot_error(tmp_path):
+    import json
+
+    scene = parse_scene(
+        '[model]\nname = "duffing"\n[ask]\nomega = [0.5, 1.0]\n[method]\nname = "auto"\n'
+        "[accuracy]\nrtol = 0.05\nspots = [0.6, 0.9]\n",
+        "auto.toml",
+    )
+    paths = run_scene(scene, tmp_path, log=open(tmp_path / "log.txt", "w"))
+    report = json.loads(paths["report"].read_text())
+    (label,) = report["legend"]
+    spot = report["auto"]["chosen"]["max_spot_error"]
+    assert 0 < spot <= 0.05
+    assert f"max error {spot:.1e} at 2 exact spot checks" in label
+    assert "chosen for rtol 0.05" in label and "(" not in label.split(":")[0]

@@ -205,11 +205,14 @@ def equation_title(
     *,
     model: str = "",
     width: int = 95,
+    skip: Sequence[str] = ("Omega",),
 ) -> str:
     """A figure title: the equation of motion (mathtext) and the parameter values.
 
     Falls back to the model name, then to shortened plain text, when the equation is too
-    long for one line or does not parse as mathtext; never a bare ``custom:``.
+    long for one line or does not parse as mathtext; never a bare ``custom:``. Parameters
+    named in ``skip`` (default the forcing frequency, the axis of a frequency response) are
+    left out.
     """
     lines: list[str] = []
     if oscillator is not None:
@@ -228,9 +231,9 @@ def equation_title(
             model = oscillator.name
     elif model:
         lines.append(mathtext_safe(model))
-    p = _params_text(params or {})
+    p = _params_text(params or {}, skip=tuple(skip))
     if p:
-        head = model if model and model != "custom" and oscillator is not None else ""
+        head = model if oscillator is not None and not model.startswith("custom") else ""
         lines.append(f"{mathtext_safe(head)}: {p}" if head else p)
     return "\n".join(lines)
 
@@ -256,7 +259,8 @@ def _default_title(items: Sequence[Response]) -> str:
             return equation_title(builtin_model(model, **params), params)
     except Exception:  # unknown parameter names and the like: the plain title below
         pass
-    head = mathtext_safe(model) if model and model != "custom" else "frequency response"
+    custom = not model or model.startswith("custom")
+    head = "frequency response" if custom else mathtext_safe(model)
     p = _params_text(r.params)
     return f"{head}: {p}" if p else head
 
