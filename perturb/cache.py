@@ -1,4 +1,4 @@
-"""On-disk cache of derivations, stored as text.
+"""On-disk cache of derivations, stored as authenticated text.
 
 A derivation is keyed by the method, its options, the oscillator's equation (``srepr``) and
 parameter values, perturb's version and a hash of the method's source file — so editing a
@@ -9,10 +9,37 @@ repeat the same symbols and subexpressions thousands of times), each node a whit
 constructor name with references to earlier nodes, or a literal leaf (symbol, number,
 constant). Reading it calls only those constructors, unevaluated, so a hit rebuilds exactly
 the trees the method returned in milliseconds — parsing ``srepr`` text
-(:mod:`perturb.serialize`) costs tenths of a second for a long derivation. Nothing in an entry
-is evaluated as code: a tampered or corrupted entry is recomputed, never trusted and never
-executed. An approximation whose rebuilt form would differ from it (an expression type the
-table does not know) is not stored.
+(:mod:`perturb.serialize`) costs tenths of a second for a long derivation. An approximation
+whose rebuilt form would differ from it (an expression type the table does not know) is not
+stored.
+
+Trust
+-----
+The cache folder may be shared (``PERTURB_CACHE_DIR`` on a shared disk, a CI cache restored
+from another branch), so whoever can write it must not be able to make perturb run code or
+return a wrong answer. Two independent checks, both before anything is built:
+
+1. **Authentication: HMAC-SHA256 with a per-user secret key.** An entry file is the JSON
+   object ``{"perturb-cache": <layout>, "hmac": "<hex>", "entry": <entry>}``, checked on its
+   bytes before anything is parsed; the HMAC covers the layout, the entry's cache key (its
+   file name — an entry moved to another key fails) and every byte of ``<entry>``, so an
+   edited number, symbol or step is detected. The key is
+   ``$PERTURB_CACHE_KEY`` when set (a secret of at least 16 characters), else 32 random
+   bytes in ``$XDG_CONFIG_HOME/perturb/cache-key`` (default ``~/.config/perturb/cache-key``):
+   created on first use with mode 0600 in a 0700 folder, and refused — caching is then off,
+   with a warning — if it is a link, readable or writable by others, owned by another user,
+   or inside the cache folder. A content hash checked against the file name would not do:
+   the name hashes the *inputs* of a derivation, which anyone can compute, so a forger
+   could store any content under it; only a secret the forger lacks authenticates.
+2. **A closed vocabulary** (:class:`perturb.serialize.Vocabulary`, the one the JSON codec
+   reads ``perturb derive --json`` files with): constructor names from
+   :data:`perturb.serialize.CLASSES`, symbol names the oscillator declares or the engines
+   use, function names the engines use, numbers as bounded finite numbers (no ``NaN`` or
+   ``Infinity`` in the JSON). This holds even for an entry authenticated by a leaked key.
+
+An entry that fails either check — tampered, written with another key, truncated, from
+another layout, outside the vocabulary — is reported with a :class:`CacheWarning` naming the
+file, recomputed and overwritten: never executed, never trusted.
 
 Location: ``$PERTURB_CACHE_DIR``, else ``$XDG_CACHE_HOME/perturb``, else
 ``~/.cache/perturb``; ``PERTURB_CACHE=0`` switches caching off.
@@ -21,11 +48,15 @@ Location: ``$PERTURB_CACHE_DIR``, else ``$XDG_CACHE_HOME/perturb``, else
 from __future__ import annotations
 
 import hashlib
+import hmac
 import inspect
 import json
 import os
+import secrets
+import stat
 import sys
 import tempfile
+import warnings
 from collections.abc import Callable, Mapping
 from fractions import Fraction
 from pathlib import Path
@@ -34,22 +65,32 @@ from typing import Any
 
 import sympy as sp
 from sympy.core.function import AppliedUndef
-from sympy.functions.elementary.piecewise import ExprCondPair
 from sympy.printing.repr import mlib_to_str, repr_dps
 
 from .approximation import Approximation, Step
-from .fourier_symbols import DiracCoefficient, RampCoefficient, StepCoefficient
-from .methods.lindstedt import _Continued  # the engines' continuation rows in derivation steps
 from .model import Oscillator
-from .serialize import FORMAT_VERSION
+from .serialize import CLASSES, CONSTANTS, FORMAT_VERSION, Vocabulary, check_plain
 
-__all__ = ["cache_dir", "cached_derivation", "derivation_key"]
+__all__ = [
+    "CacheWarning",
+    "authenticate",
+    "cache_dir",
+    "cache_key_file",
+    "cached_derivation",
+    "derivation_key",
+]
 
-# Layout of an entry (bump to orphan older entries): 2 = node table, tagged options.
-_ENTRY_VERSION = 2
+# Layout of an entry (bump to orphan older entries): 2 = node table, tagged options;
+# 3 = authenticated (header line with an HMAC), read through serialize's vocabulary.
+_ENTRY_VERSION = 3
+_MAGIC = b"perturb-cache"
 _MAX_NODES = 2_000_000
-_MAX_NAME = 200
+_MAX_BYTES = 512 * 2**20  # an entry larger than this is not read
 _MAX_TEXT = 100_000
+
+
+class CacheWarning(UserWarning):
+    """A cache entry (or the cache key) was not trusted: the derivation is recomputed."""
 
 
 def cache_dir() -> Path:
@@ -58,6 +99,13 @@ def cache_dir() -> Path:
         return Path(os.environ["PERTURB_CACHE_DIR"])
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return Path(base) / "perturb"
+
+
+def cache_key_file() -> Path:
+    """The file holding this user's secret cache key (used unless ``PERTURB_CACHE_KEY`` is set):
+    ``$XDG_CONFIG_HOME/perturb/cache-key``, default ``~/.config/perturb/cache-key``."""
+    base = os.environ.get("XDG_CONFIG_HOME") or os.path.join(os.path.expanduser("~"), ".config")
+    return Path(base) / "perturb" / "cache-key"
 
 
 def _source_hash(fn: Callable[..., Any]) -> str:
@@ -86,80 +134,158 @@ def derivation_key(method: str, fn: Callable[..., Any], osc: Oscillator, options
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
 
-# ------------------------------------------------------------------------ expression table --
-def _unevaluated(cls: type) -> Callable[[list], sp.Basic]:
-    return lambda args: cls(*args, evaluate=False)
+# ------------------------------------------------------------------------- the secret key --
+class _NoKey(Exception):
+    """No trustworthy key: the cache is not used."""
 
 
-def _as_given(cls: type) -> Callable[[list], sp.Basic]:
-    return lambda args: cls(*args)
+_KEYS: dict[tuple[str | None, str, str], bytes] = {}
+_WARNED: set[str] = set()
 
 
-def _assoc(cls: type) -> Callable[[list], sp.Basic]:
-    # what Add/Mul(*args, evaluate=False) builds, without the constructor's cache lookup and
-    # re-sympifying — most of a warm hit's time, as most nodes are products
-    return lambda args: cls._from_args(args)
+def _inside(path: Path, folder: Path) -> bool:
+    try:
+        p, f = path.resolve(), folder.resolve()
+    except (OSError, RuntimeError):
+        return False
+    return p == f or f in p.parents
 
 
-# Node name -> (class, constructor from the rebuilt arguments). Every class here satisfies
-# ``constructor(e.args) == e``: operators and functions unevaluated; Order evaluated, because
-# its constructor normalises by expanding and never terminates unevaluated. The write path
-# checks the round trip, so a class that breaks this only costs its entries.
-_CLASSES: dict[str, tuple[type, Callable[[list], sp.Basic]]] = {
-    cls.__name__: (cls, _unevaluated(cls))
-    for cls in (
-        sp.Pow,
-        sp.Equality,
-        sp.Unequality,
-        sp.StrictLessThan,
-        sp.StrictGreaterThan,
-        sp.LessThan,
-        sp.GreaterThan,
-        sp.Piecewise,
-        sp.And,
-        sp.Or,
-        sp.Not,
-        sp.Max,
-        sp.Min,
-        sp.Heaviside,
-        sp.DiracDelta,
-        sp.Abs,
-        sp.sign,
-        sp.sin,
-        sp.cos,
-        sp.tan,
-        sp.sinh,
-        sp.cosh,
-        sp.tanh,
-        sp.asin,
-        sp.acos,
-        sp.atan,
-        sp.atan2,
-        sp.exp,
-        sp.log,
-        sp.re,
-        sp.im,
-        sp.conjugate,
-        sp.floor,
-        sp.ceiling,
-        StepCoefficient,
-        RampCoefficient,
-        DiracCoefficient,
+def _create_key(path: Path) -> None:
+    """A new random key at ``path`` (0600 in a 0700 folder), unless one appears meanwhile."""
+    path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(secrets.token_hex(32) + "\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+        try:
+            os.link(tmp, path)  # fails if another process created the key first: theirs wins
+        except FileExistsError:
+            pass
+        except OSError:  # a file system without hard links
+            if not path.exists():
+                os.replace(tmp, path)
+    finally:
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+
+
+def _read_key(path: Path) -> bytes:
+    flags = os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0)
+    fd = os.open(path, flags)
+    with os.fdopen(fd, "rb") as fh:
+        st = os.fstat(fh.fileno())
+        if not stat.S_ISREG(st.st_mode):
+            raise _NoKey(f"the key file {str(path)!r} is not a regular file")
+        if hasattr(os, "getuid") and st.st_uid != os.getuid():
+            raise _NoKey(f"the key file {str(path)!r} belongs to another user")
+        if os.name == "posix" and st.st_mode & 0o077:
+            raise _NoKey(
+                f"the key file {str(path)!r} is accessible to other users (mode "
+                f"{stat.S_IMODE(st.st_mode):o}): `chmod 600` it, or delete it to make a new one"
+            )
+        text = fh.read(256).strip()
+    try:
+        key = bytes.fromhex(text.decode("ascii"))
+    except (UnicodeDecodeError, ValueError):
+        key = b""
+    if len(key) < 32:
+        raise _NoKey(f"the key file {str(path)!r} does not hold a key: delete it to make one")
+    return key
+
+
+def _secret() -> bytes:
+    """This user's cache key (see the module docstring); raises :class:`_NoKey`."""
+    env = os.environ.get("PERTURB_CACHE_KEY")
+    path = cache_key_file()
+    memo = (env, str(path), str(cache_dir()))
+    if memo in _KEYS:
+        return _KEYS[memo]
+    if env is not None:
+        if len(env) < 16:
+            raise _NoKey("PERTURB_CACHE_KEY is set but shorter than 16 characters")
+        key = hashlib.sha256(b"perturb-cache-key\0" + env.encode()).digest()
+    else:
+        if _inside(path, cache_dir()):
+            raise _NoKey(
+                f"the key file {str(path)!r} lies inside the cache folder {str(cache_dir())!r}, "
+                "which others may be able to read"
+            )
+        key = b""
+        for _ in range(3):  # created by a concurrent process between the two steps: read it
+            try:
+                key = _read_key(path)
+                break
+            except FileNotFoundError:
+                try:
+                    _create_key(path)
+                except OSError as exc:
+                    raise _NoKey(f"cannot create the key file {str(path)!r}: {exc}") from None
+            except OSError as exc:
+                raise _NoKey(f"cannot read the key file {str(path)!r}: {exc}") from None
+        if not key:
+            raise _NoKey(f"cannot create the key file {str(path)!r}")
+    _KEYS[memo] = key
+    return key
+
+
+def authenticate(label: str, data: bytes) -> str | None:
+    """HMAC-SHA256 (hex) of ``data`` bound to ``label`` under this user's cache key (module
+    docstring), for other files perturb reads back (sweep checkpoints); ``None`` when no
+    trustworthy key is available."""
+    try:
+        key = _secret()
+    except _NoKey:
+        return None
+    msg = b"perturb/%s\n" % label.encode() + data
+    return hmac.new(key, msg, hashlib.sha256).hexdigest()
+
+
+def _mac(key: bytes, name: str, body: bytes) -> bytes:
+    msg = b"%s/%d\n%s\n" % (_MAGIC, _ENTRY_VERSION, name.encode()) + body
+    return hmac.new(key, msg, hashlib.sha256).hexdigest().encode()
+
+
+def _seal(key: bytes, name: str, body: bytes) -> bytes:
+    # still one JSON object: {"perturb-cache": <layout>, "hmac": "<hex>", "entry": <body>}
+    return b'{"%s":%d,"hmac":"%s","entry":' % (_MAGIC, _ENTRY_VERSION, _mac(key, name, body)) + (
+        body + b"}"
     )
-}
-_CLASSES.update({cls.__name__: (cls, _assoc(cls)) for cls in (sp.Add, sp.Mul)})
-_CLASSES.update(
-    {
-        cls.__name__: (cls, _as_given(cls))
-        for cls in (sp.Tuple, sp.Derivative, ExprCondPair, sp.Order, _Continued)
-    }
-)
-_CONSTANTS: dict[str, sp.Basic] = {
-    type(c).__name__: c
-    for c in (sp.pi, sp.E, sp.I, sp.oo, -sp.oo, sp.zoo, sp.nan, sp.true, sp.false, sp.EulerGamma)
-}
 
 
+class _Rejected(Exception):
+    """An entry that is not trusted (the message says why)."""
+
+
+_HEAD = b'{"%s":%d,"hmac":"' % (_MAGIC, _ENTRY_VERSION)
+_BODY_AT = len(_HEAD) + 64 + len(b'","entry":')
+
+
+def _open(raw: bytes, key: bytes, name: str) -> bytes:
+    """The entry's JSON body, if the file's HMAC authenticates it under ``name`` (checked on
+    the bytes, before any parsing)."""
+    if not raw.startswith(_HEAD):
+        if raw.startswith(b'{"%s":' % _MAGIC):
+            raise _Rejected(f"it is not of layout {_ENTRY_VERSION}")
+        raise _Rejected("it is not an authenticated perturb cache entry")
+    mac, sep = raw[len(_HEAD) : len(_HEAD) + 64], raw[len(_HEAD) + 64 : _BODY_AT]
+    body = raw[_BODY_AT:-1]
+    if sep != b'","entry":' or not raw.endswith(b"}"):
+        raise _Rejected("it is not an authenticated perturb cache entry")
+    if not hmac.compare_digest(mac, _mac(key, name, body)):
+        raise _Rejected(
+            "it failed authentication (edited, truncated, moved from another entry, or written "
+            "with another key)"
+        )
+    return body
+
+
+# ------------------------------------------------------------------------ expression table --
 class _Unsupported(Exception):
     """An expression the table cannot rebuild exactly: the approximation is not stored."""
 
@@ -202,75 +328,80 @@ class _Writer:
         if isinstance(e, sp.Float):
             return ["float", mlib_to_str(e._mpf_, repr_dps(e._prec)), int(e._prec)]
         name = type(e).__name__
-        if _CONSTANTS.get(name) is e:
+        if CONSTANTS.get(name) is e:
             return ["const", name]
         if isinstance(e, AppliedUndef):
             f = type(e)
             return ["fn", f.__name__, _assumptions(f._kwargs), *(self.ref(a) for a in e.args)]
         if type(e) is sp.ImmutableDenseMatrix:
             return ["matrix", e.rows, e.cols, *(self.ref(a) for a in e)]
-        if name not in _CLASSES or _CLASSES[name][0] is not type(e):
+        if name not in CLASSES or CLASSES[name][0] is not type(e):
             raise _Unsupported(f"expression type {name}")
         return [name, *(self.ref(a) for a in e.args)]
 
 
-def _literal(value: Any, kind: type, limit: int = _MAX_NAME) -> Any:
+def _literal(value: Any, kind: type, limit: int = 200) -> Any:
     if type(value) is not kind or (kind is str and len(value) > limit):
-        raise ValueError(f"cache entry: unexpected {value!r}")
+        raise ValueError(f"unexpected {str(value)[:80]!r}")
     return value
 
 
-def _read_nodes(nodes: Any) -> list[sp.Basic]:
+_CONSTRUCTORS = {name: ctor for name, (_, ctor) in CLASSES.items()}
+
+
+def _read_nodes(nodes: Any, vocab: Vocabulary) -> list[sp.Basic]:
+    """The node table rebuilt; each node checked against ``vocab`` before it is built."""
     if not isinstance(nodes, list) or len(nodes) > _MAX_NODES:
-        raise ValueError("cache entry: no node table")
+        raise ValueError("no node table")
     built: list[sp.Basic] = []
+    n_built = 0
 
     def refs(items: list) -> list[sp.Basic]:
         out = []
         for i in items:
-            if type(i) is not int or not 0 <= i < len(built):
-                raise ValueError(f"cache entry: bad reference {i!r}")
+            if type(i) is not int or not 0 <= i < n_built:
+                raise ValueError(f"bad reference {str(i)[:40]!r}")
             out.append(built[i])
         return out
 
     for node in nodes:
-        if not isinstance(node, list) or not node or type(node[0]) is not str:
-            raise ValueError("cache entry: bad node")
+        if type(node) is not list or not node or type(node[0]) is not str:
+            raise ValueError(f"bad node {str(node)[:80]!r}")
         tag, rest = node[0], node[1:]
-        if tag == "sym":
+        ctor = _CONSTRUCTORS.get(tag)
+        if ctor is not None:  # most nodes: a whitelisted class of built arguments
+            args = refs(rest)
+            if tag == "Pow" and len(args) == 2:
+                vocab.power(*args)
+            e = ctor(args)
+        elif tag == "sym":
             name, kw = rest
-            e = sp.Symbol(_literal(name, str), **_assumptions(_literal(kw, dict)))
+            e = vocab.symbol(name, kw)
         elif tag == "dummy":
             name, index, kw = rest
-            e = sp.Dummy(
-                _literal(name, str),
-                dummy_index=_literal(index, int),
-                **_assumptions(_literal(kw, dict)),
-            )
+            e = vocab.dummy(name, index, kw)
         elif tag == "int":
             (value,) = rest
-            e = sp.Integer(_literal(value, int))
+            e = vocab.integer(value)
         elif tag == "rat":
             p, q = rest
-            e = sp.Rational(_literal(p, int), _literal(q, int))
+            e = vocab.rational(p, q)
         elif tag == "float":
             text, prec = rest
-            e = sp.Float(_literal(text, str), precision=_literal(prec, int))
+            e = vocab.float(text, prec)
         elif tag == "const":
             (name,) = rest
-            e = _CONSTANTS[_literal(name, str)]
+            e = vocab.constant(name)
         elif tag == "fn":
             name, kw, *args = rest
-            f = sp.Function(_literal(name, str), **_assumptions(_literal(kw, dict)))
-            e = f(*refs(args))
+            e = vocab.function(name, kw)(*refs(args))
         elif tag == "matrix":
             rows, cols, *items = rest
-            e = sp.ImmutableDenseMatrix(_literal(rows, int), _literal(cols, int), refs(items))
-        elif tag in _CLASSES:
-            e = _CLASSES[tag][1](refs(rest))
+            e = vocab.matrix(rows, cols, refs(items))
         else:
-            raise ValueError(f"cache entry: constructor {tag!r} is not allowed")
+            raise ValueError(f"constructor {tag[:80]!r} is not allowed")
         built.append(e)
+        n_built += 1
     return built
 
 
@@ -290,22 +421,25 @@ def _encode_option(value: Any, table: _Writer) -> Any:
     raise _Unsupported(f"option value {value!r}")
 
 
-def _decode_option(value: Any, built: list[sp.Basic]) -> Any:
+def _decode_option(value: Any, built: list[sp.Basic], vocab: Vocabulary, depth: int = 0) -> Any:
+    if depth > 20:
+        raise ValueError("option nested too deeply")
     if isinstance(value, dict) and len(value) == 1:
         ((tag, body),) = value.items()
         if tag == "expr":
             if type(body) is not int or not 0 <= body < len(built):
-                raise ValueError(f"cache entry: bad reference {body!r}")
+                raise ValueError(f"bad reference {str(body)[:40]!r}")
             return built[body]
         if tag == "tuple":
-            return tuple(_decode_option(v, built) for v in body)
+            return tuple(_decode_option(v, built, vocab, depth + 1) for v in _literal(body, list))
         if tag == "fraction":
-            return Fraction(_literal(body[0], int), _literal(body[1], int))
+            p, q = _literal(body, list)
+            if vocab.integer_value(q) <= 0:
+                raise ValueError(f"fraction {p!r}/{q!r}")
+            return Fraction(vocab.integer_value(p), q)
     if isinstance(value, list):
-        return [_decode_option(v, built) for v in value]
-    if value is None or isinstance(value, bool | int | float | str):
-        return value
-    raise ValueError(f"cache entry: unexpected option {value!r}")
+        return [_decode_option(v, built, vocab, depth + 1) for v in value]
+    return check_plain(value, vocab, "option")
 
 
 _SINGLE = ("waveform", "tau", "frequency", "amplitude", "backbone")
@@ -331,44 +465,91 @@ def _entry(approx: Approximation) -> dict[str, Any]:
     }
 
 
-def _approximation(data: Mapping[str, Any], osc: Oscillator) -> Approximation:
-    if data.get("entry") != _ENTRY_VERSION:
-        raise ValueError("cache entry of another layout")
-    built = _read_nodes(data["nodes"])
+def _approximation(data: Any, osc: Oscillator, where: str = "cache entry") -> Approximation:
+    """The approximation an entry describes; raises ``ValueError``/``ParseError`` (and,
+    for a malformed entry, ``KeyError``/``TypeError``) for anything outside the vocabulary."""
+    if not isinstance(data, dict) or data.get("entry") != _ENTRY_VERSION:
+        raise ValueError("an entry of another layout")
+    vocab = Vocabulary.for_oscillator(osc, where)
+    built = _read_nodes(data["nodes"], vocab)
 
     def at(i: Any) -> sp.Basic:
         if type(i) is not int or not 0 <= i < len(built):
-            raise ValueError(f"cache entry: bad reference {i!r}")
+            raise ValueError(f"bad reference {str(i)[:40]!r}")
         return built[i]
 
     def one(i: Any) -> sp.Basic | None:
         return None if i is None else at(i)
 
     def several(items: Any) -> tuple[sp.Basic, ...] | None:
-        return None if items is None else tuple(at(i) for i in items)
+        return None if items is None else tuple(at(i) for i in _literal(items, list))
 
     return Approximation(
         oscillator=osc,
         method=_literal(data["method"], str),
         options=MappingProxyType(
-            {_literal(k, str): _decode_option(v, built) for k, v in data["options"].items()}
+            {
+                _literal(k, str): _decode_option(v, built, vocab)
+                for k, v in _literal(data["options"], dict).items()
+            }
         ),
         unknowns=several(data["unknowns"]) or (),
         residuals=several(data["residuals"]) or (),
         slow_flow=several(data["slow_flow"]),
         frequency_polynomial=several(data["frequency_polynomial"]),
         phase_from=several(data["phase_from"]),
-        fourier=MappingProxyType({k: one(i) for k, i in data["fourier"].items()}),
+        fourier=MappingProxyType(
+            {_literal(k, str): one(i) for k, i in _literal(data["fourier"], dict).items()}
+        ),
         steps=tuple(
             Step(
                 _literal(title, str, _MAX_TEXT),
-                tuple(at(i) for i in math),
+                tuple(at(i) for i in _literal(math, list)),
                 _literal(text, str, _MAX_TEXT),
             )
-            for title, text, math in data["steps"]
+            for title, text, math in _literal(data["steps"], list)
         ),
         **{name: one(data[name]) for name in _SINGLE},
     )
+
+
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a number")
+
+
+def _read(path: Path, name: str, key: bytes, osc: Oscillator) -> Approximation | None:
+    """The entry at ``path`` if it exists and is trusted; ``None`` if absent. An entry that is
+    not trusted is reported (:class:`CacheWarning` naming the file) and ``None`` returned."""
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read(_MAX_BYTES + 1)
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        warnings.warn(
+            f"derivation cache entry {str(path)!r} cannot be read ({exc.strerror}): recomputed",
+            CacheWarning,
+            stacklevel=3,
+        )
+        return None
+    try:
+        if len(raw) > _MAX_BYTES:
+            raise _Rejected(f"it is larger than {_MAX_BYTES} bytes")
+        body = _open(raw, key, name)
+        # authenticated; still read only through the closed vocabulary
+        try:
+            data = json.loads(body, parse_constant=_no_constant)
+            return _approximation(data, osc, f"cache entry {str(path)!r}")
+        except Exception as exc:  # whatever a malformed entry raises: nothing was executed
+            raise _Rejected(f"its content is invalid: {exc}") from None
+    except _Rejected as exc:
+        warnings.warn(
+            f"derivation cache entry {str(path)!r} ignored: {exc}; the derivation is "
+            "recomputed and the entry overwritten",
+            CacheWarning,
+            stacklevel=3,
+        )
+        return None
 
 
 def cached_derivation(
@@ -379,32 +560,41 @@ def cached_derivation(
     use_cache: bool | None = None,
     **options: Any,
 ) -> Approximation:
-    """``fn(osc, **options)``, from the cache when an intact entry exists.
+    """``fn(osc, **options)``, from the cache when an authenticated, valid entry exists.
 
     The result is identical either way (same expressions and steps); a cache that cannot be
-    read or written only costs time.
+    read or written only costs time. An entry that is not trusted (module docstring) is
+    reported with a :class:`CacheWarning` naming its file, and recomputed.
     """
     if use_cache is None:
         use_cache = os.environ.get("PERTURB_CACHE", "1") != "0"
     if not use_cache:
         return fn(osc, **options)
-    key = derivation_key(method, fn, osc, options)
-    path = cache_dir() / f"{key}.json"
-    if path.is_file():
-        try:
-            return _approximation(json.loads(path.read_text()), osc)
-        except Exception:
-            pass  # whatever a corrupted or tampered entry raises: recompute and overwrite
+    try:
+        key = _secret()
+    except _NoKey as exc:
+        reason = str(exc)
+        if reason not in _WARNED:
+            _WARNED.add(reason)
+            warnings.warn(f"derivation cache not used: {reason}", CacheWarning, stacklevel=2)
+        return fn(osc, **options)
+    name = derivation_key(method, fn, osc, options)
+    path = cache_dir() / f"{name}.json"
+    approx = _read(path, name, key, osc)
+    if approx is not None:
+        return approx
     approx = fn(osc, **options)
     try:
-        text = json.dumps(_entry(approx), sort_keys=True, separators=(",", ":"))
+        body = json.dumps(_entry(approx), sort_keys=True, separators=(",", ":"))
         # store only what reads back as the very same approximation
-        if _approximation(json.loads(text), osc) != approx:
+        if _approximation(json.loads(body), osc) != approx:
             return approx
         path.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile("w", dir=path.parent, delete=False, suffix=".tmp") as fh:
-            fh.write(text)
+        with tempfile.NamedTemporaryFile("wb", dir=path.parent, delete=False, suffix=".tmp") as fh:
+            fh.write(_seal(key, name, body.encode()))
         os.replace(fh.name, path)
-    except (OSError, ValueError, RecursionError, _Unsupported):
-        pass  # a read-only or full disk, or an expression the table lacks, costs only time
+    except (OSError, ValueError, TypeError, KeyError, RecursionError, _Unsupported):
+        # a read-only or full disk, or an expression outside the table, costs only time
+        # (ParseError, an expression outside the vocabulary, is a ValueError)
+        pass
     return approx

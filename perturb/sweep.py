@@ -38,7 +38,15 @@ written aside, then renamed), next to ``sweep.json``, which identifies the sweep
 its scene, grid and perturb's version.  A sweep that was interrupted — even killed — is
 resumed by running the same call again: cells found in ``DIR`` are not recomputed.  JSON keeps
 every float exactly (``repr`` round-trips), so a resumed sweep gives bit-identical results.
-Checkpoints are data only, never pickles: nothing in ``DIR`` is executed.
+Checkpoints are data only, never pickles: nothing in ``DIR`` is executed.  On resume every
+part is validated (its cells within the grid and in no other part, one number — or NaN — of
+the expected shape per cell and output) and, when the user has a cache key
+(:mod:`perturb.cache`), authenticated by an HMAC, so an edited value is detected; a part that
+fails is ignored with a :class:`CheckpointWarning` and its cells are computed again.  A
+``sweep.json`` that does not describe the sweep is a clear error.  The outputs of
+:func:`save_dataset` and :func:`plot_map` are written beside the destination and renamed when
+complete.  The workers of a pool the sweep creates die with the process that owns it (on Linux
+the kernel signals them; everywhere a watchdog thread polls the parent).
 
 What a scene sweep computes per cell (``[sweep] quantity`` / ``solver``)
 ----------------------------------------------------------------------
@@ -85,18 +93,24 @@ response, say) gets NaN and ``failed = 1``; a frequency window with no solution 
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import hashlib
+import hmac
 import json
 import math
 import os
 import re
+import shutil
+import signal
 import sys
+import threading
 import time
 import tomllib
 import types
 import uuid
+import warnings
 from collections import deque
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -104,12 +118,14 @@ from typing import Any
 
 import numpy as np
 
+from .atomic import atomic_path, write_text
 from .errors import ParameterError, PerturbError
 from .progress import Progress
 
 __all__ = [
     "QUANTITIES",
     "SOLVERS",
+    "CheckpointWarning",
     "SweepScene",
     "sweep",
     "parse_range",
@@ -925,6 +941,56 @@ class _SerialExecutor(cf.Executor):
         return fut
 
 
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
+_WATCH_SECONDS = 0.5
+
+
+def _watch_parent(parent: int) -> None:
+    """Exit this worker as soon as its parent is gone (reparented): the pool's own queues
+    would keep an orphan waiting for ever. Ends with the process (capped at ~15 years)."""
+    for _ in range(10**9):
+        time.sleep(_WATCH_SECONDS)
+        if os.getppid() != parent:
+            os._exit(1)
+
+
+def _worker_init(main_pid: int) -> None:
+    """Initializer of the sweep's pool workers: they die with the process that owns the pool.
+
+    On Linux the kernel sends SIGTERM when the parent dies (``prctl(PR_SET_PDEATHSIG)``); on
+    every platform a daemon thread polls the parent's pid. SIGTERM gets its default action
+    (an inherited handler must not keep an orphan alive).
+    """
+    with contextlib.suppress(ValueError, OSError):
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    parent = os.getppid()
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+        except (OSError, AttributeError):
+            pass  # the watchdog thread below still ends the worker
+    # the owner may have died before prctl took effect
+    try:
+        os.kill(main_pid, 0)
+    except ProcessLookupError:
+        os._exit(1)
+    except OSError:
+        pass
+    if parent == 1:
+        os._exit(1)
+    threading.Thread(
+        target=_watch_parent, args=(parent,), daemon=True, name="perturb-watch-parent"
+    ).start()
+
+
+def _process_pool(n: int) -> cf.ProcessPoolExecutor:
+    """A pool of ``n`` processes that die with this one (:func:`_worker_init`)."""
+    return cf.ProcessPoolExecutor(n, initializer=_worker_init, initargs=(os.getpid(),))
+
+
 def _machine_workers() -> int:
     try:
         return max(1, len(os.sched_getaffinity(0)))
@@ -940,7 +1006,7 @@ def _open_executor(executor: Any) -> tuple[cf.Executor, int, bool, str]:
     """(executor, number of workers, whether we own it, description; "dask ..." for Dask)."""
     if executor is None:
         n = _machine_workers()
-        return cf.ProcessPoolExecutor(n), n, True, f"process pool ({n} workers)"
+        return _process_pool(n), n, True, f"process pool ({n} workers)"
     if isinstance(executor, str):
         if executor == "serial":
             return _SerialExecutor(), 1, True, "serial"
@@ -952,7 +1018,7 @@ def _open_executor(executor: Any) -> tuple[cf.Executor, int, bool, str]:
         if executor < 1:
             raise ParameterError(f"executor = {executor!r}: expected at least 1 process")
         n = int(executor)
-        return cf.ProcessPoolExecutor(n), n, True, f"process pool ({n} workers)"
+        return _process_pool(n), n, True, f"process pool ({n} workers)"
     if _is_dask_client(executor):
         n = max(1, sum(executor.nthreads().values()))
         return executor.get_executor(pure=False), n, False, f"dask ({n} worker threads)"
@@ -968,14 +1034,50 @@ def _open_executor(executor: Any) -> tuple[cf.Executor, int, bool, str]:
 # --------------------------------------------------------------------------------------------
 # checkpoints
 # --------------------------------------------------------------------------------------------
+class CheckpointWarning(UserWarning):
+    """A checkpoint file was not trusted: its cells are computed again."""
+
+
+class _BadPart(Exception):
+    """A checkpoint part that is not used (the message says why)."""
+
+
+def _json_number(name: str) -> float:
+    # JSON's non-standard constants: NaN (a cell without a value) and the infinities of a user
+    # function; their admissibility is checked per part
+    return {"NaN": math.nan, "Infinity": math.inf, "-Infinity": -math.inf}[name]
+
+
 class _Checkpoint:
-    """Completed chunks as JSON files in a directory (see the module docstring)."""
+    """Completed chunks as JSON files in a directory (see the module docstring).
 
-    FORMAT = 1
+    Every part is validated before its cells count as done: the sweep's fingerprint, cell
+    indices within the grid and claimed by no other part, one value of the expected shape per
+    cell and output (numbers; NaN; infinities only from a user function), ``failed`` flags,
+    bounded texts — and, when this user has a cache key (:mod:`perturb.cache`), an HMAC over
+    the part, so an edited number is detected. A part that fails is ignored with a
+    :class:`CheckpointWarning` naming it, and its cells are computed again. Nothing in a
+    checkpoint is executed (no pickle).
+    """
 
-    def __init__(self, path: str | Path, fingerprint: str, header: Mapping[str, Any]) -> None:
+    FORMAT = 2  # 2: parts carry an HMAC
+    _KEYS = frozenset(
+        {"fingerprint", "cells", "values", "failed", "errors", "seconds", "build_seconds"}
+        | {"built", "pid"}
+    )
+    _MAX_BYTES = 1 << 30
+
+    def __init__(
+        self,
+        path: str | Path,
+        fingerprint: str,
+        header: Mapping[str, Any],
+        shapes: Mapping[str, tuple[int, ...]] | None = None,
+    ) -> None:
         self.dir = Path(path)
         self.fingerprint = fingerprint
+        self.n_cells = int(header["n_cells"])
+        self.shapes = None if shapes is None else dict(shapes)  # None: a function sweep
         try:
             self.dir.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -983,43 +1085,155 @@ class _Checkpoint:
                 f"checkpoint {str(self.dir)!r}: cannot create the directory ({exc.strerror})"
             ) from None
         head = self.dir / "sweep.json"
+        expected = {"format": self.FORMAT, "fingerprint": fingerprint, **header}
         if head.exists():
             try:
-                old = json.loads(head.read_text())
+                old = json.loads(head.read_text(), parse_constant=_json_number)
             except (OSError, ValueError):
                 raise PerturbError(
                     f"checkpoint {str(head)!r} is unreadable: remove the directory to start over"
                 ) from None
-            if old.get("fingerprint") != fingerprint:
+            if not isinstance(old, dict) or old.get("fingerprint") != fingerprint:
                 raise PerturbError(
                     f"checkpoint {str(self.dir)!r} belongs to a different sweep (another scene, "
                     "grid or perturb version): remove it or choose another directory"
                 )
+            same = {k: v for k, v in old.items() if k != "format"} == json.loads(
+                json.dumps({k: v for k, v in expected.items() if k != "format"})
+            )
+            if old.get("format") not in (1, self.FORMAT) or not same:
+                raise PerturbError(
+                    f"checkpoint {str(head)!r} does not describe this sweep's grid (edited, or "
+                    f"from another format than {self.FORMAT}): remove the directory to start over"
+                )
         else:
-            self._write(head, {"format": self.FORMAT, "fingerprint": fingerprint, **header})
+            self._write(head, expected)
 
     @staticmethod
     def _write(path: Path, data: Any) -> None:
-        # a kill between the two steps leaves a stray .tmp file, never a half-written part
-        tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
-        tmp.write_text(json.dumps(data, allow_nan=True))
-        os.replace(tmp, path)
+        # complete or absent: written aside, then renamed (a kill leaves a stray hidden file)
+        write_text(path, json.dumps(data, allow_nan=True))
+
+    @staticmethod
+    def _canonical(data: Mapping[str, Any]) -> bytes:
+        return json.dumps(data, sort_keys=True, allow_nan=True, separators=(",", ":")).encode()
+
+    def _mac(self, data: Mapping[str, Any]) -> str | None:
+        from .cache import authenticate
+
+        return authenticate(f"sweep-checkpoint/{self.fingerprint}", self._canonical(data))
+
+    def _check(self, data: Any, shapes: dict[str, tuple[int, ...]], taken: set[int]) -> None:
+        """Raise :class:`_BadPart` unless ``data`` is a valid part of this sweep."""
+        if not isinstance(data, dict):
+            raise _BadPart("not a JSON object")
+        mac = data.pop("hmac", None)
+        if set(data) != self._KEYS:
+            raise _BadPart(f"unexpected fields {sorted(set(data) ^ self._KEYS)[:5]}")
+        if data["fingerprint"] != self.fingerprint:
+            raise _BadPart("it belongs to another sweep")
+        want = self._mac(data)
+        if want is not None and (type(mac) is not str or not hmac.compare_digest(mac, want)):
+            raise _BadPart(
+                "it failed authentication (edited, or written by another user or key)"
+                if mac is not None
+                else "it carries no authentication code"
+            )
+        cells = data["cells"]
+        if (
+            type(cells) is not list
+            or not 0 < len(cells) <= self.n_cells
+            or not all(type(i) is int and 0 <= i < self.n_cells for i in cells)
+        ):
+            raise _BadPart(f"cell indices outside the grid of {self.n_cells} cells")
+        if len(set(cells)) != len(cells) or taken.intersection(cells):
+            raise _BadPart("cells that another part already holds")
+        n = len(cells)
+        values = data["values"]
+        if type(values) is not dict or not values:
+            raise _BadPart("no values")
+        if self.shapes is not None and set(values) != set(self.shapes):
+            raise _BadPart(f"outputs {sorted(values)[:5]}, expected {sorted(self.shapes)}")
+        for name, vals in values.items():
+            if type(name) is not str or len(name) > 200 or type(vals) is not list:
+                raise _BadPart(f"output {str(name)[:40]!r}")
+            try:
+                arr = np.asarray(vals, dtype=float)
+            except (TypeError, ValueError):
+                raise _BadPart(f"output {name!r} holds something other than numbers") from None
+            if not all(_numbers(vals)):
+                raise _BadPart(f"output {name!r} holds something other than numbers")
+            if arr.ndim < 1 or arr.shape[0] != n:
+                raise _BadPart(f"output {name!r} has {arr.shape[:1]} values for {n} cells")
+            if name in shapes and arr.shape[1:] != shapes[name]:
+                raise _BadPart(f"output {name!r} has shape {arr.shape[1:]}, not {shapes[name]}")
+            if self.shapes is not None and np.isinf(arr).any():
+                raise _BadPart(f"output {name!r} holds an infinite value")
+        failed = data["failed"]
+        if self.shapes is None:
+            ok = failed is None
+        else:
+            ok = type(failed) is list and len(failed) == n and all(f in (0, 1) for f in failed)
+            ok = ok and all(type(f) is int for f in failed)
+        if not ok:
+            raise _BadPart("invalid 'failed' flags")
+        errors = data["errors"]
+        if type(errors) is not list or len(errors) > 3:
+            raise _BadPart("invalid error messages")
+        if not all(type(e) is str and len(e) <= 10_000 for e in errors):
+            raise _BadPart("invalid error messages")
+        for key in ("seconds", "build_seconds"):
+            v = data[key]
+            if type(v) not in (int, float) or not (math.isfinite(v) and v >= 0):
+                raise _BadPart(f"invalid {key}")
+        if type(data["built"]) is not bool or type(data["pid"]) is not int:
+            raise _BadPart("invalid 'built' or 'pid'")
+        for name, vals in values.items():
+            shapes.setdefault(name, np.asarray(vals, dtype=float).shape[1:])
 
     def load(self) -> list[dict[str, Any]]:
-        parts = []
+        """The valid parts (in file-name order); each invalid one is reported and skipped."""
+        parts: list[dict[str, Any]] = []
+        taken: set[int] = set()
+        shapes: dict[str, tuple[int, ...]] = dict(self.shapes or {})
         for p in sorted(self.dir.glob("part-*.json")):
             try:
-                data = json.loads(p.read_text())
-            except (OSError, ValueError):
-                continue  # unreadable: its cells are simply computed again
-            if data.get("fingerprint") == self.fingerprint:
-                parts.append(data)
+                try:
+                    if p.stat().st_size > self._MAX_BYTES:
+                        raise _BadPart(f"larger than {self._MAX_BYTES} bytes")
+                    data = json.loads(p.read_text(), parse_constant=_json_number)
+                except (OSError, ValueError, RecursionError) as exc:
+                    raise _BadPart(f"unreadable ({type(exc).__name__})") from None
+                self._check(data, shapes, taken)
+            except _BadPart as exc:
+                warnings.warn(
+                    f"sweep checkpoint part {str(p)!r} ignored: {exc}; its cells are computed "
+                    "again",
+                    CheckpointWarning,
+                    stacklevel=3,
+                )
+                continue
+            taken.update(data["cells"])
+            parts.append(data)
         return parts
 
     def save(self, result: Mapping[str, Any]) -> None:
         first = min(result["cells"])
         name = f"part-{first:09d}-{uuid.uuid4().hex[:8]}.json"
-        self._write(self.dir / name, {"fingerprint": self.fingerprint, **result})
+        data = {"fingerprint": self.fingerprint, **result}
+        mac = self._mac(data)
+        if mac is not None:
+            data["hmac"] = mac
+        self._write(self.dir / name, data)
+
+
+def _numbers(values: list, depth: int = 0) -> Iterator[bool]:
+    """Whether each leaf of nested lists is a number (``int`` or ``float``, not ``bool``)."""
+    for v in values:
+        if type(v) is list and depth < 32:
+            yield from _numbers(v, depth + 1)
+        else:
+            yield type(v) in (int, float)
 
 
 # --------------------------------------------------------------------------------------------
@@ -1213,8 +1427,16 @@ def sweep(
     ckpt = None
     collected: list[dict[str, Any]] = []
     if checkpoint is not None:
+        shapes = (
+            None
+            if schema is None
+            else {k: tuple(len(c[d]) for d in dims) for k, (dims, c) in schema.items()}
+        )
         ckpt = _Checkpoint(
-            checkpoint, fingerprint, {"names": names, "shape": list(shape), "n_cells": n_cells}
+            checkpoint,
+            fingerprint,
+            {"names": names, "shape": list(shape), "n_cells": n_cells},
+            shapes,
         )
         collected = ckpt.load()
     done = set()
@@ -1356,15 +1578,39 @@ def save_dataset(ds: Any, path: str | Path) -> Path:
     ds = ds.copy()
     ds.encoding = {}
     if p.suffix == ".zarr":
-        try:
-            ds.to_zarr(p, mode="w", consolidated=False)
-        except ImportError as exc:
-            raise PerturbError(f"cannot write {str(p)!r}: {exc} (pip install zarr)") from None
+        _save_zarr(ds, p)
         return p
     if p.suffix not in (".nc", ".nc4", ".netcdf"):
         raise ParameterError(f"output {str(p)!r}: expected a .nc or .zarr file name")
-    ds.to_netcdf(p)
+    # complete or absent: written beside the destination, renamed when complete
+    with atomic_path(p) as tmp:
+        ds.to_netcdf(tmp)
     return p
+
+
+def _save_zarr(ds: Any, p: Path) -> None:
+    """A zarr store (a folder) written beside ``p`` and swapped in when complete: ``p`` holds
+    the old store or the new one, never a half-written one (between the two renames, for a
+    moment, neither)."""
+    folder = p.parent if str(p.parent) else Path(".")
+    if not folder.is_dir():
+        raise ParameterError(f"output {str(p)!r}: the folder {str(folder)!r} does not exist")
+    if p.exists() and not p.is_dir():
+        raise ParameterError(f"output {str(p)!r} exists and is not a zarr folder")
+    tag = uuid.uuid4().hex[:8]
+    tmp, old = folder / f".{p.name}.{tag}.tmp", folder / f".{p.name}.{tag}.old"
+    try:
+        ds.to_zarr(tmp, mode="w", consolidated=False)
+    except ImportError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise PerturbError(f"cannot write {str(p)!r}: {exc} (pip install zarr)") from None
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if p.exists():
+        os.replace(p, old)
+    os.replace(tmp, p)
+    shutil.rmtree(old, ignore_errors=True)
 
 
 def load_dataset(path: str | Path) -> Any:
@@ -1443,8 +1689,11 @@ def plot_map(ds: Any, path: str | Path, variable: str | None = None) -> Path:
     ax.set_title(title)
     fig.tight_layout()
     p = Path(path)
-    fig.savefig(p, dpi=120)
-    plt.close(fig)
+    try:
+        with atomic_path(p) as tmp:  # keeps the suffix: savefig picks the format by it
+            fig.savefig(tmp, dpi=120)
+    finally:
+        plt.close(fig)
     return p
 
 

@@ -516,3 +516,212 @@ def test_cli_errors(tmp_path, capsys, argv, fragment):
 def test_module_is_callable():
     ds = perturb.sweep(lambda a: 2 * a, {"a": [1.0]}, "serial")
     assert ds.value.values.tolist() == [2.0]
+
+
+# ------------------------------------------ hostile checkpoints, atomic outputs, orphans --
+@pytest.fixture
+def private_key(tmp_path, monkeypatch):
+    """This test's own cache key (checkpoint parts are authenticated with it)."""
+    import perturb.cache as pc
+
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
+    monkeypatch.delenv("PERTURB_CACHE_KEY", raising=False)
+    monkeypatch.setattr(pc, "_KEYS", {})
+
+
+_CK_GRID = {"a": "0:1:4", "b": "0:1:3"}
+_CK_CALLS: list[tuple[float, float]] = []
+
+
+def _ck_cell(a, b):
+    _CK_CALLS.append((a, b))
+    return {"s": a * b + 0.25, "v": [a, b]}
+
+
+def _edit(path, change):
+    data = json.loads(path.read_text())
+    change(data)
+    path.write_text(json.dumps(data))
+    return data["cells"]
+
+
+def _resign(path):
+    from perturb.cache import authenticate
+
+    data = json.loads(path.read_text())
+    data.pop("hmac", None)
+    text = json.dumps(data, sort_keys=True, allow_nan=True, separators=(",", ":"))
+    data["hmac"] = authenticate(f"sweep-checkpoint/{data['fingerprint']}", text.encode())
+    path.write_text(json.dumps(data))
+
+
+def _tamper_number(parts, marker):
+    return _edit(parts[0], lambda d: d["values"]["s"].__setitem__(0, d["values"]["s"][0] + 1.0))
+
+
+def _tamper_code(parts, marker):
+    payload = f"__import__('os').system('touch {marker}')"
+    cells = _edit(parts[1], lambda d: d["values"]["s"].__setitem__(0, payload))
+    _resign(parts[1])
+    return cells
+
+
+def _tamper_cells_outside_the_grid(parts, marker):
+    cells = json.loads(parts[2].read_text())["cells"]
+    _edit(parts[2], lambda d: d["cells"].__setitem__(0, 10**6))
+    _resign(parts[2])
+    return cells
+
+
+def _tamper_duplicate(parts, marker):
+    # a copy of a valid part (its HMAC too) claiming cells another part holds: dropped
+    (parts[0].parent / "part-999999999-copy.json").write_bytes(parts[0].read_bytes())
+    return []
+
+
+def _tamper_garbage(parts, marker):
+    cells = json.loads(parts[1].read_text())["cells"]
+    parts[1].write_bytes(b"\x80\x04\x95 not json: a pickle would be refused too")
+    return cells
+
+
+def _tamper_shape(parts, marker):
+    cells = _edit(parts[3], lambda d: d["values"]["v"].__setitem__(0, [1.0]))
+    _resign(parts[3])
+    return cells
+
+
+def _tamper_no_hmac(parts, marker):
+    return _edit(parts[0], lambda d: d.pop("hmac"))
+
+
+@pytest.mark.parametrize(
+    "tamper",
+    [
+        _tamper_number,
+        _tamper_code,
+        _tamper_cells_outside_the_grid,
+        _tamper_duplicate,
+        _tamper_garbage,
+        _tamper_shape,
+        _tamper_no_hmac,
+    ],
+)
+def test_tampered_checkpoint_parts_are_ignored_and_recomputed(tmp_path, private_key, tamper):
+    ckpt = tmp_path / "ckpt"
+    ref = ps.sweep(_ck_cell, _CK_GRID, "serial", checkpoint=ckpt, chunk_size=3)
+    parts = sorted(ckpt.glob("part-*.json"))
+    assert len(parts) == 4
+    marker = tmp_path / "pwned"
+    redo = tamper(parts, marker)
+    _CK_CALLS.clear()
+    with pytest.warns(ps.CheckpointWarning, match="ignored"):
+        again = ps.sweep(_ck_cell, _CK_GRID, "serial", checkpoint=ckpt)
+    axes = (np.linspace(0, 1, 4), np.linspace(0, 1, 3))
+    assert sorted(_CK_CALLS) == sorted((axes[0][i // 3], axes[1][i % 3]) for i in redo)
+    _assert_same(ref, again)
+    assert not marker.exists()
+
+
+def test_a_checkpoint_header_that_does_not_describe_the_sweep_is_an_error(tmp_path, private_key):
+    ckpt = tmp_path / "ckpt"
+    ps.sweep(_ck_cell, _CK_GRID, "serial", checkpoint=ckpt, chunk_size=3)
+    head = ckpt / "sweep.json"
+    data = json.loads(head.read_text())
+    data["n_cells"] = 10**9
+    head.write_text(json.dumps(data))
+    with pytest.raises(PerturbError, match="does not describe this sweep"):
+        ps.sweep(_ck_cell, _CK_GRID, "serial", checkpoint=ckpt)
+
+
+def test_scene_checkpoint_values_must_have_the_schema(tmp_path, private_key):
+    ckpt = tmp_path / "ckpt"
+    grid = {"mu": [0.1, 0.3], "k": [1.0]}
+    ref = ps.sweep(_peak_scene(), grid, "serial", checkpoint=ckpt, chunk_size=1)
+    part = sorted(ckpt.glob("part-*.json"))[0]
+    _edit(part, lambda d: d["values"].update(extra=[1.0]))
+    _resign(part)  # as if the key had leaked: validation still refuses the part
+    with pytest.warns(ps.CheckpointWarning, match="outputs"):
+        again = ps.sweep(_peak_scene(), grid, "serial", checkpoint=ckpt)
+    _assert_same(ref, again)
+
+
+def test_outputs_are_complete_or_absent(tmp_path, monkeypatch):
+    import matplotlib.figure
+
+    ds = ps.sweep(_user_fn, {"a": [1.0, 2.0], "b": [2.0, 3.0]}, "serial")
+    out, png = tmp_path / "map.nc", tmp_path / "map.png"
+    ps.save_dataset(ds, out)
+    ps.plot_map(ds, png)
+    good_nc, good_png = out.read_bytes(), png.read_bytes()
+
+    def full_disk(self, path, *args, **kwargs):
+        Path(path).write_bytes(b"half a file")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(xr.Dataset, "to_netcdf", full_disk)
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", full_disk)
+    with pytest.raises(OSError):
+        ps.save_dataset(ds, out)
+    with pytest.raises(OSError):
+        ps.plot_map(ds, png)
+    assert out.read_bytes() == good_nc and png.read_bytes() == good_png
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["map.nc", "map.png"]
+
+
+_ORPHAN_SCRIPT = textwrap.dedent(
+    """
+    import os, sys, time
+    import perturb.sweep as ps
+
+    def cell(a):
+        with open(sys.argv[1], "a") as log:
+            log.write(f"{os.getpid()}\\n")
+        time.sleep(60)
+        return a
+
+    if __name__ == "__main__":
+        ps.sweep(cell, {"a": "0:1:4"}, 2, chunk_size=1, progress=False)
+    """
+)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    try:  # a zombie (dead, not yet reaped by a container's init) is gone
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return True
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX signals")
+def test_pool_workers_die_with_a_killed_parent(tmp_path):
+    script, log = tmp_path / "job.py", tmp_path / "pids.txt"
+    script.write_text(_ORPHAN_SCRIPT)
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    job = subprocess.Popen([sys.executable, str(script), str(log)], env=env, start_new_session=True)
+    try:
+        pids: set[int] = set()
+        deadline = time.monotonic() + 60
+        while len(pids) < 2 and time.monotonic() < deadline:
+            assert job.poll() is None, "the sweep ended early"
+            time.sleep(0.05)
+            if log.exists():
+                pids = {int(p) for p in log.read_text().split()}
+        assert len(pids) == 2, "the workers did not start"
+        os.kill(job.pid, signal.SIGKILL)  # the parent only, as the OOM killer would
+        job.wait(timeout=10)
+        deadline = time.monotonic() + 10
+        while any(_alive(p) for p in pids) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not [p for p in pids if _alive(p)], "pool workers outlived their parent"
+    finally:
+        try:
+            os.killpg(job.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
