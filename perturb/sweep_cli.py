@@ -63,6 +63,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def _grid_and_fixed(scene_grid, items: Sequence[str]):
+    from .cli import _number
     from .sweep import parse_grid_item
 
     grid = dict(scene_grid)
@@ -70,6 +71,9 @@ def _grid_and_fixed(scene_grid, items: Sequence[str]):
     for text in items:
         name, values = parse_grid_item(text)
         value_text = text.partition("=")[2]
+        for token in value_text.replace(":", ",").split(","):
+            # a literal that underflows (1e-5000 -> 0) is refused, not swept as 0
+            _number("--param", token, shown=f"--param {text!r}")
         if ":" not in value_text and "," not in value_text:
             fixed[name] = float(values[0])
             grid.pop(name, None)

@@ -82,6 +82,43 @@ CASES = [
     (["run", "--out", "{tmp}/afile"], "is a file"),
     (["sweep", str(ROOT / "scenes" / "peak_map.toml"), "--out", "{tmp}/nope/m.nc"], "not exist"),
     (["sweep", str(ROOT / "scenes" / "peak_map.toml"), "--out", "{tmp}/m.csv"], ".nc or .zarr"),
+    (
+        [
+            "sweep",
+            str(ROOT / "scenes" / "peak_map.toml"),
+            "--out",
+            "{tmp}/m.nc",
+            "--plot",
+            "{tmp}/m.nc",
+        ],
+        "m.nc",
+    ),
+    (
+        [
+            "sweep",
+            str(ROOT / "scenes" / "peak_map.toml"),
+            "--param",
+            "mu=1e-5000:1:3",
+            "--out",
+            "{tmp}/m.nc",
+        ],
+        "underflows",
+    ),
+    (
+        [
+            "sweep",
+            str(ROOT / "scenes" / "peak_map.toml"),
+            "--param",
+            "mu=nan:1:3",
+            "--out",
+            "{tmp}/m.nc",
+        ],
+        "finite",
+    ),
+    (
+        ["sweep", str(ROOT / "scenes" / "peak_map.toml"), "--workers", "0", "--out", "{tmp}/m.nc"],
+        "--workers 0",
+    ),
     # unbounded work
     ([*FRC, "--method", "hb", "--harmonics", "10000"], f"at most {MAX_HARMONICS}"),
     ([*FRC, "--method", "hb", "--harmonics", "0"], "at least 1"),
