@@ -27,7 +27,7 @@ Anything else — an attribute access, an unknown name, a lambda, a subscript, a
 an expression belongs, a symbol named with Python code — is refused with a
 :class:`~perturb.errors.ParseError` naming it; nothing of a refused text is built, compiled
 or executed. :func:`approximation_from_dict` reads a ``perturb derive --json`` file that way,
-with the vocabulary of the oscillator it is given.
+with the vocabulary of the oscillator it is given (:func:`load` reads the file itself).
 """
 
 from __future__ import annotations
@@ -59,6 +59,9 @@ __all__ = [
     "expr_from_text",
     "approximation_to_dict",
     "approximation_from_dict",
+    "dumps",
+    "loads",
+    "load",
 ]
 
 #: Written by :func:`approximation_to_dict`: 2 = srepr in SymPy's stored argument order, read
@@ -716,3 +719,49 @@ def approximation_from_dict(
 def dumps(approx: Approximation) -> str:
     """JSON text of an approximation."""
     return json.dumps(approximation_to_dict(approx), indent=1, sort_keys=True)
+
+
+_MAX_FILE = 256 * 2**20
+
+
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a number")
+
+
+def loads(text: str | bytes, oscillator: Any, source: str = "serialised approximation"):
+    """The approximation in JSON ``text`` (:func:`dumps`, ``perturb derive --json``).
+
+    Raises
+    ------
+    ParseError
+        For text that is not JSON (``NaN`` and ``Infinity`` included) or not a valid
+        description (:func:`approximation_from_dict`), naming ``source``.
+    """
+    if not isinstance(text, str | bytes) or len(text) > _MAX_FILE:
+        raise ParseError(f"{source}: expected JSON text of at most {_MAX_FILE} bytes")
+    try:
+        data = json.loads(text, parse_constant=_no_constant)
+    except (ValueError, RecursionError) as exc:
+        raise ParseError(f"{source} is not valid JSON: {str(exc)[:200]}") from None
+    return approximation_from_dict(data, oscillator, source)
+
+
+def load(path: Any, oscillator: Any) -> Approximation:
+    """The approximation in the file ``path`` written by ``perturb derive --json``, read
+    through the closed vocabulary of ``oscillator`` (module docstring).
+
+    Raises
+    ------
+    ParseError
+        For a file that cannot be read or is not a valid description, naming the file.
+    """
+    from pathlib import Path
+
+    p = Path(path)
+    try:
+        if p.stat().st_size > _MAX_FILE:
+            raise ParseError(f"derivation file {str(p)!r} is larger than {_MAX_FILE} bytes")
+        raw = p.read_bytes()
+    except OSError as exc:
+        raise ParseError(f"cannot read derivation file {str(p)!r}: {exc.strerror}") from None
+    return loads(raw, oscillator, f"derivation file {str(p)!r}")

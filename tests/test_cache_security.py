@@ -408,3 +408,25 @@ def test_every_engine_is_cached_and_read_back_exactly(cache, model, method, opti
         assert len(calls) == 1 and second == first
         data = json.loads(json.dumps(approximation_to_dict(first)))
         assert approximation_from_dict(data, osc) == first
+
+
+def test_derive_json_file_reads_back_through_load(tmp_path, cache):
+    from perturb.cli import main
+    from perturb.serialize import load, loads
+
+    path = tmp_path / "ms.json"
+    assert main(["derive", "ms", "nsd", "--json", str(path)]) == 0
+    osc = builtin_model("nsd")
+    assert load(path, osc) == METHODS["ms"](osc)  # its Jacobian matrix included
+    for text in ("{ not json", '{"format": NaN}', "[]"):
+        with pytest.raises(ParseError, match="d.json"):
+            loads(text, osc, "d.json")
+    with pytest.raises(ParseError, match="cannot read"):
+        load(tmp_path / "missing.json", osc)
+    marker = tmp_path / "pwned"
+    data = json.loads(path.read_text())
+    data["steps"][0]["math"] = [f"_Continued({_payload(marker)!r})"]
+    path.write_text(json.dumps(data))
+    with pytest.raises(ParseError, match=re.escape(str(path))):
+        load(path, osc)
+    assert not marker.exists()
