@@ -43,11 +43,15 @@ def harmonics(expr: sp.Expr, psi: sp.Symbol) -> dict[int, tuple[sp.Expr, sp.Expr
     Raises
     ------
     PerturbError
-        If ``expr`` contains ``psi`` other than through ``cos``/``sin`` of ``n*psi + c``.
+        If ``expr`` contains ``psi`` other than through ``cos``/``sin`` of ``n*psi + c``
+        (a string ``expr`` goes through :func:`perturb.parsing.parse_expression`).
     """
+    from .applicability import expression_argument  # strings: the safe parser, never sympify
+
+    expr = expression_argument(expr, "expr")
     z = sp.Dummy("z")
     reps: dict[sp.Basic, sp.Expr] = {}
-    for f in sp.sympify(expr).atoms(sp.cos, sp.sin):
+    for f in expr.atoms(sp.cos, sp.sin):
         if not f.has(psi):
             continue
         n, c = _split_arg(f.args[0], psi)
@@ -56,7 +60,7 @@ def harmonics(expr: sp.Expr, psi: sp.Symbol) -> dict[int, tuple[sp.Expr, sp.Expr
         reps[f] = (
             (e_plus + e_minus) / 2 if isinstance(f, sp.cos) else (e_plus - e_minus) / (2 * sp.I)
         )
-    laurent = sp.expand(sp.sympify(expr).xreplace(reps))
+    laurent = sp.expand(expr.xreplace(reps))
     if laurent.has(psi):
         bad = [t for t in sp.Add.make_args(laurent) if t.has(psi)][:1]
         raise PerturbError(f"term {bad[0]} depends on {psi} other than through cos/sin")
