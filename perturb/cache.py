@@ -52,6 +52,7 @@ import hmac
 import inspect
 import json
 import os
+import re
 import secrets
 import stat
 import sys
@@ -270,9 +271,12 @@ def _open(raw: bytes, key: bytes, name: str) -> bytes:
     """The entry's JSON body, if the file's HMAC authenticates it under ``name`` (checked on
     the bytes, before any parsing)."""
     if not raw.startswith(_HEAD):
-        if raw.startswith(b'{"%s":' % _MAGIC):
-            raise _Rejected(f"it is not of layout {_ENTRY_VERSION}")
-        raise _Rejected("it is not an authenticated perturb cache entry")
+        m = re.match(rb'\{\s*"perturb-cache"\s*:\s*(\d{1,9})', raw)
+        if m is None:
+            raise _Rejected("it is not an authenticated perturb cache entry")
+        if int(m[1]) != _ENTRY_VERSION:
+            raise _Rejected(f"it is of layout {int(m[1])}, not {_ENTRY_VERSION}")
+        raise _Rejected("it was edited (it is not laid out as perturb writes entries)")
     mac, sep = raw[len(_HEAD) : len(_HEAD) + 64], raw[len(_HEAD) + 64 : _BODY_AT]
     body = raw[_BODY_AT:-1]
     if sep != b'","entry":' or not raw.endswith(b"}"):
