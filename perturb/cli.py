@@ -13,14 +13,14 @@ Subcommands::
     perturb run [SCENE.toml] [--out DIR] [--rtol R] answer a scene (default: the embedded one)
 
 Every error prints one line ``perturb: error: ...`` on standard error and exits with status
-2: bad input (also what argparse rejects), values beyond the limits (:data:`perturb.api.
-MAX_HARMONICS`, :data:`~perturb.api.MAX_ORDER`, :data:`MAX_SAMPLES`, :data:`MAX_PERIODS`, ...),
-outputs that cannot be written (missing or read-only folder, full disk) and unexpected internal
-errors (named, with a hint to rerun with ``PERTURB_DEBUG=1`` for the traceback). Ctrl-C exits
-with status 130 and SIGTERM with 143, each with one line; every output is written to a
-temporary file beside it and renamed when complete (:mod:`perturb.atomic`), so an interrupted
-run leaves each output complete or absent. Nothing typed on the command line is evaluated as
-code.
+2: bad input (also what argparse rejects), values beyond the limits
+(:data:`perturb.api.MAX_HARMONICS`, :data:`~perturb.api.MAX_ORDER`, :data:`MAX_SAMPLES`,
+:data:`MAX_PERIODS`, :data:`OMEGA_RANGE`, ...), outputs that cannot be written (missing or
+read-only folder, full disk) and unexpected internal errors (named, with a hint to rerun with
+``PERTURB_DEBUG=1`` for the traceback). Ctrl-C exits with status 130 and SIGTERM with 143,
+each with one line; every output is written to a temporary file beside it and renamed when
+complete (:mod:`perturb.atomic`), so an interrupted run leaves each output complete or
+absent. Nothing typed on the command line is evaluated as code.
 """
 
 from __future__ import annotations
@@ -48,6 +48,7 @@ __all__ = [
     "MAX_LCP_STEPS",
     "MAX_SUBHARMONIC",
     "MAX_FOURIER_N",
+    "OMEGA_RANGE",
 ]
 
 _NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
@@ -64,6 +65,11 @@ MAX_LCP_STEPS = 5_000_000
 MAX_SUBHARMONIC = 16
 #: Largest ``--n`` of ``perturb fourier``.
 MAX_FOURIER_N = 100_000
+#: Forcing frequencies the command accepts (``--omega`` of ``frc`` and ``periodic``): a period
+#: a million times longer or shorter than a unit-stiffness oscillator's is beyond every
+#: solver's resolution (``periodic nsd --omega 1e-300`` ran past 25 s; every step of a period
+#: of 6e300 time units is numerically meaningless).
+OMEGA_RANGE = (1e-6, 1e6)
 #: Environment variable: when set to a non-empty value other than 0, an unexpected error
 #: prints its full traceback.
 DEBUG_ENV = "PERTURB_DEBUG"
@@ -193,6 +199,16 @@ def _cmd_fourier(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_omega_range(flag: str, text: str, values: Sequence[float]) -> None:
+    lo, hi = OMEGA_RANGE
+    bad = [w for w in values if not lo <= w <= hi]
+    if bad:
+        raise ParameterError(
+            f"{flag} {text!r}: {bad[0]:g} is outside the forcing frequencies {lo:g} to {hi:g} "
+            "that perturb resolves"
+        )
+
+
 def parse_omega(text: str) -> tuple[str, list[float]]:
     """``--omega`` forms: ``lo:hi`` (a traced curve), ``lo:hi:count`` (exactly ``count``
     equally spaced frequencies) or ``w1,w2,...`` (exactly those frequencies).
@@ -224,6 +240,7 @@ def parse_omega(text: str) -> tuple[str, list[float]]:
                 f"--omega {text!r}: expected 0 < start < stop"
                 + (" (a window, not one frequency: give --omega W for that)" if lo == hi else "")
             )
+        _check_omega_range("--omega", text, [lo, hi])
         if len(parts) == 2:
             return "range", [lo, hi]
         count = numbers[2]
@@ -241,6 +258,7 @@ def parse_omega(text: str) -> tuple[str, list[float]]:
         raise ParameterError(usage)
     if not all(w > 0 for w in values):
         raise ParameterError(f"--omega {text!r}: frequencies must be positive")
+    _check_omega_range("--omega", text, values)
     if len(values) > MAX_FREQUENCIES:
         raise ParameterError(
             f"--omega: {len(values)} frequencies, expected at most {MAX_FREQUENCIES}"
@@ -480,6 +498,7 @@ def _cmd_periodic(args: argparse.Namespace) -> int:
     _bounded_int("--m", args.m, 1, MAX_SUBHARMONIC, "forcing periods per orbit")
     if not args.omega > 0:
         raise ParameterError(f"--omega {args.omega}: expected a forcing frequency > 0")
+    _check_omega_range("--omega", str(args.omega), [args.omega])
     params = dict(parse_param(p) for p in args.param or ())
     osc = _model_from_arg(args.model, params)
     orbits = periodic_orbits(osc, args.omega, m=args.m)
@@ -672,7 +691,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--omega",
         default="0.2:2.0",
         help="start:stop (traced curve), start:stop:count or w1,w2,... (exactly these "
-        f"frequencies, at most {MAX_FREQUENCIES}) (default: 0.2:2.0)",
+        f"frequencies, at most {MAX_FREQUENCIES}), within {OMEGA_RANGE[0]:g} to "
+        f"{OMEGA_RANGE[1]:g} (default: 0.2:2.0)",
     )
     p.add_argument(
         "--points",
