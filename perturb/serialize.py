@@ -213,9 +213,10 @@ _ENGINE_STEMS = frozenset(
     f g gamma nu omega p phi psi q sh sigma tau theta u v varepsilon w x y z""".split()
 )
 _DISPLAY = frozenset({r"\ldots", "...", "x_p"})
+# possessive (no backtracking): "a" followed by 60 digits would otherwise take for ever
 _INDEXED = re.compile(
-    r"(?P<stem>[A-Za-z]+)(?P<tail>(?:_\d{1,4}|\d{1,4}|_\{\d{1,4}/\d{1,4}\}|_\{\d{1,4},\d{1,4}\}"
-    r"|_r|_)*)"
+    r"(?P<stem>[A-Za-z]++)(?P<tail>(?:_?\d{1,4}+|_\{\d{1,4}/\d{1,4}\}|_\{\d{1,4},\d{1,4}\}"
+    r"|_r|_)*+)"
 )
 _DOT = re.compile(r"\\dot\{\\?(?P<stem>[A-Za-z]+)[A-Za-z0-9_{} ]*\}")
 _IDENTIFIER = re.compile(r"[A-Za-z][A-Za-z0-9_]*'{0,2}")

@@ -430,3 +430,19 @@ def test_derive_json_file_reads_back_through_load(tmp_path, cache):
     with pytest.raises(ParseError, match=re.escape(str(path))):
         load(path, osc)
     assert not marker.exists()
+
+
+@pytest.mark.parametrize(
+    "name", ["a" + "1" * 26 + "!", "a" + "_" * 62 + "!", "a" + "1_" * 20 + "!"]
+)
+def test_symbol_names_are_checked_in_linear_time(name):
+    # a backtracking pattern took ~3 s on the first (and doubled with each further digit)
+    import time
+
+    vocab = Vocabulary.for_oscillator(builtin_model("nsd"))
+    t0 = time.perf_counter()
+    try:
+        vocab.symbol_name(name)
+    except ParseError:
+        pass
+    assert time.perf_counter() - t0 < 0.5
