@@ -10,9 +10,9 @@ Zero-mean ansatz
     it). A piecewise-linear even part (a one-sided spring, a bilinear spring, ``Abs(x)``) or a
     static load moves the orbit off centre at order one: a zero-mean method then answers with a
     confident and wrong curve (on the one-sided spring ``x'' + 0.1 x' + x + 4 (x - 0.5)
-    H(x - 0.5) = 0.8 cos(Omega t)`` first-order mLP was off by a factor 12.7 against the exact
-    response). :func:`require_centred` refuses those cases with a :class:`ModelError` that
-    names what does apply.
+    H(x - 0.5) = 0.8 cos(Omega t)`` first-order mLP had a max relative amplitude error of 12.7
+    against the exact response, with a fold that does not exist). :func:`require_centred`
+    refuses those cases with a :class:`ModelError` that names what does apply.
 
 Bounded work
     :data:`ORDER_LIMITS` is the one table of the largest expansion order (or harmonic count)
