@@ -47,6 +47,7 @@ Location: ``$PERTURB_CACHE_DIR``, else ``$XDG_CACHE_HOME/perturb``, else
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import hmac
 import inspect
@@ -595,8 +596,15 @@ def cached_derivation(
             return approx
         path.parent.mkdir(parents=True, exist_ok=True)
         with tempfile.NamedTemporaryFile("wb", dir=path.parent, delete=False, suffix=".tmp") as fh:
-            fh.write(_seal(key, name, body.encode()))
-        os.replace(fh.name, path)
+            try:
+                fh.write(_seal(key, name, body.encode()))
+                fh.close()
+                os.replace(fh.name, path)  # complete or absent
+            except BaseException:
+                fh.close()
+                with contextlib.suppress(OSError):
+                    os.unlink(fh.name)
+                raise
     except (OSError, ValueError, TypeError, KeyError, RecursionError, _Unsupported):
         # a read-only or full disk, or an expression outside the table, costs only time
         # (ParseError, an expression outside the vocabulary, is a ValueError)
