@@ -378,6 +378,12 @@ def _cmd_frc(args: argparse.Namespace) -> int:
             )
     params = dict(parse_param(p) for p in args.param or ())
     osc = _model_from_arg(args.model, params)
+    swept = str(getattr(osc.forcing, "base_frequency", ""))
+    if swept in params:
+        raise ParameterError(
+            f"--param {swept}={params[swept]:g}: {swept} is the forcing frequency that frc "
+            f"varies; give its values with --omega (e.g. --omega {params[swept]:g})"
+        )
     extra: dict = {}
     if args.harmonics is not None:
         extra["harmonics"] = args.harmonics

@@ -163,6 +163,7 @@ CASES = [
     ([*FRC, "--param", "=2"], "NAME=VALUE"),
     ([*FRC, "--param", "1k=2"], "NAME=VALUE"),
     ([*FRC, "--param", "k=two"], "not a number"),
+    ([*FRC, "--param", "Omega=2", "--omega", "1,1.5"], "give its values with --omega"),
     (["simulate", "nsd", "--t", "5:1"], "t1 > t0"),
     (["simulate", "nsd", "--t", "nan:1"], "finite"),
     (["simulate", "nsd", "--y0", "1"], "two"),
