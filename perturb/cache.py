@@ -213,6 +213,11 @@ def _secret() -> bytes:
             raise _NoKey("PERTURB_CACHE_KEY is set but shorter than 16 characters")
         key = hashlib.sha256(b"perturb-cache-key\0" + env.encode()).digest()
     else:
+        if not path.is_absolute():
+            raise _NoKey(
+                f"no home folder for the key file ({str(path)!r}): set XDG_CONFIG_HOME or "
+                "PERTURB_CACHE_KEY"
+            )
         if _inside(path, cache_dir()):
             raise _NoKey(
                 f"the key file {str(path)!r} lies inside the cache folder {str(cache_dir())!r}, "

@@ -446,3 +446,12 @@ def test_symbol_names_are_checked_in_linear_time(name):
     except ParseError:
         pass
     assert time.perf_counter() - t0 < 0.5
+
+
+def test_no_home_folder_means_no_cache_not_a_key_in_the_working_folder(cache, monkeypatch):
+    CALLS.clear()
+    monkeypatch.setenv("XDG_CONFIG_HOME", "relative/config")
+    with pytest.warns(pc.CacheWarning, match="no home folder"):
+        _derive()
+    _derive()
+    assert len(CALLS) == 2 and not os.path.exists("relative")
