@@ -392,7 +392,7 @@ def _cmd_frc(args: argparse.Namespace) -> int:
     if method == "hb" and args.order is None:
         extra["all_branches"] = not args.one_branch
     if method == "auto":
-        print("perturb: choosing a method (exact spot checks) ...", file=sys.stderr)
+        print("[perturb] choosing a method (exact spot checks) ...", file=sys.stderr)
         resp = frequency_response(osc, "auto", omegas, points=args.points)
     elif kind == "range" and method in ("exact", "hb"):
         resp = frequency_response(osc, method, omegas, **extra)
