@@ -23,6 +23,8 @@ import pytest
 def _isolated_cache(tmp_path_factory):
     mp = pytest.MonkeyPatch()
     mp.setenv("PERTURB_CACHE_DIR", str(tmp_path_factory.mktemp("perturb-cache")))
+    # the cache's HMAC key lives in the user's config folder: keep the test run out of $HOME
+    mp.setenv("XDG_CONFIG_HOME", str(tmp_path_factory.mktemp("perturb-config")))
     mp.setenv("PERTURB_PROGRESS", "0")
     yield
     mp.undo()
