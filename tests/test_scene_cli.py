@@ -204,8 +204,16 @@ def test_frc_exact_with_a_frequency_grid_writes_exactly_those_frequencies(tmp_pa
     assert tuple(rows[0].keys()) == CSV_COLUMNS
     assert {r["omega"] for r in rows} == {"0.5", "0.55", "0.6", "0.65", "0.7"}
     assert {r["method"] for r in rows} == {"exact"}
-    # three orbits at each frequency: in-well saddle, middle unstable, large stable
-    assert sum(r["omega"] == "0.65" for r in rows) == 3
+    # at 0.65 three symmetric orbits (in-well saddle, middle unstable, large stable) and,
+    # since the all-orbits search seeds asymmetric ones too, an unstable mirror pair
+    at = [r for r in rows if r["omega"] == "0.65"]
+    sym = [r for r in at if abs(float(r["mean"])) < 1e-9 * float(r["amplitude"])]
+    assert [int(r["stable"]) for r in sorted(sym, key=lambda r: float(r["amplitude"]))] == [0, 0, 1]
+    pair = [r for r in at if r not in sym]
+    if pair:  # the mirror pair: same amplitude, opposite means
+        assert len(pair) == 2
+        assert float(pair[0]["amplitude"]) == pytest.approx(float(pair[1]["amplitude"]), rel=1e-9)
+        assert float(pair[0]["mean"]) == pytest.approx(-float(pair[1]["mean"]), rel=1e-6)
 
 
 def test_frc_errors(capsys):
