@@ -1,6 +1,6 @@
 """perturb: periodic responses of nonlinear and piecewise-linear oscillators.
 
-The pipeline is ``Oscillator -> Approximation -> Solver -> Response``; see DESIGN.md.
+The pipeline is ``Oscillator -> Approximation -> Solver -> Response``; see docs/architecture.md.
 
 >>> import perturb
 >>> osc = perturb.builtin_model("nsd", k=-2.0)
@@ -45,6 +45,10 @@ def __getattr__(name: str):
         from .simulate.time_history import time_history
 
         return time_history
+    if name == "plot":  # matplotlib only when a figure is asked for
+        from .report.figures import plot
+
+        return plot
     raise AttributeError(f"module 'perturb' has no attribute {name!r}")
 
 
@@ -70,6 +74,7 @@ __all__ = [
     "time_history",
     "compare",
     "relative_errors",
+    "plot",
     "sweep",
     "PerturbError",
     "ParseError",

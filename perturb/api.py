@@ -33,6 +33,7 @@ from typing import Any
 
 from .errors import ParameterError
 from .methods import METHODS
+from .methods.applicability import ORDER_LIMITS
 from .model import Oscillator
 from .response import Branch, Response
 
@@ -54,8 +55,10 @@ ALIASES = {"mms": "ms", "avg": "kb"}
 
 #: Largest number of harmonics of numeric harmonic balance (see the module docstring).
 MAX_HARMONICS = 255
-#: Largest expansion order of a symbolic method (see the module docstring).
-MAX_ORDER = 8
+#: Largest expansion order of any symbolic method; each method's own limit is
+#: :data:`perturb.methods.applicability.ORDER_LIMITS` (the one table of measured limits).
+_EXPANSION_METHODS = ("lp", "mlp", "ms")  # ORDER_LIMITS["hb"] counts harmonics, not an order
+MAX_ORDER = max(ORDER_LIMITS[m] for m in _EXPANSION_METHODS)
 #: Largest number of points of a traced curve.
 MAX_POINTS = 100_000
 #: Largest number of listed frequencies (``frequencies=``; each one is a solve).
@@ -86,17 +89,22 @@ def check_harmonics(harmonics: Any, name: str = "harmonics") -> int:
     )
 
 
-def check_order(order: Any, name: str = "order") -> int:
-    """``order`` as an int in ``1..MAX_ORDER``.
+def check_order(order: Any, name: str = "order", method: str | None = None) -> int:
+    """``order`` as an int from 1 to the method's limit.
+
+    The limit is ``ORDER_LIMITS[method]`` (:mod:`perturb.methods.applicability`) for a method
+    that has one, else :data:`MAX_ORDER`.
 
     Raises
     ------
     ParameterError
         Naming the value and the limit.
     """
-    return _integer(
-        name, order, 1, MAX_ORDER, "symbolic work grows ~4x per order: 4 s at 8, 18 s at 10"
-    )
+    method = ALIASES.get(method, method) if method is not None else None
+    expansion = method in _EXPANSION_METHODS
+    limit = ORDER_LIMITS[method] if expansion else MAX_ORDER
+    what = f"the largest order of {method!r}" if expansion else "symbolic work"
+    return _integer(name, order, 1, limit, f"{what}: symbolic work grows ~4x per order")
 
 
 def check_points(points: Any, name: str = "points") -> int:
@@ -190,7 +198,7 @@ def frequency_response(
     if harmonics is not None:
         harmonics = check_harmonics(harmonics)
     if order is not None:
-        order = check_order(order)
+        order = check_order(order, method=method)
     if "points" in options:
         options["points"] = check_points(options["points"])
     if frequencies is not None:

@@ -358,7 +358,7 @@ def _cmd_frc(args: argparse.Namespace) -> int:
     if args.harmonics is not None:
         check_harmonics(args.harmonics, "--harmonics")
     if args.order is not None:
-        check_order(args.order, "--order")
+        check_order(args.order, "--order", method)
     check_points(args.points, "--points")
     kind, omegas = parse_omega(args.omega)
     if args.one_branch and method != "hb":
@@ -401,7 +401,7 @@ def _cmd_frc(args: argparse.Namespace) -> int:
     else:
         resp = frequency_response(osc, method, frequencies=omegas, **extra)
     quiet_csv = args.out is None and args.plot
-    rel = comparison = None
+    rel = comparison = ref = None
     if args.compare == "exact":
         from .numeric.compare import compare, relative_errors
 
@@ -419,7 +419,9 @@ def _cmd_frc(args: argparse.Namespace) -> int:
         from .report.figures import plot_frequency_response
 
         with _atomic_figure(args.plot) as tmp:
-            plot_frequency_response(resp, tmp)
+            # with --compare exact the reference is drawn too: the picture shows the error
+            drawn = [resp] if ref is None else [resp, ref]
+            plot_frequency_response(drawn, tmp, oscillator=osc)
     if not quiet_csv:
         print(_describe(resp), file=sys.stderr)
         for note in resp.notes:
@@ -545,7 +547,7 @@ def _cmd_derive(args: argparse.Namespace) -> int:
     if args.order is not None:
         if "order" not in inspect.signature(fn).parameters:
             raise PerturbError(f"method {args.method!r} has no --order option")
-        options["order"] = check_order(args.order, "--order")
+        options["order"] = check_order(args.order, "--order", args.method)
     params = dict(parse_param(p) for p in args.param or ())
     osc = _model_from_arg(args.model, params)
     approx = cached_derivation(args.method, fn, osc, use_cache=not args.no_cache, **options)
@@ -594,7 +596,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if scene.harmonics is not None:
         check_harmonics(scene.harmonics, f"{scene.source}: [method] harmonics")
     if scene.order is not None:
-        check_order(scene.order, f"{scene.source}: [method] order")
+        check_order(scene.order, f"{scene.source}: [method] order", scene.method)
     if args.rtol is not None:
         import dataclasses
 

@@ -288,14 +288,24 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
             f"[method] name = {method!r}: expected one of "
             + ", ".join([*_NUMERIC_METHODS, *METHODS]),
         )
+    # the limits of the Python API, before any work
+    from .api import check_harmonics, check_order
+
     for key in ("order", "harmonics"):
         if key in method_table:
             value = method_table[key]
-            if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= 1000:
+            if not isinstance(value, int) or isinstance(value, bool):
                 raise _scene_error(
                     source, f"[method] {key} = {value!r}: expected a positive integer"
                 )
-            fields[key] = value
+            try:
+                fields[key] = (
+                    check_order(value, "[method] order", method)
+                    if key == "order"
+                    else check_harmonics(value, "[method] harmonics")
+                )
+            except ParameterError as exc:
+                raise _scene_error(source, str(exc)) from None
     if "all_branches" in method_table:
         value = method_table["all_branches"]
         if not isinstance(value, bool):

@@ -20,6 +20,7 @@ import pytest
 
 from perturb.api import MAX_HARMONICS, MAX_ORDER
 from perturb.cli import MAX_PERIODS, main
+from perturb.methods.applicability import ORDER_LIMITS
 
 ROOT = Path(__file__).resolve().parents[1]
 TIMEOUT = 20.0
@@ -123,10 +124,11 @@ CASES = [
     ([*FRC, "--method", "hb", "--harmonics", "10000"], f"at most {MAX_HARMONICS}"),
     ([*FRC, "--method", "hb", "--harmonics", "0"], "at least 1"),
     ([*FRC, "--method", "hb", "--harmonics", "-5"], "at least 1"),
-    ([*FRC, "--method", "mlp", "--order", "1000"], f"at most {MAX_ORDER}"),
-    ([*FRC, "--method", "ms", "--order", "50"], f"at most {MAX_ORDER}"),
+    ([*FRC, "--method", "mlp", "--order", "1000"], f"at most {ORDER_LIMITS['mlp']}"),
+    ([*FRC, "--method", "ms", "--order", "50"], f"at most {ORDER_LIMITS['ms']}"),
+    ([*FRC, "--method", "mms", "--order", "9"], f"at most {ORDER_LIMITS['ms']}"),
     ([*FRC, "--method", "mlp", "--order", "0"], "at least 1"),
-    (["derive", "ms", "duffing", "--order", "1000"], f"at most {MAX_ORDER}"),
+    (["derive", "ms", "duffing", "--order", "1000"], f"at most {ORDER_LIMITS['ms']}"),
     ([*FRC, "--points", "1000000000"], "at most"),
     ([*FRC, "--points", "1"], "at least 2"),
     ([*FRC, "--omega", "0.2:2:1e9"], "count"),
@@ -200,7 +202,7 @@ CASES = [
     (["run", "{tmp}/missing.toml"], "cannot read scene file"),
     (["run", "{tmp}/bad.toml"], "scene"),
     (["run", "{tmp}/harmonics.toml"], f"at most {MAX_HARMONICS}"),
-    (["run", "{tmp}/order.toml"], f"at most {MAX_ORDER}"),
+    (["run", "{tmp}/order.toml"], f"at most {ORDER_LIMITS['mlp']}"),
     (["run", "{tmp}/reversed.toml"], "omega"),
     # argparse
     ([*FRC, "--bogus"], "unrecognized arguments"),

@@ -279,7 +279,8 @@ def test_nsd_bias_at_the_brief_parameters():
     # solutions' biases are all 0 (|b| < 1e-12). At F = 2 the in-well static response already
     # reaches the snap-through point x = 1 (f(1) = -2 = -F). Besides the symmetric orbits the
     # exact search finds a stable pair with mean +-1.038 (first harmonic 6.197, max|x|
-    # 10.216) that single harmonic + bias does not produce. Errors of the symmetric ones (first harmonic):
+    # 10.216) that single harmonic + bias does not produce. Errors of the symmetric ones
+    # (first harmonic):
     #   saddle orbit in |x| < 1   0.925886 vs 0.925886 (exact: a linear segment)
     #   middle orbit              1.961257 vs 1.519634 (29 %)
     #   large orbit               6.906613 vs 6.716416 (2.8 %; HB calls it stable, the exact
