@@ -1761,7 +1761,7 @@ def hb_response(k: float, mu: float, F: float, window, run: Run) -> Response:
     reached from neither start (one-well orbits, closed loops) are missed, and the tables
     count them."""
     H = HB_HARMONICS[1] if run.fast else HB_HARMONICS[0]
-    first = frequency_response(nsd(k, mu, F), "hb", Omega=window, harmonics=H)
+    first = frequency_response(nsd(k, mu, F), "hb", Omega=window, harmonics=H, all_branches=False)
     branches, folds, notes = list(first.branches), list(first.folds), list(first.notes)
     lo = float(window[0])
     try:
