@@ -1,6 +1,6 @@
 r"""He & Singh (2007): step response of a hydraulic engine mount from a simplified linear model.
 
-What this script checks (the seed's equations are partly lost; REFERENCES.md section 4):
+What this script checks (the seed's equations are partly lost; docs/references.md section 4):
 
 1. *Symbolic reduction.*  The lumped fluid equations of a fixed-decoupler mount,
 
@@ -142,7 +142,7 @@ IDENTITY_TEX = {
     "K_1(inf) = k_r + A_r^2/C_1": r"K_1(\infty) = k_r + A_r^2/C_1",
     "P_1/X(inf) = A_r/C_1": r"P_1/X(\infty) = A_r/C_1",
     "u^2 = K_1(inf)/gamma": r"\omega_2^2/\omega_1^2 = K_1(\infty)/\gamma",
-    "inverse Laplace = REFERENCES.md form": r"\mathcal{L}^{-1}\{K_1/(\gamma s)\} = "
+    "inverse Laplace = docs/references.md form": r"\mathcal{L}^{-1}\{K_1/(\gamma s)\} = "
     r"\text{the form below}",
     "closed form solves (D^2 + 2 sigma D + omega_2^2) F = omega_2^2": r"\ddot F + 2\sigma\dot F"
     r" + \omega_2^2F = \omega_2^2",
@@ -168,7 +168,7 @@ class Reduction:
     coefficients: dict[str, sp.Expr]
     zero: dict[str, sp.Expr]
     step: sp.Expr  # F(t)/(gamma X) with the identity
-    step_paper: sp.Expr  # the REFERENCES.md form, for comparison
+    step_paper: sp.Expr  # the docs/references.md form, for comparison
     slope: sp.Expr  # d step/dt
     envelope_sq: sp.Expr  # R = (u^2-1)^2/(1-zeta_2^2) in sigma, omega_d
     envelope_sq_general: sp.Expr  # R for independent zeta_1 omega_1
@@ -256,7 +256,7 @@ def reduce_lumped_model() -> Reduction:
     step = inverse_step(sig)
     decay, cos_t, sin_t = sp.exp(-sig * t), sp.cos(wd * t), sp.sin(wd * t)
     step_paper = 1 + (U - 1) * decay * (cos_t + sig / wd * sin_t)  # zeta/sqrt(1-zeta^2) = s/wd
-    zero["inverse Laplace = REFERENCES.md form"] = step - step_paper
+    zero["inverse Laplace = docs/references.md form"] = step - step_paper
     # the closed form against its own ODE and the initial-value theorem:
     # (D^2 + 2 sigma D + omega_2^2) F = omega_2^2, F(0+) = G(oo) = u^2, F'(0+) = 0
     w2sq = sig**2 + wd**2

@@ -1,7 +1,7 @@
 r"""Limit cycling and periodic solutions: the tools of the literature study, measured.
 
-The seed (REFERENCES.md section 3; ``seeds/limit-cycling-periodic-solutions-study.txt``,
-chapters 3 and 4) reviews the nonsmooth causes of self-excited oscillation (dead zone,
+The literature study on limit cycling (docs/references.md section 3, its chapters 3 and 4)
+reviews the nonsmooth causes of self-excited oscillation (dead zone,
 saturation, backlash, relay, hysteresis) and the tools that predict periodic solutions:
 describing functions for a Lur'e loop (1 + N(A) W(j omega) = 0), single shooting with a phase
 condition, periodic finite differences and multiple shooting.  Its claims are qualitative
@@ -43,7 +43,7 @@ script puts numbers on them.
 
 All parameter values are representative choices (the seed gives no numbers), except the nsd
 parameters k = -2, mu = 0.05, F = 2, Omega = 0.6, which are the Zou-Nagarajaiah Fig. 5 values
-reconstructed in REFERENCES.md section 1.
+reconstructed in docs/references.md section 1.
 
 Run ``python derivations/periodic_solutions.py [--fast] [--out DIR]``; outputs go to ``DIR``
 (default ``derivations/out/periodic_solutions/``): section.tex, PNG figures, CSV tables.
@@ -171,7 +171,7 @@ def _vanderpol(eps: float) -> OrbitCase:
     )
 
 
-NSD = {"k": -2.0, "mu": 0.05, "F": 2.0, "Omega": 0.6}  # Zou-Nagarajaiah Fig. 5 (REFERENCES.md)
+NSD = {"k": -2.0, "mu": 0.05, "F": 2.0, "Omega": 0.6}  # Zou-Nagarajaiah Fig. 5 (docs/references.md)
 
 
 def _nsd_segment(x: float, v: float) -> int:
@@ -2113,7 +2113,7 @@ def section_tex(st: Study, res: Results, seconds: float) -> str:
 \section{{Periodic solutions: shooting, finite differences and describing functions}}
 \label{{sec:periodic-solutions}}
 
-The literature study on limit cycling (REFERENCES.md \S3) reviews the nonsmooth causes of
+The literature study on limit cycling (docs/references.md \S3) reviews the nonsmooth causes of
 self-excited oscillation --- dead zone, saturation, backlash, relays, hysteresis --- and the
 tools that predict periodic solutions: the describing function of a Lur'e loop,
 $1 + N(a)W(i\omega) = 0$; single shooting with the phase condition; periodic finite
@@ -2124,7 +2124,7 @@ function gives a limit cycle that ``probably'' exists ``close to'' the predictio
 section puts numbers on each of them.  All parameter values are representative choices (the
 study gives none), except the nsd values $k=-2$, $\mu=0.05$, $F=2$, $\Omega=0.6$, the
 Zou--Nagarajaiah Fig.~5 parameters \emph{{reconstructed}} from the damaged seed text
-(REFERENCES.md \S1).  Script: \texttt{{derivations/periodic\_solutions.py}} ({mode};
+(docs/references.md \S1).  Script: \texttt{{derivations/periodic\_solutions.py}} ({mode};
 {seconds:.0f}\,s: {timing}).
 
 \subsection{{Three routes to the same periodic orbit}}

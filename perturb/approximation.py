@@ -2,7 +2,7 @@
 
 A method (``perturb/methods/<name>.py``) turns an :class:`~perturb.model.Oscillator` into an
 Approximation; the numeric layer compiles it without knowing which method made it. The
-contract (DESIGN.md, "the method contract"):
+contract (docs/architecture.md, "the method contract"):
 
 - ``unknowns``: the symbols solved for (amplitude, phase, bias, ...);
 - ``residuals``: algebraic steady-state equations ``residuals == 0`` in the unknowns, the

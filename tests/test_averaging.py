@@ -2,7 +2,7 @@
 
 Oracles are the classical results, typed here independently of the code:
 
-- forced van der Pol, ρ[(1 − ρ)² + 4σ²] = F²/4 (REFERENCES.md §2; Nayfeh & Mook 1979 §4.2);
+- forced van der Pol, ρ[(1 − ρ)² + 4σ²] = F²/4 (docs/references.md §2; Nayfeh & Mook 1979 §4.2);
 - Krylov–Bogoliubov Duffing backbone ω = ω0 + 3εa²/(8ω0); free van der Pol limit cycle a = 2;
 - describing functions of the dead zone, the saturation, the relay, Coulomb friction and
   quadratic damping (Gelb & Vander Velde 1968; Den Hartog's equivalent damping).
@@ -37,7 +37,7 @@ def _num(expr: sp.Expr, *args: sp.Symbol):
 
 # ------------------------------------------------------------------ forced van der Pol --
 def test_forced_van_der_pol_frequency_response_in_the_classical_scaling():
-    # Scaling (Nayfeh & Mook 1979, §4.2; REFERENCES.md §2):
+    # Scaling (Nayfeh & Mook 1979, §4.2; docs/references.md §2):
     #     x'' + x = eps [(1 - x^2) x' + F cos(Omega t)],   Omega = 1 + eps sigma,
     # rho = a^2/4 with x ~ a cos(Omega t - phi). To O(eps) the averaged steady states obey
     #     rho [(1 - rho)^2 + 4 sigma^2] = F^2/4.

@@ -2,7 +2,7 @@
 
 * ``nsd``: the first-order modified Lindstedt–Poincaré curve from the compiled solver against
   the closed form of Zou–Nagarajaiah eqs. (54)-(55), rebuilt here from the Fourier integral of
-  the PWL force (REFERENCES.md §1), and its ``amplitude`` column against eq. (60).
+  the PWL force (docs/references.md §1), and its ``amplitude`` column against eq. (60).
 * ``nsd`` at k = -3 (mu = 0.05, F = 2, Fig. 17d): the detached branch, by amplitude
   parametrisation and by exact continuation seeded from it, with stability labels checked
   against the Floquet multipliers of exact orbits.
@@ -390,7 +390,7 @@ def duffing_exact(eps):
 def test_multiple_scales_gives_the_textbook_duffing_amplitude_equation():
     """The ms residuals are linear in sin(gamma), cos(gamma); eliminating gamma gives
     [(mu/2)^2 + (Omega - omega0 - 3 alpha a^2/(8 omega0))^2] a^2 = F^2/(4 omega0^2)
-    (REFERENCES.md §2 with 2 eps mu -> mu, eps alpha -> alpha, eps k -> F, eps sigma ->
+    (docs/references.md §2 with 2 eps mu -> mu, eps alpha -> alpha, eps k -> F, eps sigma ->
     Omega - omega0). The public frequency_response cannot trace it (quadratic in Omega, not
     in Omega^2), so the Duffing checks below trace this closed form."""
     osc = builtin_model("duffing").with_params(mu=None, alpha=None, F=None, omega0=None)

@@ -1,7 +1,7 @@
 """Tests of ``derivations/hydraulic_mount.py`` (He & Singh hydraulic mount) against oracles
 written here, never the script's own numbers:
 
-* the transfer functions rebuilt by hand from the lumped equations (REFERENCES.md section 4):
+* the transfer functions rebuilt by hand from the lumped equations (docs/references.md section 4):
   P_1/X = A_r (C_2 I_i s^2 + C_2 R_i s + 1)/(C_1 C_2 I_i s^2 + C_1 C_2 R_i s + C_1 + C_2),
   K_1 = k_r + A_r P_1/X; their coefficients give the identities and feed ``scipy.signal``;
 * ``solve_ivp`` of the fixed-decoupler mount as one second-order ODE in the track volume,

@@ -4,7 +4,7 @@ Oracles, typed independently of the code:
 
 - one term on u'' + w0^2 u + a2 u^2 + a3 u^3 = 0: omega^2 = w0^2 + 3 a3 a^2/4 (no a2);
 - bias + 2 harmonics: the Lindstedt–Poincaré omega = w0[1 + (9 a3 w0^2 - 10 a2^2) a^2/(24 w0^4)]
-  and drift -a2 a^2/(2 w0^2)[1 - cos(2 omega t)/3] (REFERENCES.md §2);
+  and drift -a2 a^2/(2 w0^2)[1 - cos(2 omega t)/3] (docs/references.md §2);
 - the exact Duffing frequency from the complete elliptic integral (mpmath);
 - exact periodic orbits by shooting (perturb.simulate), for the PWL oscillator and the others.
 """
@@ -60,7 +60,7 @@ def test_one_term_misses_the_quadratic_term():
 
 
 def test_bias_plus_one_harmonic_gives_the_minus_twelve_of_the_literature_study():
-    # The literature study (REFERENCES.md §3) notes that "one-term" harmonic balance gives
+    # The literature study (docs/references.md §3) notes that "one-term" harmonic balance gives
     # -12 a2^2 where Lindstedt-Poincare gives -10 a2^2. Its one term is x = A0 + A1 cos(wt)
     # (Nayfeh & Mook's M = 1 *with* the constant A0): the mean balance gives
     # A0 = -a2 a^2/(2 w0^2), which feeds 2 a2 A0 into the first harmonic, so

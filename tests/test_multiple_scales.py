@@ -1,6 +1,6 @@
 """Multiple scales against the course's classic results, hand derivations and numerics.
 
-Oracles (REFERENCES.md §2, Nayfeh & Mook 1979) are typed here independently of the engine:
+Oracles (docs/references.md §2, Nayfeh & Mook 1979) are typed here independently of the engine:
 forced Duffing at primary resonance, the free quadratic+cubic oscillator (the L-P frequency),
 van der Pol (a = 2, omega = 1 - eps^2/16, checked against autonomous shooting), superharmonic and
 subharmonic resonance with hard forcing, Mathieu transition curves (checked against Floquet

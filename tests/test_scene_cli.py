@@ -327,7 +327,7 @@ def test_every_shipped_scene_parses():
             continue  # a [sweep] scene, read by perturb.sweep_cli
         scene = load_scene(path)
         scene.oscillator()
-        assert "REFERENCES.md" in path.read_text() or "course" in path.name, path
+        assert "docs/references.md" in path.read_text() or "course" in path.name, path
 
 
 def test_backbone_scene_duffing_against_the_elliptic_integral(tmp_path):

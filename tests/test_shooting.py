@@ -45,7 +45,7 @@ from perturb.simulate.shooting import (
 )
 
 TWO_PI = 2.0 * math.pi
-K, MU, F, W = -2.0, 0.05, 2.0, 0.6  # Zou-Nagarajaiah Fig. 5 (reconstructed, REFERENCES.md §1)
+K, MU, F, W = -2.0, 0.05, 2.0, 0.6  # Zou-Nagarajaiah Fig. 5 (reconstructed, docs/references.md §1)
 
 
 def nsd_system(k=K, mu=MU, F=F, W=W) -> PWLSystem:
@@ -227,7 +227,7 @@ def test_period_m_of_a_period_one_orbit(nsd_flow):
 
 
 # ---------------------------------------------------------------------------------------------
-# exact period of the free undamped nsd oscillator (REFERENCES.md §1, rebuilt here)
+# exact period of the free undamped nsd oscillator (docs/references.md §1, rebuilt here)
 # ---------------------------------------------------------------------------------------------
 #   G(x) = k x^2/2 (|x| <= 1),  k x^2/2 + (1-k)(|x|-1)^2/2 outside.  For x > 1, with b = 1 - k,
 #   G = (x - b)^2/2 - b(b-1)/2: a unit-frequency harmonic well centred at b.  An orbit with

@@ -11,7 +11,7 @@ Oracles, never the module itself:
 * Liouville: det(monodromy) = exp(-mu T), so lambda_1 + lambda_2 = -mu for every orbit;
 * the exact symmetry y -> -y of the unforced nsd oscillator.
 
-Parameter sets from Zou & Nagarajaiah are the reconstructions of REFERENCES.md §1.
+Parameter sets from Zou & Nagarajaiah are the reconstructions of docs/references.md §1.
 """
 
 from __future__ import annotations

@@ -1,5 +1,6 @@
-"""Symbolic methods: each turns an Oscillator into an Approximation (DESIGN.md, the method
-contract). :data:`METHODS` maps the short names used by scenes and the command line to them."""
+"""Symbolic methods: each turns an Oscillator into an Approximation (docs/architecture.md,
+the method contract). :data:`METHODS` maps the short names used by scenes and the command
+line to them."""
 
 from __future__ import annotations
 

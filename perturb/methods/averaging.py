@@ -6,7 +6,7 @@ frequency :math:`\omega_0 = \sqrt{k}` of a free one),
 
 .. math:: x'' + \omega^2 x = R, \qquad R = \omega^2 x - g(x, x') + F\cos(\Omega t + p_0),
 
-and vary the constants of the linear solution (Nayfeh & Mook 1979, §4.2; REFERENCES.md §2):
+and vary the constants of the linear solution (Nayfeh & Mook 1979, §4.2; docs/references.md §2):
 
 * **Krylov–Bogoliubov** (:func:`krylov_bogoliubov`): :math:`x = a\cos\psi`,
   :math:`x' = -a\omega\sin\psi`, with :math:`\psi = \Omega t + p_0 - \varphi` (forced) or

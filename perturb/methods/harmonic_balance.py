@@ -38,7 +38,7 @@ Single harmonic, zero bias (:func:`single_harmonic_balance`)
     the ansatz is substituted, the residual's components are read off with
     :func:`~perturb.methods.trig.harmonics` and every component outside the set is dropped.
     PWL forces with several harmonics need switching instants found numerically (the
-    Galerkin projection of DESIGN.md's Fourier layer) and are refused here.
+    Galerkin projection of docs/architecture.md's Fourier layer) and are refused here.
 
 Free conservative systems (``x'' + f(x) = 0``) are parametrised by the amplitude ``a_1`` of
 the fundamental with the frequency ``omega`` among the unknowns; :func:`backbone_series`
