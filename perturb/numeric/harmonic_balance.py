@@ -71,7 +71,10 @@ AFT (``projection="aft"``)
 The nonlinear part :math:`g_{nl} = g - \mu x' - k x` is sampled at ``samples`` equally spaced
 :math:`\theta` (default ``4 max(K) + 1``, which projects cubic polynomials exactly) and
 projected by the trapezoidal rule (a DFT); the Jacobian uses the sampled derivatives
-:math:`\partial g_{nl}/\partial x, \partial g_{nl}/\partial x'` (Dirac terms of jumps dropped).
+:math:`\partial g_{nl}/\partial x, \partial g_{nl}/\partial x'` (Dirac terms of jumps dropped:
+the sampled residual has none). Hill's pencil does add the Dirac term of a force that jumps
+across :math:`x' = 0` (Coulomb friction :math:`r\,\mathrm{sign}(x')`) at the velocity
+reversals of the series, the saltation of the exact monodromy (``_reversal_terms``).
 Exact for polynomial forces up to the aliasing order, slowly convergent (and aliased) for
 nonsmooth ones — the comparison option for PWL forces.
 
@@ -819,6 +822,28 @@ def _without_dirac(expr: sp.Expr) -> sp.Expr:
     return expr.replace(sp.DiracDelta, lambda *args: sp.Integer(0))
 
 
+def _velocity_dirac(g: sp.Expr, x: sp.Symbol, v: sp.Symbol) -> Callable[..., list] | None:
+    """``C(x)`` of the Dirac term ``C(x) delta(v)`` of ``dg/dv`` (a force that jumps across
+    ``v = 0``: ``sign(v)`` counts as ``2 Heaviside(v) - 1``), lambdified; None without one.
+    Dirac terms at other switching surfaces are not handled (dropped, as before)."""
+    if not g.has(v) or not (g.has(sp.sign) or g.has(sp.Heaviside)):
+        return None
+    h = g.replace(sp.sign, lambda a: 2 * sp.Heaviside(a) - 1)
+    dv = sp.expand(sp.diff(h, v))
+    delta = sp.DiracDelta(v)
+    coef = sp.Integer(0)
+    for term in sp.Add.make_args(dv):
+        if term.has(delta):
+            c = sp.simplify(term / delta)
+            if c.has(sp.DiracDelta):
+                return None
+            coef += c.subs(v, 0)
+    coef = sp.simplify(coef)
+    if coef == 0 or coef.free_symbols - {x}:
+        return None
+    return _lambdify((x,), [coef])
+
+
 def _lambdify(args: Sequence[sp.Symbol], exprs: Sequence[sp.Expr]) -> Callable[..., list]:
     mods = [{"Heaviside": lambda z, h0=0.5: np.heaviside(z, h0)}, "numpy"]
     fn = sp.lambdify(args, list(exprs), modules=mods)
@@ -951,11 +976,14 @@ class HarmonicBalanceSystem:
             k_lin = float(osc.linear_stiffness.xreplace(subs))
             self.linear_stiffness = k_lin
             g_nl = g - self.damping * v - k_lin * x
-            # sampled derivatives cannot hold the Dirac terms of jumps: dropped
+            # sampled derivatives cannot hold the Dirac terms of jumps: dropped, except a jump
+            # of the force across v = 0 (Coulomb friction r sign(x')), added at the velocity
+            # reversals by _reversal_terms
             gx = _without_dirac(sp.diff(g_nl, x))
             gv = _without_dirac(sp.diff(g_nl, v))
             self._g = _lambdify((x, v), [g_nl, gx, gv])
             self.velocity_dependent = bool(g_nl.has(v))
+            self._dirac_v = _velocity_dirac(g_nl, x, v)
             th = _TWO_PI * np.arange(self.samples) / self.samples
             self._Phi = self.basis.design(th)
             self._PhiD = self._Phi @ self.D
@@ -1107,7 +1135,68 @@ class HarmonicBalanceSystem:
             w = Omega / self.m
             _, _, gv = self._g(self._Phi @ u, w * (self._PhiD @ u))
             P = P + self._Pr @ (gv[:, None] * self._Phi)
+            for val, phi, _ in self._reversal_terms(u):
+                P = P + np.outer(self._dirac_weight * phi, (val / w) * phi)
         return P
+
+    def _reversal_terms(self, u: np.ndarray) -> list[tuple[float, np.ndarray, np.ndarray]]:
+        """The Dirac part of ``dg/dx'`` for a force that jumps by ``C(x)`` across ``x' = 0``
+        (e.g. ``C = 2 r`` for ``r sign(x')``): ``C delta(v)`` with ``v = w x_theta`` is, in
+        theta, ``sum_c C(x_c) delta(theta - theta_c) / (w |x_thetatheta(theta_c)|)`` over the
+        velocity reversals ``theta_c`` of the series. Returns ``(C / |x_thetatheta|, phi,
+        phi')`` at each reversal (``phi`` the basis functions there), so that the stiffness
+        matrix of Hill's pencil (the Galerkin Jacobian) gains ``sum wts phi phi'^T C /
+        |x_thetatheta|`` and its damping matrix ``sum wts phi phi^T C / (w |x_thetatheta|)``.
+        With these the Hill multipliers of a Coulomb oscillator converge to the exact ones,
+        whose monodromy has the saltation ``diag(1, a+/a-)`` at each reversal (the truncated
+        series takes the mean ``(a+ + a-)/2`` there, for which the Dirac update reproduces
+        ``a+/a-`` exactly).
+        Reversals where ``|x_thetatheta|`` is at rounding level (sticking) are skipped."""
+        if getattr(self, "_dirac_v", None) is None:
+            return []
+        basis = self.basis
+        xt = self._PhiD @ u
+        n = xt.size
+        step = _TWO_PI / n
+        idx = np.flatnonzero(np.sign(xt) != np.sign(np.roll(xt, -1)))
+        if idx.size == 0 or idx.size > 4 * basis.kmax:
+            return []
+        D = self.D
+        Du = D @ u
+        DDu = D @ Du
+        scale = max(1.0, float(np.max(np.abs(u))))
+        out = []
+        for i in idx:
+            a, fa, fb = i * step, xt[i], xt[(i + 1) % n]
+            th = a + step * fa / (fa - fb) if fa != fb else a
+            for _ in range(8):  # Newton on x_theta = 0, kept within the bracket
+                row = basis.design(np.array([th]))[0]
+                f1, f2 = float(row @ Du), float(row @ DDu)
+                if f2 == 0.0:
+                    break
+                new = th - f1 / f2
+                if not a <= new <= a + step:
+                    break
+                done = abs(new - th) < 1e-14
+                th = new
+                if done:
+                    break
+            row = basis.design(np.array([th]))[0]
+            curv = abs(float(row @ DDu))
+            if curv <= 1e-9 * scale:
+                continue
+            C = float(self._dirac_v(np.array([float(row @ u)]))[0][0])
+            if C != 0.0 and np.isfinite(C):
+                out.append((C / curv, row, row @ D))
+        return out
+
+    @cached_property
+    def _dirac_weight(self) -> np.ndarray:
+        """``(1/pi)`` for the harmonic rows of a Galerkin projection, ``1/(2 pi)`` for bias."""
+        wts = np.full(self.basis.size, 1.0 / np.pi)
+        if self.basis.bias:
+            wts[0] = 0.5 / np.pi
+        return wts
 
     def hill_exponents(
         self,
@@ -1153,6 +1242,12 @@ class HarmonicBalanceSystem:
             pieces = c[3]  # the crossing intervals of the iterate J_u belongs to
         w = Omega / self.m
         C = 2.0 * w * self.D + self._damping_matrix(u, Omega)
+        if self.projection == "aft" and self.velocity_dependent:
+            # the Dirac part of dg/dx' at velocity reversals (Coulomb friction): in Hill's
+            # pencil only; Newton and continuation keep the derivative of the sampled
+            # residual, which has none (each sample of sign(x') is constant in u)
+            for val, phi, dphi in self._reversal_terms(u):
+                J_u = J_u + np.outer(self._dirac_weight * phi, val * dphi)
         if not full and self.pwl is not None:
             lam = self._hill_newton(u, w, C, J_u, pieces, refine_complex)
             if lam is not None:
