@@ -111,6 +111,8 @@ def _approximation_guesses(osc: Oscillator, Omega: float) -> list[np.ndarray]:
 
 #: harmonics of the multi-start harmonic-balance search (orbits are polished by shooting)
 _SEARCH_HARMONICS = 9
+#: and at least this many times the largest natural frequency over Omega (up to 21)
+_HARMONICS_PER_RATIO = 3.0
 #: Newton steps per start, step halvings per Newton step, and residual evaluations for the
 #: whole multi-start search (a bound on its work)
 _SEARCH_ITERATIONS = 12
@@ -188,7 +190,9 @@ def _harmonic_balance_guesses(
     system = getattr(flow, "system", None)
     slopes = np.asarray(getattr(system, "slopes", [1.0]), float)
     naturals = np.sqrt(slopes[slopes > 0.0]) if np.any(slopes > 0.0) else np.array([1.0])
-    harmonics = int(np.clip(np.ceil(3.0 * naturals.max() / Omega), _SEARCH_HARMONICS, 21))
+    harmonics = int(
+        np.clip(np.ceil(_HARMONICS_PER_RATIO * naturals.max() / Omega), _SEARCH_HARMONICS, 21)
+    )
     try:
         from ..numeric.harmonic_balance import HarmonicBalanceSystem
 
