@@ -180,6 +180,8 @@ SIG_PHASES = 8
 JOIN_FRACTION = 0.25
 #: Largest last Newton correction (scaled) whose iterate supplies the orbit statistics.
 STATS_TOL = 1.0e-7
+#: A march stops after this many consecutive steps no longer than _STALL_DS * ds_min.
+_STALL_STEPS, _STALL_DS = 100, 4.0
 #: Largest number of predictor-corrector attempts for one continuation step.
 _MAX_STEP_ATTEMPTS = 400
 #: A multiplier modulus above this is reported as this (e^700 would overflow later products).
@@ -1670,6 +1672,7 @@ class _Tracer:
         dir3 = sign * start.tangent3()
         reason = "max_points"
         closed = False
+        stalled = 0
         while len(pts) < st.max_points:
             if eng.periods - periods0 > st.max_periods:
                 reason = "work budget"
@@ -1689,6 +1692,15 @@ class _Tracer:
                 new, stop = self._numeric_step(pts, cur, cur_t, dir3, ctl)
                 if new is None:
                     reason = stop
+                    break
+                # a march that creeps at the smallest step (a singular corner: grazing at
+                # zero speed, sticking at a discontinuity) would take max_points such steps
+                stalled = stalled + 1 if ctl.last_ok <= _STALL_DS * st.ds_min else 0
+                if stalled > _STALL_STEPS:
+                    reason = (
+                        f"stalled at {eng.family.parameter} = {new.p:.8g} ({_STALL_STEPS} "
+                        "steps at the smallest step size)"
+                    )
                     break
                 if not eng.lo <= new.p <= eng.hi:
                     edge_pt = self._edge_point(cur, new)
