@@ -96,7 +96,10 @@ Branches
     branch's own earlier part, stepping along it), on running along an already traced branch
     (two consecutive points on it, stepping along it: a crossing at a branch point, however
     shallow, is passed), when a period-``2m`` branch collapses onto its period-``m`` orbit,
-    or when a budget of points or propagations is spent.
+    when a budget of points or propagations is spent, when the wall-clock budget of
+    :func:`exact_branches` (``max_seconds``) runs out ("time budget"), or when it creeps
+    for 100 steps at the smallest step size ("stalled": a singular corner, e.g. a relay
+    force touched at zero speed, where Newton converges badly at every step).
 
 Exact frequency response
     :func:`exact_branches` seeds from the closed-form arcs of every segment, the caller's
@@ -108,7 +111,18 @@ Exact frequency response
     The sweeps are *virtual* where possible: a sweep follows the stable part of a traced
     branch without integrating, and integrates (``transient_periods``, then Newton from a
     nearly periodic state) only where that branch ends or loses stability — where a real
-    sweep jumps — and across regions without a stable period-1 orbit.
+    sweep jumps — and across regions without a stable period-1 orbit.  A system without
+    dissipation (no term depends on :math:`x'`) is not traced: the result is empty with a
+    note saying why (no transient decays; neutral multipliers; families of free orbits) and
+    what to do instead.  Friction and other switch functions of non-PWL models are traced on
+    the event-driven flow (saltation at every switch, sticking), method ``'shooting'``.
+
+Bounded work
+    Every loop has a cap: the corrector's Newton iterations, the step attempts per step
+    (``_MAX_STEP_ATTEMPTS``), the points and propagated periods per march, the branches and
+    the wall-clock time of :func:`exact_branches`; non-finite steps and residuals end a march
+    with a stop reason.  Worker processes of the pool end when the process that started it
+    dies (``PR_SET_PDEATHSIG`` on Linux, and a thread watching the parent id).
 
 Parallel tracing
     With ``workers > 1`` (default: two on a machine with two or more CPUs, serial inside a

@@ -176,8 +176,12 @@ class FlowFamily:
     Continuation and sweeps ask for thousands of flows that differ in one number; rebuilding
     the canonical PWL form or re-lambdifying per value would dominate their cost. Piecewise-
     linear oscillators get the exact flow (:class:`~perturb.simulate.exact_flow.ExactPWLFlow`,
-    breakpoints, slopes and offsets compiled as functions of the parameter); others the
-    smooth :class:`ODEFlow`.
+    breakpoints, slopes and offsets compiled as functions of the parameter); other models with
+    switch functions (``sign(x')`` friction, a Heaviside step on a nonlinear force, ...) the
+    event-driven flow (:class:`~perturb.simulate.event_driven.EventFlow`, one template whose
+    compiled modes take the parameter as an argument; ``event`` is True), whose sensitivity
+    carries the saltation matrices at the switches and the sliding projections; smooth
+    models the :class:`ODEFlow`.
 
     Parameters
     ----------
@@ -186,8 +190,10 @@ class FlowFamily:
     parameter
         Name of the parameter that varies; default: the forcing frequency.
     exact
-        ``None`` (default) chooses the exact flow when the model is piecewise linear;
-        ``False`` forces the ODE flow.
+        ``None`` (default) chooses the exact flow when the model is piecewise linear, else
+        the event-driven flow when it has switch functions the event-driven integrator
+        takes, else the ODE flow; ``False`` forces the ODE flow (which steps over switches:
+        its monodromy misses the saltation).
     """
 
     def __init__(
