@@ -33,6 +33,7 @@ import re
 import signal
 import sys
 import threading
+import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -925,7 +926,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     standard error), 130 after Ctrl-C and 143 after SIGTERM.
     """
     try:
-        with _signals():
+        with _signals(), warnings.catch_warnings():
+            warnings.showwarning = _show_warning
             return _main(argv)
     except KeyboardInterrupt:
         _error("interrupted (Ctrl-C); outputs are complete or absent")
@@ -933,6 +935,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except _Terminated:
         _error("terminated (SIGTERM); outputs are complete or absent")
         return 143
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A library warning as one line ``perturb: warning: ...`` (no file path, no source line);
+    with ``PERTURB_DEBUG=1`` Python's own format."""
+    if _debug():
+        sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
+        return
+    text = " ".join(str(message).split())
+    print(f"perturb: warning: {text}", file=sys.stderr)
 
 
 def _main(argv: Sequence[str] | None) -> int:
