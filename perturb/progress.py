@@ -24,6 +24,9 @@ class Progress:
             for item in grid:
                 ...
                 bar.update()
+
+    ``eta=False`` leaves out the estimate of the time left, for work whose items differ
+    widely in cost.
     """
 
     def __init__(
@@ -33,8 +36,12 @@ class Progress:
         *,
         stream: TextIO | None = None,
         enabled: bool | None = None,
+        eta: bool = True,
     ) -> None:
         self.total = max(int(total), 0)
+        # an estimate of the time left assumes items of similar cost; where they are not (a
+        # seed on a known branch costs nothing, a new branch seconds), it would jump about
+        self.eta = bool(eta)
         self.label = label
         self.stream = stream if stream is not None else sys.stderr
         if enabled is None:
@@ -70,7 +77,7 @@ class Progress:
         elapsed = time.perf_counter() - self.start
         rate = self.done / elapsed if elapsed > 0 else 0.0
         left = (self.total - self.done) / rate if rate > 0 else float("inf")
-        eta = f", ~{left:.0f} s left" if self.done < self.total and rate > 0 else ""
+        eta = f", ~{left:.0f} s left" if self.eta and self.done < self.total and rate > 0 else ""
         return f"[perturb] {self.label} {self.done}/{self.total} ({elapsed:.1f} s{eta})"
 
     def _write(self, text: str, end: str = "\n") -> None:

@@ -40,3 +40,16 @@ def test_disabled_and_closed_streams_are_silent():
     closed.close()
     with Progress(3, "x", stream=closed, enabled=True) as bar:
         bar.update(3)  # must not raise
+
+
+def test_no_estimate_of_the_time_left_for_uneven_work():
+    # items of uneven cost (seeds of a continuation) make the estimate jump: it is left out
+    stream = io.StringIO()
+    with Progress(4, "uneven", stream=stream, enabled=True, eta=False) as bar:
+        for _ in range(4):
+            bar.update()
+    assert "left" not in stream.getvalue() and "4/4" in stream.getvalue()
+    stream = io.StringIO()
+    with Progress(4, "even", stream=stream, enabled=True) as bar:
+        bar.update()
+    assert "s left" in stream.getvalue()
