@@ -500,3 +500,18 @@ def test_relay_response_is_bounded_and_its_orbits_are_periodic():
             )
         checked += 1
     assert checked >= 4
+
+
+def test_event_family_over_a_parameter_that_moves_a_switching_surface():
+    """The varied parameter sits in a switching argument (Heaviside(x - d)): one event-driven
+    flow per value, the same orbit as the frequency family's at the same parameters."""
+    eq = "x'' + 0.1*x' + x + 0.1*x**3 + 0.5*Heaviside(x - d) = cos(Omega*t)"
+    by_d = FlowFamily(Oscillator.parse(eq, {"Omega": 1.1}), "d")
+    by_w = FlowFamily(Oscillator.parse(eq, {"d": 0.3}))
+    assert by_d.event and by_w.event
+    a = periodic_orbit(by_d.at(0.3), [2.0, 0.0])
+    b = periodic_orbit(by_w.at(1.1), [2.0, 0.0])
+    assert np.max(np.abs(np.array(a.y0) - np.array(b.y0))) < 1e-9
+    assert a.max_multiplier == pytest.approx(b.max_multiplier, rel=1e-8)
+    c = periodic_orbit(by_d.at(0.35), [2.0, 0.0])
+    assert abs(c.amplitude - a.amplitude) > 1e-4

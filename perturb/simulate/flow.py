@@ -261,6 +261,21 @@ class FlowFamily:
                 self._recent[value] = flow
             return flow
         if self._event is not None:
+            if self._event == "per value":
+                # the parameter moves a switching surface: one event-driven flow per value
+                from .event_driven import EventFlow
+
+                flow = self._recent.get(value)
+                if flow is None:
+                    flow = EventFlow(
+                        self.oscillator.with_params({self.parameter: value}),
+                        rtol=self.rtol,
+                        atol=self.atol,
+                    )
+                    if len(self._recent) >= _RECENT_FLOWS:
+                        self._recent.pop(next(iter(self._recent)))
+                    self._recent[value] = flow
+                return flow
             return self._event.at(value)
         assert self._rhs is not None
         return ODEFlow(self.oscillator, rhs=self._rhs(value), rtol=self.rtol, atol=self.atol)
@@ -281,12 +296,17 @@ def _event_template(osc: Oscillator, parameter: str, rtol: float, atol: float):
     parameter or on time, Dirac terms): the ODE flow is used then."""
     from .event_driven import EventFlow
 
+    if osc.params.get(parameter) is None:
+        osc = osc.with_params({parameter: 1.0})  # a placeholder: at() sets the value
     try:
-        if osc.params.get(parameter) is None:
-            osc = osc.with_params({parameter: 1.0})  # a placeholder: at() sets the value
         return EventFlow(osc, rtol=rtol, atol=atol, parameter=parameter)
     except (ModelError, ParameterError):
+        pass
+    try:
+        EventFlow(osc, rtol=rtol, atol=atol)  # the parameter in a switching argument?
+    except (ModelError, ParameterError):
         return None
+    return "per value"
 
 
 def _others(osc: Oscillator, parameter: str) -> dict:
