@@ -68,6 +68,8 @@ __all__ = [
     "to_pwl",
     "is_nonsmooth",
     "is_pwl",
+    "MAX_BREAKPOINTS",
+    "MAX_SWITCH_NESTING",
 ]
 
 #: Functions that switch between linear pieces; their arguments define the breakpoints.
@@ -197,6 +199,43 @@ def _bad_values(expr: sympy.Expr) -> bool:
     return bool(expr.has(sympy.oo, -sympy.oo, sympy.zoo, sympy.nan))
 
 
+#: Most breakpoints (kinks and jumps) a piecewise-linear form may have. The canonicaliser's
+#: work grows with the square of the breakpoints times the number of switches (each segment
+#: resolves every switch); nested switches can double the breakpoints per level
+#: (``Abs(Abs(Abs(x) - 1) - 1/2)``...), so 45 levels would mean 2**45 of them. Physical models
+#: have a handful; 100 take a few seconds.
+MAX_BREAKPOINTS = 100
+
+
+#: Deepest nesting of switch functions inside one another that :func:`to_pwl` canonicalises.
+#: Every level is canonicalised once, on every segment of the level above, so the work grows
+#: with the fourth power of the depth (45 levels of ``Abs(... - i)`` took 54 s; 16 take about
+#: a second). The equation parser allows 8 (:data:`perturb.parsing.MAX_SWITCH_NESTING`).
+MAX_SWITCH_NESTING = 16
+
+#: Most candidate breakpoints (before duplicates are merged) collected for one expression.
+_MAX_CANDIDATES = 2 * MAX_BREAKPOINTS
+
+
+def _switch_depth(expr: sympy.Basic, memo: dict[sympy.Basic, int]) -> int:
+    """How many switch functions are nested inside one another in ``expr``."""
+    if expr in memo:
+        return memo[expr]
+    inner = max((_switch_depth(a, memo) for a in expr.args), default=0)
+    out = inner + 1 if isinstance(expr, _SWITCHES) else inner
+    memo[expr] = out
+    return out
+
+
+def _too_many(expr: sympy.Basic, count: int) -> NonsmoothError:
+    text = sympy.sstr(expr)
+    text = text if len(text) <= 80 else text[:77] + "..."
+    return NonsmoothError(
+        f"{text} has {count} candidate breakpoints: expected at most {MAX_BREAKPOINTS} "
+        "(write the force with fewer switches or less nesting)"
+    )
+
+
 class _Unordered(Exception):
     """Internal: two breakpoints whose order cannot be decided."""
 
@@ -226,6 +265,10 @@ class _Canon:
 
     def __init__(self, s: sympy.Symbol) -> None:
         self.s = s
+        # nested switches (Abs(Abs(x) - 1)) ask for the same inner canonical form from
+        # candidates() and from zeros(): without these caches the work doubles per level
+        self._candidates: dict[sympy.Basic, list[sympy.Expr]] = {}
+        self._canonical: dict[sympy.Basic, tuple] = {}
 
     # ---- step 1: candidate breakpoints --------------------------------------------------
 
@@ -245,6 +288,17 @@ class _Canon:
                 )
 
     def candidates(self, e: sympy.Basic) -> list[sympy.Expr]:
+        if e not in self._candidates:
+            out = self._candidates_uncached(e)
+            # the same numbers arrive from several switches (and a nested switch's own
+            # breakpoints from every level above it): merge them as they come
+            out = list(dict.fromkeys(out)) if all(b.is_Rational for b in out) else out
+            if len(out) > _MAX_CANDIDATES:
+                raise _too_many(e, len(out))
+            self._candidates[e] = out
+        return list(self._candidates[e])
+
+    def _candidates_uncached(self, e: sympy.Basic) -> list[sympy.Expr]:
         s = self.s
         self._reject_foreign(e)
         if not e.has(s) or e == s:
@@ -266,10 +320,15 @@ class _Canon:
             arg = e.args[0]
             return self.candidates(arg) + self.zeros(arg, e)
         if isinstance(e, Max | Min):
+            pairs = len(e.args) * (len(e.args) - 1) // 2
+            if pairs > _MAX_CANDIDATES:
+                raise _too_many(e, pairs)
             out = [b for a in e.args for b in self.candidates(a)]
             for i, a in enumerate(e.args):
                 for b in e.args[i + 1 :]:
                     out += self.zeros(a - b, e)
+                    if len(out) > _MAX_CANDIDATES:  # checked as they come: each costs work
+                        raise _too_many(e, len(out))
             return out
         if isinstance(e, Piecewise):
             out = []
@@ -301,12 +360,15 @@ class _Canon:
         s = self.s
         if not g.has(s):
             return []
-        where = f"{switch}: the switch argument {g}" + (f" (from the {what})" if what else "")
+
+        def where() -> str:  # printed only for an error: printing costs more than the rest
+            return f"{switch}: the switch argument {g}" + (f" (from the {what})" if what else "")
+
         if not g.has(*_SWITCHES):
             parts = _linear_parts(g, s)
             if parts is None:
                 raise NonsmoothError(
-                    f"{where} is not linear in {s} (expected a*{s} + c with a, c independent "
+                    f"{where()} is not linear in {s} (expected a*{s} + c with a, c independent "
                     f"of {s}); a switch of a nonlinear argument is not piecewise linear and "
                     "perturb does not root-find — rewrite it with linear arguments"
                 )
@@ -316,7 +378,7 @@ class _Canon:
                 return []
             if sa is None:
                 raise NonsmoothError(
-                    f"{where}: cannot decide the sign of the coefficient {a} of {s}, which "
+                    f"{where()}: cannot decide the sign of the coefficient {a} of {s}, which "
                     f"decides on which side of {-c / a} the switch is on; {_VALUES_HINT}"
                 )
             return [-c / a]
@@ -324,7 +386,7 @@ class _Canon:
         try:
             bps, slopes, offsets = self.canonical(g)
         except NonsmoothError as exc:
-            raise NonsmoothError(f"{where} is not piecewise linear: {exc}") from exc
+            raise NonsmoothError(f"{where()} is not piecewise linear: {exc}") from exc
         out = list(bps)
         lows = (-sympy.oo, *bps)
         highs = (*bps, sympy.oo)
@@ -335,7 +397,7 @@ class _Canon:
                 continue
             if sa is None:
                 raise NonsmoothError(
-                    f"{where}: cannot decide whether its slope {a} on "
+                    f"{where()}: cannot decide whether its slope {a} on "
                     f"{_describe_interval(s, lo, hi)} is zero; {_VALUES_HINT}"
                 )
             root = _tidy(-c / a)
@@ -345,7 +407,7 @@ class _Canon:
                 continue  # provably outside the open segment (or at one of its ends)
             if above is None or below is None:
                 raise NonsmoothError(
-                    f"{where}: cannot decide whether its zero {root} lies in "
+                    f"{where()}: cannot decide whether its zero {root} lies in "
                     f"{_describe_interval(s, lo, hi)}; {_VALUES_HINT}"
                 )
             # inside, possibly only weakly (it may coincide with an end for some values)
@@ -356,6 +418,9 @@ class _Canon:
 
     def order(self, candidates: list[sympy.Expr], expr: sympy.Expr) -> list[sympy.Expr]:
         unique: list[sympy.Expr] = []
+        if all(b.is_Rational for b in candidates):
+            # numbers: exact duplicates are equal rationals, no pairwise sign tests needed
+            return sorted(set(candidates))
         for b in candidates:
             b = _tidy(b)
             if _bad_values(b) or b.is_extended_real is False:
@@ -502,8 +567,17 @@ class _Canon:
     def canonical(
         self, expr: sympy.Expr
     ) -> tuple[tuple[sympy.Expr, ...], tuple[sympy.Expr, ...], tuple[sympy.Expr, ...]]:
+        if expr not in self._canonical:
+            self._canonical[expr] = self._canonical_uncached(expr)
+        return self._canonical[expr]
+
+    def _canonical_uncached(
+        self, expr: sympy.Expr
+    ) -> tuple[tuple[sympy.Expr, ...], tuple[sympy.Expr, ...], tuple[sympy.Expr, ...]]:
         s = self.s
         bps = self.order(self.candidates(expr), expr)
+        if len(bps) > MAX_BREAKPOINTS:
+            raise _too_many(expr, len(bps))
         slopes: list[sympy.Expr] = []
         offsets: list[sympy.Expr] = []
         for i in range(len(bps) + 1):
@@ -1037,6 +1111,13 @@ def to_pwl(
             )
     if _bad_values(expr):
         raise NonsmoothError(f"{expr} is not finite")
+    depth = _switch_depth(expr, {})
+    if depth > MAX_SWITCH_NESTING:
+        text = sympy.sstr(expr)
+        raise NonsmoothError(
+            f"{text if len(text) <= 80 else text[:77] + '...'} nests {depth} switch functions "
+            f"inside one another: expected at most {MAX_SWITCH_NESTING}"
+        )
     bps, slopes, offsets = _Canon(symbol).canonical(expr)
     return PiecewiseLinear(symbol, bps, slopes, offsets)
 

@@ -28,7 +28,9 @@ one-line :class:`~perturb.errors.ParseError` that names the offending text, anyt
 these limits (module constants, see each one's comment):
 
 * :data:`MAX_LENGTH` characters and :data:`MAX_TOKENS` tokens in the text;
-* :data:`MAX_DEPTH` levels of nesting (parentheses, signs, powers, calls);
+* :data:`MAX_DEPTH` levels of nesting (parentheses, signs, powers, calls), and at most
+  :data:`MAX_SWITCH_NESTING` switch functions (``Max``, ``Abs``, ``Heaviside``...) inside one
+  another, and at most :data:`MAX_SWITCH_ARGUMENTS` arguments per call;
 * number literals of at most :data:`MAX_LITERAL_DIGITS` digits whose magnitude, unless zero,
   lies in ``[MIN_MAGNITUDE, MAX_MAGNITUDE]`` = ``[1e-300, 1e300]`` (so nothing under- or
   overflows a float); the same range for every constant the parser computes from them
@@ -56,6 +58,8 @@ __all__ = [
     "MAX_LENGTH",
     "MAX_TOKENS",
     "MAX_DEPTH",
+    "MAX_SWITCH_NESTING",
+    "MAX_SWITCH_ARGUMENTS",
     "MAX_LITERAL_DIGITS",
     "MIN_MAGNITUDE",
     "MAX_MAGNITUDE",
@@ -97,6 +101,8 @@ FUNCTIONS: dict[str, object] = {
     "sqrt": sp.sqrt,
 }
 
+_SWITCH_FUNCTIONS = (sp.Heaviside, sp.DiracDelta, sp.Max, sp.Min, sp.Abs, sp.sign, sp.Piecewise)
+
 #: Names that stand for constants rather than parameters.
 CONSTANTS: dict[str, sp.Expr] = {"pi": sp.pi}
 
@@ -112,6 +118,19 @@ MAX_TOKENS = 2_000
 #: Deepest nesting of parentheses, signs, powers and function calls. Bounds the recursion of
 #: this parser and of SymPy's tree walks (Python's stack is ~1000 frames).
 MAX_DEPTH = 100
+
+#: Deepest nesting of switch functions (Heaviside, DiracDelta, Max, Min, Abs, sign, Piecewise)
+#: inside one another. Saturation ``Max(-d, Min(d, x))`` needs 2; SymPy's own ``Max``/``Min``
+#: constructor and the piecewise-linear canonicaliser work harder with every level (24 levels
+#: of ``Max(Min(...))`` took 17 s to parse and nested ``Abs`` can double the breakpoints per
+#: level).
+MAX_SWITCH_NESTING = 8
+
+#: Most arguments of one ``Max`` or ``Min``. SymPy's constructor compares the arguments
+#: pairwise and every pair can be a breakpoint: ``Max`` of 80 lines took 5 s to parse and 30 s
+#: to canonicalise, ``Min`` of 16 ``Max`` of 16 lines 26 s to parse (8 and 8: 1 s); a physical
+#: force needs 2 or 3.
+MAX_SWITCH_ARGUMENTS = 8
 
 #: Most digits in one number literal (mantissa, leading zeros included). 100 digits are far more
 #: than any measured constant has; a 5 000-digit literal only costs time downstream.
@@ -374,6 +393,7 @@ class _Parser:
         self.tokens = _tokenize(text)
         self.i = 0
         self.depth = 0
+        self.switch_depth = 0
         self.allow_derivatives = allow_derivatives
         self.state_name: str | None = None
         self.derivative_order = 0
@@ -635,6 +655,23 @@ class _Parser:
         return self.symbol(name_tok.text + primes.text)
 
     def call(self, name: str, name_tok: _Token) -> sp.Expr:
+        switch = FUNCTIONS[name] in _SWITCH_FUNCTIONS
+        if switch:
+            self.switch_depth += 1
+            if self.switch_depth > MAX_SWITCH_NESTING:
+                raise ParseError(
+                    f"{name} at column {name_tok.pos + 1} in {self._short()} is nested "
+                    f"{self.switch_depth} switch functions deep: expected at most "
+                    f"{MAX_SWITCH_NESTING} of Heaviside, DiracDelta, Max, Min, Abs, sign and "
+                    "Piecewise inside one another"
+                )
+        try:
+            return self._call(name, name_tok)
+        finally:
+            if switch:
+                self.switch_depth -= 1
+
+    def _call(self, name: str, name_tok: _Token) -> sp.Expr:
         self.expect("(", "'('")
         self.enter()
         if name == "Piecewise":
@@ -643,6 +680,12 @@ class _Parser:
             return sp.Piecewise(*args)
         args = [self.expression()]
         while self.accept(","):
+            if len(args) >= MAX_SWITCH_ARGUMENTS:
+                raise ParseError(
+                    f"{name} at column {name_tok.pos + 1} in {self._short()} has more than "
+                    f"{MAX_SWITCH_ARGUMENTS} arguments: expected at most {MAX_SWITCH_ARGUMENTS} "
+                    "(split a long Max/Min into nested ones)"
+                )
             args.append(self.expression())
         self.expect(")", f"')' or ',' in the arguments of {name}")
         self.depth -= 1

@@ -26,11 +26,14 @@ from perturb.fourier_symbols import (
     series_coefficients,
 )
 from perturb.model import Oscillator, builtin_model, validate_parameter_value
+from perturb.nonsmooth import MAX_BREAKPOINTS, NonsmoothError, to_pwl
 from perturb.parsing import (
     MAX_DEGREE,
     MAX_DEPTH,
     MAX_EXPONENT,
     MAX_LITERAL_DIGITS,
+    MAX_SWITCH_ARGUMENTS,
+    MAX_SWITCH_NESTING,
     MAX_TOKENS,
     parse_equation,
     parse_expression,
@@ -104,6 +107,26 @@ HOSTILE_EXPRESSIONS = [
     ("-" * (MAX_DEPTH + 5) + "x", "nested deeper", "signs"),
     ("sin(" * 60 + "x" + ")" * 60, "nested deeper", "calls"),
     ("x" * 20_000, "characters long", "at most 10000"),
+    # switch functions: nesting and width (SymPy's Max/Min constructor is superlinear)
+    (
+        "Abs(" * (MAX_SWITCH_NESTING + 1) + "x" + ")" * (MAX_SWITCH_NESTING + 1),
+        "Abs at column 33",
+        f"at most {MAX_SWITCH_NESTING}",
+    ),
+    ("Max(Min(" * 12 + "x" + ", x + 1), -x - 1)" * 12, "switch functions deep", "Max, Min"),
+    ("Heaviside(" * 9 + "x" + ")" * 9, "Heaviside", "nested 9 switch functions deep"),
+    (
+        "Max(" + ",".join(f"{i}*x - {i * i}" for i in range(1, 80)) + ")",
+        "Max at column 1",
+        f"more than {MAX_SWITCH_ARGUMENTS} arguments",
+    ),
+    (
+        "Min("
+        + ",".join("Max(" + ",".join(f"{j}*x - {i}" for j in range(16)) + ")" for i in range(16))
+        + ")",
+        "arguments",
+        str(MAX_SWITCH_ARGUMENTS),
+    ),
 ]
 
 
@@ -128,6 +151,57 @@ def test_hostile_equation_is_refused_by_oscillator_parse(case):
     text, *fragments = case
     _refused(lambda: parse_equation(text), ParseError, *fragments)
     _refused(lambda: Oscillator.parse(text), ParseError, *fragments)
+
+
+def _nest(make, depth: int) -> sp.Expr:
+    x = real_symbol("x")
+    e = x
+    for i in range(depth):
+        e = make(e, i)
+    return e
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda e, i: sp.Abs(e - i),  # breakpoints grow by two per level
+        lambda e, i: sp.Abs(e - sp.Rational(1, 2**i)),  # breakpoints double per level
+        lambda e, i: sp.sign(e + real_symbol("x") - i),
+    ],
+    ids=["abs-shift", "abs-halving", "sign"],
+)
+def test_to_pwl_of_deeply_nested_switches_is_bounded(make):
+    # built in SymPy, so the parser's nesting limit does not apply: the canonicaliser's own
+    # nesting limit, caches (the work used to double per level: 12 levels of Abs took 8 s, 45
+    # never ended) and breakpoint cap answer
+    expr = _nest(make, 45)
+    _refused(lambda: to_pwl(expr, real_symbol("x")), NonsmoothError, "nests 45 switch functions")
+    expr = _nest(make, 16)  # the deepest accepted: an answer or a clear refusal, in time
+    start = time.perf_counter()
+    try:
+        to_pwl(expr, real_symbol("x"))
+    except NonsmoothError as exc:
+        assert f"at most {MAX_BREAKPOINTS}" in str(exc)
+    assert time.perf_counter() - start < BUDGET
+
+
+def test_to_pwl_of_moderately_nested_switches_is_linear_in_depth():
+    x = real_symbol("x")
+    start = time.perf_counter()
+    pwl = to_pwl(_nest(lambda e, i: sp.Abs(e - i), 16), x)
+    assert time.perf_counter() - start < BUDGET
+    assert len(pwl.breakpoints) == 31
+    f = sp.lambdify(x, _nest(lambda e, i: sp.Abs(e - i), 16))
+    xs = np.linspace(-50, 250, 301) / 3
+    np.testing.assert_allclose(pwl.numeric()(xs), [f(v) for v in xs], rtol=0, atol=1e-12)
+
+
+def test_to_pwl_breakpoint_cap():
+    x = real_symbol("x")
+    many = sp.Add(*(sp.Heaviside(x - sp.Rational(i, 7)) for i in range(MAX_BREAKPOINTS + 1)))
+    _refused(lambda: to_pwl(many, x), NonsmoothError, str(MAX_BREAKPOINTS + 1), "breakpoints")
+    enough = sp.Add(*(sp.Heaviside(x - sp.Rational(i, 7)) for i in range(MAX_BREAKPOINTS)))
+    assert len(to_pwl(enough, x).breakpoints) == MAX_BREAKPOINTS
 
 
 def test_forcing_products_are_bounded():
