@@ -27,7 +27,7 @@ import sympy as sp
 from scipy import signal
 from scipy.integrate import quad, solve_ivp
 from scipy.linalg import expm
-from scipy.optimize import brentq
+from scipy.optimize import brentq, minimize_scalar
 
 from perturb.model import Oscillator
 from perturb.simulate.event_driven import simulate
@@ -330,6 +330,139 @@ def test_free_decoupler_regions_and_constraints(hm):
 
 
 # --------------------------------------------------------------------------------------------
+# the quasi-linear model (He & Singh eqs. 14-16, reconstructed) and the three step components
+# --------------------------------------------------------------------------------------------
+def floating_matrix(m):
+    """The floating-decoupler lumped ODEs y' = A y, y = (p_1, p_2, q_i, q_d), by hand."""
+    return np.array(
+        [
+            [0.0, 0.0, -1.0 / m.C1, -1.0 / m.C1],
+            [0.0, 0.0, 1.0 / m.C2, 1.0 / m.C2],
+            [1.0 / m.I_i, -1.0 / m.I_i, -m.R_i / m.I_i, 0.0],
+            [1.0 / m.I_d, -1.0 / m.I_d, 0.0, -m.R_d / m.I_d],
+        ]
+    )
+
+
+def floating_force(m, times, X=1.0):
+    """F_T(t) after an ideal step, by the matrix exponential (p_1 jumps by A_r X / C_1)."""
+    A = floating_matrix(m)
+    y0 = np.array([m.A_r * X / m.C1, 0.0, 0.0, 0.0])
+    return np.array([m.k_r * X + m.A_r * (expm(A * tt) @ y0)[0] for tt in times])
+
+
+def test_quasi_linear_identities_and_full_transfer_function(hm):
+    q = hm.quasi_linear_model()
+    assert q.zero and all(v == 0 for v in q.zero.values()), q.zero
+    for m in [hm.Mount(), *random_mounts(hm, n=3, seed=11)]:
+        m = hm.replace(m, I_d=m.I_i / 30.0, R_d=m.R_i / 5.0)
+        K = hm.full_transfer(m)
+        # oracle: the Laplace-domain equations solved numerically at a few complex s
+        for sv in (3.0 + 40.0j, 0.5 + 400.0j, 20.0 - 5.0j):
+            M = np.array(
+                [
+                    [m.C1 * sv, 0, 1, 1],
+                    [0, m.C2 * sv, -1, -1],
+                    [1, -1, -(m.I_i * sv + m.R_i), 0],
+                    [1, -1, 0, -(m.I_d * sv + m.R_d)],
+                ],
+                dtype=complex,
+            )
+            P1 = np.linalg.solve(M, np.array([m.A_r * sv, 0, 0, 0], dtype=complex))[0]
+            want = m.k_r + m.A_r * P1
+            got = np.polyval(K.num, sv) / np.polyval(K.den, sv)
+            assert abs(got / want - 1.0) < 1e-10
+        # the effective branch: asymptotes of 1/(1/Z_i + 1/Z_d), numerically
+        br = hm.effective_branches(m)
+        I_e, R_e = br["high"]
+        I_0, R_0 = br["low"]
+
+        def Ze(sv, m=m):
+            return 1.0 / (1.0 / (m.I_i * sv + m.R_i) + 1.0 / (m.I_d * sv + m.R_d))
+
+        big = 1e9
+        assert (Ze(big) - Ze(big / 2)) / (big / 2) == pytest.approx(I_e, rel=1e-6)
+        assert Ze(big) - I_e * big == pytest.approx(R_e, rel=1e-4)
+        tiny = 1e-6
+        assert Ze(0.0) == pytest.approx(R_0, rel=1e-12)
+        assert (Ze(tiny) - Ze(0.0)) / tiny == pytest.approx(I_0, rel=1e-6)
+
+
+def test_quasi_linear_step_response_against_matrix_exponential(hm):
+    m = hm.Mount()
+    q = hm.quasi_study(m, 401)
+    times = q["times"]
+    F_full = floating_force(m, times)
+    swing = abs(F_full[0] - (m.k_r + m.A_r**2 / (m.C1 + m.C2)))
+    assert np.max(np.abs(q["F_ivp"] - F_full)) / swing < 1e-9
+    errors = {}
+    for key, (Ik, Rk) in hm.effective_branches(m).items():
+        # the one-branch model integrated here: the fixed-decoupler track-volume ODE
+        mk = hm.replace(m, I_i=Ik, R_i=Rk)
+        sol = track_volume_run(mk, 1.0, float(times[-1]))
+        F_red = force_from_volume(mk, 1.0, sol.sol(times)[0])
+        errors[key] = np.max(np.abs(F_red - F_full)) / swing
+        assert q["errors"][key] == pytest.approx(errors[key], rel=1e-4, abs=1e-9)
+    assert errors["high"] < 0.01  # the quasi-linear model: within 1 % of the transient
+    assert errors["low"] > 0.5 and errors["track"] > 1.0  # the other reductions fail
+    # the real pole of the full model sits next to the pole of Z_e and carries little
+    lam = np.linalg.eigvals(floating_matrix(m))
+    real = lam[np.abs(lam.imag) < 1e-9 * np.abs(lam).max()].real
+    slow = -real[np.abs(real) > 1e-6].max()  # C_1 p_1 + C_2 p_2 is conserved: one zero root
+    assert q["slow"] == pytest.approx(slow, rel=1e-9)
+    assert abs(q["slow"] / ((m.R_i + m.R_d) / (m.I_i + m.I_d)) - 1.0) < 0.01
+
+
+def test_three_step_components(hm):
+    m = hm.Mount()
+    c = hm.canonical(m)
+    cs = hm.component_study(m)
+    # oracle: the components by quadrature and on a dense grid
+    T = 40.0 / c["sigma"]
+    tt = np.linspace(0.0, T, 400_001)
+    one, cos_t, sin_t = hm.step_components(m, tt)
+    F, _ = hm.step_closed_form(m, tt)
+    assert np.max(np.abs(one + cos_t + sin_t - F / c["gamma"])) < 1e-12
+    kw = {"limit": 2000, "epsabs": 1e-15, "epsrel": 1e-12}
+
+    def comp(tv, k):
+        return hm.step_components(m, np.array([tv]))[k][0]
+
+    E_cos = quad(lambda tv: comp(tv, 1) ** 2, 0.0, T, **kw)[0]
+    E_sin = quad(lambda tv: comp(tv, 2) ** 2, 0.0, T, **kw)[0]
+    E_tr = quad(lambda tv: (comp(tv, 1) + comp(tv, 2)) ** 2, 0.0, T, **kw)[0]
+    assert cs["E_cos"] == pytest.approx(E_cos, rel=1e-8)
+    assert cs["E_sin"] == pytest.approx(E_sin, rel=1e-8)
+    assert cs["energy_share"] == pytest.approx(E_sin / E_tr, rel=1e-8)
+    # the sine term's largest value: grid maximum polished by a bounded scalar search
+    j = int(np.argmax(np.abs(sin_t)))
+    best = minimize_scalar(
+        lambda tv: -abs(comp(tv, 2)), bounds=(tt[j - 1], tt[j + 1]), method="bounded",
+        options={"xatol": 1e-13},
+    )  # fmt: skip
+    assert cs["peak_sin"] == pytest.approx(-best.fun, rel=1e-10)
+    assert cs["peak_ratio"] == pytest.approx(-best.fun / np.max(np.abs(cos_t)), rel=1e-10)
+    # the claim: negligible in energy (< 2 %), below 10 % at its peak, zero at the extrema
+    assert E_sin / E_tr < 0.02 and cs["peak_ratio"] < 0.1
+    tp = hm.peak_times(m, 6)
+    assert np.max(np.abs(hm.step_components(m, tp)[2])) < 1e-14
+    # the two-term form's extrema: located here by brentq on its derivative
+    A, sg, w = c["u"] ** 2 - 1.0, c["sigma"], c["omega_d"]
+
+    def slope(tv):
+        return -sg * math.cos(w * tv) - w * math.sin(w * tv)
+
+    errs = []
+    for t_true in tp:
+        t2 = brentq(slope, t_true - 0.45 * math.pi / w, t_true + 0.05 * math.pi / w, xtol=1e-15)
+        assert t_true - t2 == pytest.approx(cs["shift"], rel=1e-7)
+        two = A * math.exp(-sg * t2) * math.cos(w * t2)
+        true = A * math.exp(-sg * t_true) * math.cos(w * t_true)
+        errs.append(abs(two / true - 1.0))
+    assert cs["overshoot_error"] == pytest.approx(max(errs), rel=1e-8)
+
+
+# --------------------------------------------------------------------------------------------
 # the script end to end, and the document
 # --------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
@@ -356,6 +489,10 @@ def test_script_writes_outputs(fast_run):
         "nonlinear_step.csv",
         "nonlinear_events.csv",
         "symbolic_identities.csv",
+        "quasi_linear.png",
+        "quasi_linear.csv",
+        "quasi_linear_branches.csv",
+        "step_components.csv",
     ):
         assert (folder / name).stat().st_size > 0, name
     with (folder / "checks.csv").open() as fh:
@@ -368,6 +505,16 @@ def test_script_writes_outputs(fast_run):
     assert tex.lstrip().startswith(r"\section{")
     assert "representative" in tex and "reconstructed" in tex
     assert "hydraulic_mount/nonlinear_step.png" in tex
+    # the quasi-linear model and the negligible component, stated with their numbers
+    with (folder / "quasi_linear_branches.csv").open() as fh:
+        branches = {row["model"]: row for row in csv.DictReader(fh)}
+    high = float(branches["high"]["max_error_over_swing"])
+    assert high < 0.01
+    assert f"{100 * high:.3g}" in tex
+    assert "Quasi-linear model" in tex and "hydraulic_mount/quasi_linear.png" in tex
+    with (folder / "step_components.csv").open() as fh:
+        comp = {row["quantity"]: float(row["value"]) for row in csv.DictReader(fh)}
+    assert "negligible in energy" in tex and f"{100 * comp['energy_ratio']:.3g}" in tex
 
 
 def test_document_builds(build, fast_run, request):
