@@ -232,18 +232,20 @@ def _log10_abs(value: sp.Expr) -> float | None:
         if value == 0:
             return None
         return math.log10(abs(value.p)) - math.log10(value.q)
-    if value.has(*_BAD):
+    if value.has(*_BAD, sp.DiracDelta):
         return None
     try:
         num = sp.N(value, 15)
-    except (TypeError, ValueError, ArithmeticError):  # pragma: no cover - SymPy's own limits
+        if not num.is_number or num.has(*_BAD) or num == 0:
+            return None
+        re_, im = num.as_real_imag()
+        if not (re_.is_Float or re_.is_Rational) or not (im.is_Float or im.is_Rational):
+            return None  # not evaluable to a number
+        if im != 0 and abs(im) > 1e-12 * abs(re_):
+            return None
+        return float(sp.log(abs(re_), 10).evalf(15)) if re_ != 0 else None
+    except (TypeError, ValueError, ArithmeticError, RecursionError):  # SymPy's own limits
         return None
-    if not num.is_number or num.has(*_BAD) or num == 0:
-        return None
-    re_, im = num.as_real_imag()
-    if im != 0 and abs(im) > 1e-12 * abs(re_):
-        return None
-    return float(sp.log(abs(re_), 10).evalf(15)) if re_ != 0 else None
 
 
 def _in_range(log10: float) -> bool:

@@ -84,6 +84,11 @@ HOSTILE_EXPRESSIONS = [
     ("log(0)*x", "log(...)", "undefined"),
     ("sqrt(-1)*x", "sqrt(...)", "real"),
     ("acos(2) + x", "acos(...)", "real"),
+    ("log(-1)*x", "log(...)", "I*pi"),
+    ("DiracDelta(0)*x", "DiracDelta(...)", "not a finite real number"),
+    ("tan(pi/2) + x", "tan(...)", "undefined or infinite"),
+    ("cosh(700)*x", "cosh(...)", "1e304"),
+    ("exp(-700)*x", "exp(...)", "1e-304"),
     ("(-1)**(1/2)*x", "power", "real"),
     ("0**-1 + x", "0 raised to a negative power", "column 2"),
     # symbols in exponents, towers, huge exponents, high degree
