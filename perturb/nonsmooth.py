@@ -450,6 +450,16 @@ class _Canon:
 
     def side(self, root: sympy.Expr, bps: Sequence[sympy.Expr], i: int) -> int | None:
         """+1 if segment ``i`` lies right of ``root``, -1 if left, ``None`` if undecidable."""
+        lo = bps[i - 1] if i > 0 else None
+        hi = bps[i] if i < len(bps) else None
+        if root.is_Rational and (lo is None or lo.is_Rational) and (hi is None or hi.is_Rational):
+            # numbers: compare with the two ends of the (sorted) segment only, instead of
+            # testing the root against every breakpoint
+            if lo is not None and lo >= root:
+                return 1
+            if hi is not None and root >= hi:
+                return -1
+            return None
         for j, b in enumerate(bps):
             if _sign(root - b) == 0:
                 # segment i is (bps[i-1], bps[i]): a breakpoint with j < i is at or below it
