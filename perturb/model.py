@@ -595,7 +595,9 @@ def _harmonic_of(term: sp.Expr, t: sp.Symbol, source: str) -> Harmonic | None:
                 if isinstance(trig, sp.sin):
                     coeff = -coeff
             shift = sp.Integer(0) if isinstance(trig, sp.cos) else -sp.pi / 2
-            return Harmonic(coeff, w, sp.simplify(p + shift))
+            phase = p + shift
+            # numbers need no simplification (and it costs milliseconds per harmonic)
+            return Harmonic(coeff, w, phase if phase.is_number else sp.simplify(phase))
     raise ModelError(
         f"forcing term {term} in {source!r} is not periodic: expected a constant plus terms "
         f"F*cos(w*{t} + p) or F*sin(w*{t} + p) with w, p free of {t}"
@@ -605,9 +607,9 @@ def _harmonic_of(term: sp.Expr, t: sp.Symbol, source: str) -> Harmonic | None:
 #: Most terms a product of sines and cosines in the forcing (or in a parametric coefficient)
 #: may expand to. Products are multiplied out as complex exponentials one factor at a time,
 #: merging equal frequencies after each step, so commensurate forcings stay small
-#: (``cos(t)*cos(2*t)*...*cos(12*t)`` has 39 harmonics); incommensurate ones double with every
-#: factor and are refused here instead of expanding to 2**49 terms.
-MAX_FORCING_TERMS = 1_000
+#: (``cos(t)*cos(2*t)*...*cos(20*t)`` has 105 harmonics, found in 0.2 s); incommensurate ones
+#: double with every factor and are refused here instead of expanding to 2**49 terms.
+MAX_FORCING_TERMS = 200
 
 
 def _product_to_sum(term: sp.Expr, source: str) -> sp.Expr:
@@ -649,8 +651,10 @@ def _product_to_sum(term: sp.Expr, source: str) -> sp.Expr:
                 out[key] = out.get(key, 0) + c * d
         acc = {a: c for a, c in out.items() if c != 0}
         if len(acc) > 2 * MAX_FORCING_TERMS:
+            shown = sp.sstr(term)
+            shown = shown if len(shown) <= 80 else shown[:77] + "..."
             raise ModelError(
-                f"the product of sines and cosines {term} in {source!r} expands to more than "
+                f"the product of sines and cosines {shown} in the forcing expands to more than "
                 f"{MAX_FORCING_TERMS} harmonics: expected a forcing with fewer, commensurate "
                 "factors"
             )

@@ -159,7 +159,7 @@ MAX_DEGREE = 50
 #: Most terms the full expansion of the expression (or of any part of it) may have, counting
 #: function calls as variables: ``(a+b+c+d+e+f+g+h)**25`` is 25 tokens long and expands to
 #: 3.4 million terms. The largest builtin model expands to 6 terms.
-MAX_EXPANDED_TERMS = 1_000
+MAX_EXPANDED_TERMS = 300
 
 #: Most digits an exact power of two numbers may have (SymPy evaluates ``(1 + 1e-99)**1000``
 #: exactly, as a rational); 10 000 digits take well under a millisecond.

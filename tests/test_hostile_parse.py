@@ -25,11 +25,17 @@ from perturb.fourier_symbols import (
     series_coefficient,
     series_coefficients,
 )
-from perturb.model import Oscillator, builtin_model, validate_parameter_value
+from perturb.model import (
+    MAX_FORCING_TERMS,
+    Oscillator,
+    builtin_model,
+    validate_parameter_value,
+)
 from perturb.nonsmooth import MAX_BREAKPOINTS, NonsmoothError, to_pwl
 from perturb.parsing import (
     MAX_DEGREE,
     MAX_DEPTH,
+    MAX_EXPANDED_TERMS,
     MAX_EXPONENT,
     MAX_LITERAL_DIGITS,
     MAX_SWITCH_ARGUMENTS,
@@ -103,8 +109,8 @@ HOSTILE_EXPRESSIONS = [
     ("((x**5)**5)**5", "degree about 125", "towers"),
     ("(x + 1)**30*(x + 2)**30", "degree about 60", f"at most {MAX_DEGREE}"),
     ("sin((x + 1)**30*(x + 2)**30)", "degree about 60", f"at most {MAX_DEGREE}"),
-    ("(a + b + c + d + e + f + g + h)**25*x", "3.37e+06 terms", "at most 1000"),
-    ("(cos(t) + sin(t) + cos(2*t) + sin(3*t))**20", "terms", "at most 1000"),
+    ("(a + b + c + d + e + f + g + h)**25*x", "3.37e+06 terms", f"at most {MAX_EXPANDED_TERMS}"),
+    ("(cos(t) + sin(t) + cos(2*t) + sin(3*t))**20", "terms", f"at most {MAX_EXPANDED_TERMS}"),
     # size and nesting
     ("x" + "+x" * (MAX_TOKENS // 2 + 5), f"more than {MAX_TOKENS} tokens", "expected at most"),
     ("x*" * 3000 + "x", "tokens", str(MAX_TOKENS)),
@@ -212,9 +218,9 @@ def test_to_pwl_breakpoint_cap():
 def test_forcing_products_are_bounded():
     # incommensurate factors double the harmonics with every factor: refused, quickly
     text = "x'' + x = " + "*".join(f"cos(a{i}*t)" for i in range(1, 31))
-    _refused(lambda: Oscillator.parse(text), ModelError, "more than 1000 harmonics")
-    # commensurate ones merge: 12 factors give 39 harmonics (a pairwise product-to-sum
-    # rewrite needed 2**11 terms and seconds; 20 factors took 44 s)
+    _refused(lambda: Oscillator.parse(text), ModelError, f"more than {MAX_FORCING_TERMS} harmonics")
+    # commensurate ones merge: 20 factors give 105 harmonics (a pairwise product-to-sum
+    # rewrite needed 2**19 terms: 44 s)
     start = time.perf_counter()
     text = "x'' + x = " + "*".join(f"cos({i}*t)" for i in range(1, 21))
     osc = Oscillator.parse(text)
@@ -223,6 +229,21 @@ def test_forcing_products_are_bounded():
     ts = np.linspace(0.0, 7.0, 29)
     ref = np.prod([np.cos(i * ts) for i in range(1, 21)], axis=0)
     np.testing.assert_allclose(f(ts), ref, rtol=0, atol=1e-14)
+
+
+def test_parametric_power_of_a_trigonometric_sum_within_the_limits_is_answered_in_time():
+    # the largest power of a 4-term sum the parser allows (C(13, 3) = 286 terms), in a
+    # parametric coefficient, where every expanded term is checked for periodicity
+    text = "x'' + (1 + (cos(t) + sin(t) + cos(2*t) + sin(3*t))**10)*x = 0"
+    start = time.perf_counter()
+    osc = Oscillator.parse(text)
+    assert time.perf_counter() - start < BUDGET
+    assert osc.parametric != 0
+    _refused(
+        lambda: Oscillator.parse(text.replace("**10", "**11")),
+        ParseError,
+        f"at most {MAX_EXPANDED_TERMS}",
+    )
 
 
 def test_forcing_powers_are_reduced_completely():
