@@ -6,12 +6,19 @@ Run the derivation scripts first (each writes ``out/<name>/section.tex``), then:
     python derivations/build.py --no-pdf   # only writes the .tex
 
 Exits non-zero when there is no section, when ``pdflatex`` is missing (unless ``--no-pdf``)
-or when ``pdflatex`` fails (the end of its log is printed).
+or when ``pdflatex`` fails (the end of its log is printed). After a successful compile it
+prints the overfull boxes of the log, per study; ``--max-overfull PT`` makes any box wider
+than PT points an error (exit 4).
+
+Figures and tables are numbered within sections ("Figure 4.12"), so the document's own
+numbers cannot be read as the numbers of the papers it reproduces, which the sections cite
+by author ("Zou Fig. 12").
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import shutil
 import subprocess
 import sys
@@ -28,6 +35,8 @@ PREAMBLE = r"""\documentclass[11pt]{article}
 \usepackage{booktabs}
 \usepackage[margin=2.2cm]{geometry}
 \allowdisplaybreaks
+\numberwithin{figure}{section}
+\numberwithin{table}{section}
 \title{perturb: derivations checked against the literature}
 \author{}
 \date{\today}
@@ -79,10 +88,34 @@ def compile_pdf(tex: Path, *, max_runs: int = 3, timeout: float = 300.0) -> Path
     return tex.with_suffix(".pdf")
 
 
+_OVERFULL = re.compile(r"Overfull \\hbox \(([0-9.]+)pt too wide\)[^\n]*")
+_OPENED = re.compile(r"\(\./([^\s()]+\.tex)")
+
+
+def overfull_boxes(log: str) -> list[tuple[str, float, str]]:
+    """``(file, width in pt, message)`` of every overfull \\hbox in a pdflatex log.
+
+    The file is the last ``.tex`` file the log shows opened (``(./<folder>/<file>.tex``)
+    before the message, relative to the document (its first component is the study);
+    ``""`` when none was opened yet (the preamble, the title)."""
+    out = []
+    for m in _OVERFULL.finditer(log):
+        opened = _OPENED.findall(log, 0, m.start())
+        out.append((opened[-1] if opened else "", float(m.group(1)), m.group(0)))
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--root", type=Path, default=DEFAULT_ROOT, help="folder of the studies")
     parser.add_argument("--no-pdf", action="store_true", help="write the .tex only")
+    parser.add_argument(
+        "--max-overfull",
+        type=float,
+        default=None,
+        metavar="PT",
+        help="fail (exit 4) when a box runs more than PT points into the margin",
+    )
     args = parser.parse_args(argv)
     root = args.root.resolve()
     parts = sections(root)
@@ -103,6 +136,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(exc, file=sys.stderr)
         return 3
     print(f"wrote {pdf}")
+    boxes = overfull_boxes(tex.with_suffix(".log").read_text(errors="replace"))
+    # pdflatex runs up to three times; the log is the last run's
+    by_study: dict[str, list[float]] = {}
+    for name, width, _ in boxes:
+        by_study.setdefault(name.split("/")[0] if "/" in name else "(document)", []).append(width)
+    print(
+        f"overfull boxes: {len(boxes)}"
+        + "".join(
+            f"; {study}: {len(w)} (widest {max(w):.1f} pt)" for study, w in sorted(by_study.items())
+        )
+    )
+    if args.max_overfull is not None:
+        wide = [b for b in boxes if b[1] > args.max_overfull]
+        if wide:
+            for name, _, msg in wide:
+                print(f"  {name or '(document)'}: {msg}", file=sys.stderr)
+            print(f"{len(wide)} boxes wider than {args.max_overfull:g} pt", file=sys.stderr)
+            return 4
     return 0
 
 
