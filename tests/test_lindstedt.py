@@ -326,7 +326,7 @@ def test_derivation_compiles(make, tmp_path):
     exe = _pdflatex()
     tex = tmp_path / "lp.tex"
     doc = latex_document(make(), tex)
-    assert "Order 1 in epsilon" in doc and "secular" in doc
+    assert "Order 1 in $\\varepsilon$" in doc and "secular" in doc
     proc = subprocess.run(
         [exe, "-interaction=nonstopmode", "-halt-on-error", tex.name],
         cwd=tmp_path,

@@ -435,7 +435,7 @@ def test_derivation_compiles(make, tmp_path):
     exe = _pdflatex()
     tex = tmp_path / "mlp.tex"
     doc = latex_document(make(), tex)
-    assert "Alpha-transformation" in doc and "Order 1 in alpha" in doc
+    assert "Alpha-transformation" in doc and "Order 1 in $\\alpha$" in doc
     proc = subprocess.run(
         [exe, "-interaction=nonstopmode", "-halt-on-error", tex.name],
         cwd=tmp_path,

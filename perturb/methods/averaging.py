@@ -75,6 +75,7 @@ from ..fourier_symbols import (
 from ..model import Oscillator
 from ..nonsmooth import is_nonsmooth, to_pwl
 from ..parsing import real_symbol
+from ..printing import latex
 from .applicability import expression_argument, require_centred
 from .trig import harmonics
 
@@ -481,10 +482,11 @@ def _linearisation_step(
                 sp.Eq(cf, eq.damping),
             ),
             "The averaged equations see the force only through its first harmonic, i.e. "
-            "through the equivalent stiffness k_eq (the describing function of the static part) "
-            "and the equivalent damping c_eq; polynomial terms are projected exactly, "
+            "through the equivalent stiffness $k_{eq}$ (the describing function of the static "
+            "part) and the equivalent damping $c_{eq}$; polynomial terms are projected exactly, "
             "piecewise-linear ones through the closed-form step and ramp coefficients, "
-            "velocity switches with the quarter-period shift x' = a omega cos(psi + pi/2).",
+            "velocity switches with the quarter-period shift "
+            "$x' = a\\omega\\cos(\\psi + \\pi/2)$.",
         )
     ]
     k_c, c_c, defs = eq.closed()
@@ -493,8 +495,8 @@ def _linearisation_step(
             Step(
                 "The coefficients in closed form",
                 (sp.Eq(kf, k_c), sp.Eq(cf, c_c)) + tuple(sp.Eq(s, d) for s, d in defs),
-                "Valid while the orbit crosses every switching point; outside, the terms are "
-                "exactly linear.",
+                "Valid while the orbit crosses every switching point (the angles $\\theta$ are "
+                "real); outside, the terms are exactly linear.",
             )
         )
     return tuple(steps)
@@ -601,11 +603,11 @@ def krylov_bogoliubov(
             Step(
                 "Standard form about the forcing frequency",
                 (standard,),
-                "The right-hand side R collects everything that is small in the weakly "
+                "The right-hand side $R$ collects everything that is small in the weakly "
                 "non-linear, lightly damped, near-resonant limit.",
             ),
             Step(
-                "Variation of parameters (Krylov-Bogoliubov)",
+                "Variation of parameters (Krylov–Bogoliubov)",
                 (
                     sp.Eq(osc.x, a * sp.cos(psi)),
                     sp.Eq(osc.v, -a * Omega * sp.sin(psi)),
@@ -613,12 +615,12 @@ def krylov_bogoliubov(
                     sp.Eq(sp.Derivative(a, t), -R * sp.sin(psi) / Omega),
                     sp.Eq(a * sp.Derivative(phi, t), R * sp.cos(psi) / Omega),
                 ),
-                "Requiring x' to keep the form of the linear solution makes the two "
-                "equations for the slowly varying amplitude a and phase phi exact.",
+                "Requiring $x'$ to keep the form of the linear solution makes the two "
+                "equations for the slowly varying amplitude $a$ and phase $\\varphi$ exact.",
             ),
             *_linearisation_step(eq, osc.x, osc.v, osc.g, psi),
             Step(
-                "Averaging over one period of psi at fixed a, phi",
+                "Averaging over one period of $\\psi$ at fixed $a$, $\\varphi$",
                 (
                     sp.Eq(
                         sp.Derivative(a, t),
@@ -667,11 +669,11 @@ def krylov_bogoliubov(
         Step(
             "Standard form about the linear natural frequency",
             (standard,),
-            f"Generating frequency {sp.sstr(w)}; the right-hand side R is small for weak "
+            f"Generating frequency ${latex(w)}$; the right-hand side $R$ is small for weak "
             "non-linearity and damping.",
         ),
         Step(
-            "Variation of parameters (Krylov-Bogoliubov)",
+            "Variation of parameters (Krylov–Bogoliubov)",
             (
                 sp.Eq(osc.x, a * sp.cos(psi)),
                 sp.Eq(osc.v, -a * w * sp.sin(psi)),
@@ -693,10 +695,10 @@ def krylov_bogoliubov(
         Step(
             "Frequency of the free oscillation and limit cycles",
             (sp.Eq(omega, backbone), sp.Eq(a_dot, 0)),
-            "The phase drifts at the rate beta', so the oscillation frequency is "
-            "omega_0 + beta' — the first-order Taylor form of the describing-function "
-            "frequency sqrt(k_eq(a)); amplitudes where the averaged damping vanishes are "
-            "limit cycles, stable where d(a')/da < 0.",
+            "The phase drifts at the rate $\\beta'$, so the oscillation frequency is "
+            "$\\omega_0 + \\beta'$ — the first-order Taylor form of the describing-function "
+            "frequency $\\sqrt{k_{eq}(a)}$; amplitudes where the averaged damping vanishes are "
+            "limit cycles, stable where $\\mathrm{d}a'/\\mathrm{d}a < 0$.",
         ),
     ]
     return Approximation(
@@ -826,16 +828,17 @@ def van_der_pol_averaging(
                 sp.Eq(sp.Derivative(p, t), -R * sp.sin(tau) / w),
                 sp.Eq(sp.Derivative(q, t), R * sp.cos(tau) / w),
             ),
-            "The slowly varying Cartesian amplitudes p, q replace the constants of the linear "
-            "solution; the constraint keeps the velocity of the linear form.",
+            "The slowly varying Cartesian amplitudes $p$, $q$ replace the constants of the "
+            "linear solution; the constraint keeps the velocity of the linear form.",
         ),
         *(_linearisation_step(eq_all, x, v, osc.g, real_symbol("psi")) if rest != 0 else ()),
         Step(
             "Averaged equations (first order)",
             (sp.Eq(sp.Derivative(p, t), p_show), sp.Eq(sp.Derivative(q, t), q_show))
             + ((sp.Eq(a, sp.sqrt(p**2 + q**2)),) if rest != 0 else ()),
-            "Averaging over one period of tau at fixed p, q; polynomial terms are averaged "
-            "exactly, the others through k_eq and c_eq at a = sqrt(p^2 + q^2).",
+            "Averaging over one period of $\\tau$ at fixed $p$, $q$; polynomial terms are "
+            "averaged exactly, the others through $k_{eq}$ and $c_{eq}$ at "
+            "$a = \\sqrt{p^2 + q^2}$.",
         ),
         Step(
             "Steady states",
@@ -844,8 +847,8 @@ def van_der_pol_averaging(
                 sp.Eq(q_show, 0),
                 sp.Eq(a**2 * ((kf - w**2) ** 2 + w**2 * cf**2), st.F**2),
             ),
-            "With p = a cos(phi), q = a sin(phi) the fixed points satisfy the same "
-            "frequency-amplitude equation as the polar (Krylov-Bogoliubov) form.",
+            "With $p = a\\cos\\varphi$, $q = a\\sin\\varphi$ the fixed points satisfy the same "
+            "frequency-amplitude equation as the polar (Krylov–Bogoliubov) form.",
         ),
     )
     return Approximation(

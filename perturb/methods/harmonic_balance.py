@@ -64,6 +64,7 @@ from ..fourier_symbols import closed_form, series_coefficient
 from ..model import Oscillator
 from ..nonsmooth import is_nonsmooth
 from ..parsing import real_symbol
+from ..printing import latex
 from .applicability import check_order, expression_argument, require_centred
 from .averaging import _frequency_polynomial, _response_frequency, fourier_components
 from .trig import harmonics as trig_harmonics
@@ -163,14 +164,15 @@ def single_harmonic_balance(oscillator: Oscillator) -> Approximation:
         Step(
             "First Fourier coefficient of the restoring force",
             (sp.Eq(a1s, a1),),
-            "f(A cos psi) = a_1(A) cos psi + higher harmonics; the nonsmooth terms enter through "
-            "the closed-form step and ramp coefficients (theta = arccos(d/A)).",
+            "$f(A\\cos\\psi) = a_1(A)\\cos\\psi + \\ldots$ (higher harmonics); the nonsmooth "
+            "terms enter through the closed-form step and ramp coefficients "
+            "($\\theta = \\arccos(d/A)$ for a switching point $d$).",
         ),
         Step(
             "The coefficient in closed form",
             (sp.Eq(a1s, a1_closed),) + tuple(sp.Eq(sym, value) for sym, value in definitions),
             "Valid where the orbit crosses every switching point ("
-            + ", ".join(sp.sstr(c) for c in domains)
+            + ", ".join(f"${latex(c)}$" for c in domains)
             + "); in the other regimes the terms are exactly zero or linear."
             if domains
             else "",
@@ -389,8 +391,9 @@ def _single(osc: Oscillator, bias: bool) -> Approximation:
         )
     else:
         ansatz += (sp.Eq(psi, w * t),)
-        why = "A free oscillation of unknown frequency omega; time origin at a maximum of x." + (
-            " Plus a bias b." if bias else ""
+        why = (
+            "A free oscillation of unknown frequency $\\omega$; time origin at a maximum of $x$."
+            + (" Plus a bias $b$." if bias else "")
         )
     steps.append(Step("Ansatz", ansatz, why))
     on_orbit = {x: bias_sym + A * sp.cos(psi), v: -A * w * sp.sin(psi)}
@@ -410,7 +413,7 @@ def _single(osc: Oscillator, bias: bool) -> Approximation:
             )
             + coefficient_rows,
             "Polynomial terms exactly; piecewise-linear terms through the closed-form step "
-            "and ramp coefficients a_n(A cos psi + b; d) of the Fourier engine.",
+            "and ramp coefficients $a_n(A\\cos\\psi + b;\\, d)$ of the Fourier engine.",
         )
     )
     closed, definitions, domains = closed_form(sp.Matrix([g0, gc, gs]))
@@ -424,7 +427,7 @@ def _single(osc: Oscillator, bias: bool) -> Approximation:
                 "The coefficients in closed form",
                 rows + tuple(sp.Eq(s, d) for s, d in definitions),
                 "Valid where the orbit crosses every switching point ("
-                + ", ".join(sp.sstr(c) for c in domains)
+                + ", ".join(f"${latex(c)}$" for c in domains)
                 + "); in the other regimes the terms are exactly linear.",
             )
         )
@@ -438,11 +441,11 @@ def _single(osc: Oscillator, bias: bool) -> Approximation:
         unknowns: tuple[sp.Symbol, ...] = (A, b, phi) if bias else (A, phi)
         steps.append(
             Step(
-                "Balance of the " + ("mean, " if bias else "") + "cos psi and sin psi terms",
+                "Balance of the " + ("mean, " if bias else "") + "cosine and sine terms",
                 tuple(sp.Eq(e, 0) for e in shown),
-                "The mean balance does not contain the frequency: for each amplitude A it fixes "
-                "the bias b (several roots for a double-well force: b = 0 and one root near "
-                "each well)."
+                "The mean balance does not contain the frequency: for each amplitude $A$ it "
+                "fixes the bias $b$ (several roots for a double-well force: $b = 0$ and one root "
+                "near each well)."
                 if bias
                 else "",
             )
@@ -622,23 +625,6 @@ def _polynomial_components(
     }
 
 
-def _broken(expr: sp.Expr, width: int = 150) -> tuple[sp.Basic, ...]:
-    """``0 = expr`` as rows of at most about ``width`` LaTeX characters.
-
-    Continuation rows are ``+(terms)``, an undefined function named ``+``: it prints as a
-    continued sum in the ``align*`` block of the derivation and serialises like any other
-    expression (a custom Expr class would not)."""
-    from ..printing import latex
-
-    rows: list[list[sp.Expr]] = [[]]
-    for term in sp.Add.make_args(sp.expand(expr)):
-        if rows[-1] and len(latex(sp.Add(*rows[-1], term))) > width:
-            rows.append([])
-        rows[-1].append(term)
-    first = sp.Eq(sp.Integer(0), sp.Add(*rows[0]), evaluate=False)
-    return (first, *(sp.Function("+")(sp.Add(*r)) for r in rows[1:]))
-
-
 def _multi(osc: Oscillator, hs: tuple[Fraction, ...], bias: bool) -> Approximation:
     """Several harmonics, polynomial forces: exact projection with the trig bookkeeping."""
     x, v, t = osc.x, osc.v, osc.t
@@ -734,25 +720,25 @@ def _multi(osc: Oscillator, hs: tuple[Fraction, ...], bias: bool) -> Approximati
             "Ansatz",
             (sp.Eq(x, ansatz), base),
             f"Harmonics {', '.join(str(h) for h in hs)} of the "
-            + ("forcing frequency" if forced else "unknown frequency omega")
+            + ("forcing frequency" if forced else "unknown frequency $\\omega$")
             + (" and a bias" if bias else "")
             + (
                 "; a free conservative oscillation is even in time, so only cosines"
                 if conservative
-                else ("; phase condition b_1 = 0" if not forced else "")
+                else ("; phase condition $b_1 = 0$" if not forced else "")
             )
             + ".",
         ),
         Step(
             "Substitution",
             (sp.Eq(sp.Symbol(x.name + "''"), nu**2 * sp.diff(ansatz, theta, 2)),),
-            "The residual x'' + g - f(t) is a trigonometric polynomial in theta; its "
+            "The residual $x'' + g - f(t)$ is a trigonometric polynomial in $\\theta$; its "
             "components are read off exactly.",
         ),
         Step(
             "Balance of the harmonics in the set",
-            tuple(row for e in eqs for row in _broken(e)),
-            "Components at the other harmonics of theta ("
+            tuple(sp.Eq(sp.Integer(0), sp.expand(e), evaluate=False) for e in eqs),
+            "Components at the other harmonics of $\\theta$ ("
             + ", ".join(map(str, dropped))
             + ") are the truncation error and are dropped."
             if dropped

@@ -68,6 +68,7 @@ from ..fourier_symbols import DiracCoefficient, RampCoefficient, StepCoefficient
 from ..model import Oscillator
 from ..nonsmooth import to_pwl
 from ..parsing import parse_expression, real_symbol
+from ..printing import latex
 from .applicability import check_order, expression_argument, require_centred
 from .trig import from_harmonics
 
@@ -276,7 +277,9 @@ def _eq(lhs: sp.Expr, rhs: sp.Expr) -> sp.Equality:
 
 
 class _Continued(sp.Expr):
-    """A continuation row of a long equation in a derivation; prints as ``+ terms``."""
+    """A continuation row of a long equation in a derivation; prints as ``+ terms``. The
+    engines no longer split equations (the writer, :mod:`perturb.report.latex`, does, and
+    joins such rows back); kept so that derivations saved as JSON by earlier versions load."""
 
     def __new__(cls, expr: sp.Expr) -> _Continued:
         return sp.Expr.__new__(cls, sp.sympify(expr))
@@ -288,9 +291,6 @@ class _Continued(sp.Expr):
     def _sympystr(self, printer: Any, *args: Any) -> str:
         s = printer._print(self.args[0])
         return "    " + (s if s.startswith("-") else "+ " + s)
-
-
-_PAGE_WIDTH = 90  # rough glyph budget of a displayed equation on an A4 page at 11pt
 
 
 @lru_cache(maxsize=1 << 14)
@@ -363,29 +363,9 @@ def _is_short(expr: sp.Expr, limit: int = 60) -> bool:
     return len(_row_terms(expr)) <= limit
 
 
-def _rows(item: sp.Basic, budget: int) -> list[sp.Basic]:
-    """An equation with a long right side as several rows of about ``budget`` glyphs (LaTeX
-    does not break displayed equations, and a row wider than 16383pt aborts pdflatex)."""
-    if not isinstance(item, sp.Equality) or (_size(item.rhs) < 400 and _width(item.rhs) <= budget):
-        return [item]
-    chunks: list[list[sp.Expr]] = [[]]
-    room = budget
-    for term in _row_terms(item.rhs):
-        w = _width(term) + 3
-        if chunks[-1] and w > room:
-            chunks.append([])
-            room = budget - 6
-        chunks[-1].append(term)
-        room -= w
-    return [_eq(item.lhs, sp.Add(*chunks[0], evaluate=False))] + [
-        _Continued(sp.Add(*c, evaluate=False)) for c in chunks[1:]
-    ]
-
-
 def _step(title: str, math: Iterable[sp.Basic] = (), text: str = "") -> Step:
-    """A derivation step whose long equations are broken into rows. The rows of a step share
-    the alignment at "=", so the right sides get the page width left by the widest left side;
-    a long left side over "= 0" is written as "0 = ..." instead."""
+    """A derivation step; a long left side over "= 0" is written as "0 = ..." instead (the
+    writer, :mod:`perturb.report.latex`, breaks long right sides over lines)."""
     items = []
     for item in math:
         if (
@@ -395,12 +375,7 @@ def _step(title: str, math: Iterable[sp.Basic] = (), text: str = "") -> Step:
         ):
             item = _eq(sp.Integer(0), item.lhs)
         items.append(item)
-    lhs = max(
-        (_width(i.lhs) for i in items if isinstance(i, sp.Equality) and _size(i.lhs) < 400),
-        default=0,
-    )
-    budget = max(_PAGE_WIDTH - min(lhs, 30), 30)
-    return Step(title, tuple(row for item in items for row in _rows(item, budget)), text)
+    return Step(title, tuple(items), text)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -870,7 +845,7 @@ def _closed_form_step(label: sp.Expr, value: sp.Expr, title: str) -> Step | None
         title,
         (_eq(label, closed),) + tuple(_eq(s, v) for s, v in definitions),
         "Valid while the orbit crosses every switching point ("
-        + ", ".join(sp.sstr(c) for c in domains)
+        + ", ".join(f"${latex(c)}$" for c in domains)
         + "); elsewhere the switch terms are exactly zero or linear.",
     )
 
@@ -989,10 +964,11 @@ def lindstedt_poincare(
                 if model.ramps and model.default_w0
                 else ""
             )
-            + ", which is ordered by the bookkeeping parameter epsilon (set to one at the end)"
+            + ", which is ordered by the bookkeeping parameter $\\varepsilon$ (set to one at the "
+            "end)"
             + (
-                "; the amplitude is scaled by epsilon, so a term of degree m carries epsilon "
-                "to the power m - 1."
+                "; the amplitude is scaled by $\\varepsilon$, so a term of degree $m$ carries "
+                "$\\varepsilon^{m - 1}$."
                 if scaling == "amplitude"
                 else "."
             ),
@@ -1005,17 +981,17 @@ def lindstedt_poincare(
                 _eq(osc.x, sp.Add(*(eps**n * xf[n](tau) for n in range(order + 1)))),
             ),
             "Time is strained by the unknown frequency, which is expanded with the response; "
-            "primes are now derivatives with respect to tau and powers of epsilon are "
-            "collected.",
+            "primes are now derivatives with respect to $\\tau$ and powers of $\\varepsilon$ "
+            "are collected.",
         ),
         _step(
-            "Order zero in epsilon",
+            "Order zero in $\\varepsilon$",
             (
                 _eq(w2 * (sp.Derivative(xf[0](tau), tau, 2) + xf[0](tau)), 0),
                 _eq(xf[0](tau), A * sp.cos(tau)),
             ),
-            "The amplitude A is "
-            + ("that of the first harmonic." if amplitude == "first_harmonic" else "x(0)."),
+            "The amplitude $A$ is "
+            + ("that of the first harmonic." if amplitude == "first_harmonic" else "$x(0)$."),
         ),
     ]
     fourier: dict[str, sp.Expr] = {}
@@ -1025,7 +1001,7 @@ def lindstedt_poincare(
         cf = _closed_form_step(
             sp.Function("g_1")(A),
             fourier.get("g_1", sp.Integer(0)),
-            "First harmonic of g in closed form",
+            "First harmonic of $g$ in closed form",
         )
         if cf is not None:
             steps.append(cf)
@@ -1063,18 +1039,18 @@ def lindstedt_poincare(
         shown_rhs = _s_sympy(rhs, tau, tidy=True) + 2 * w0 * om_sym[n] * A * sp.cos(tau)
         steps.append(
             _step(
-                f"Order {n} in epsilon",
+                f"Order {n} in $\\varepsilon$",
                 (
                     _eq(w2 * (sp.Derivative(xf[n](tau), tau, 2) + xf[n](tau)), shown_rhs),
                     _eq(om_sym[n], _tidy(wn)),
                     _eq(xf[n](tau), _s_sympy(xn, tau, tidy=True)),
                 ),
-                "No secular term: the coefficient of cos(tau) vanishes, which gives the "
+                "No secular term: the coefficient of $\\cos\\tau$ vanishes, which gives the "
                 f"frequency correction of order {n}; "
                 + (
-                    "the particular solution has no cos(tau) part."
+                    "the particular solution has no $\\cos\\tau$ part."
                     if amplitude == "first_harmonic"
-                    else "a homogeneous term makes the correction vanish at tau = 0."
+                    else "a homogeneous term makes the correction vanish at $\\tau = 0$."
                 ),
             )
         )

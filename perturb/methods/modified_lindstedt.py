@@ -78,6 +78,7 @@ import sympy as sp
 
 from ..approximation import Approximation, Step
 from ..errors import ModelError, ParameterError
+from ..fourier_symbols import DiracCoefficient, RampCoefficient, StepCoefficient
 from ..model import Oscillator
 from ..parsing import real_symbol
 from .applicability import check_order, require_centred
@@ -132,6 +133,33 @@ def _forcing(osc: Oscillator) -> tuple[sp.Expr, sp.Expr] | None:
             "parameter symbol (e.g. Omega) to sweep"
         )
     return h.amplitude, h.frequency
+
+
+def _readable_difference(A: sp.Symbol, W: sp.Expr, f1: sp.Expr) -> sp.Expr:
+    """``A W - f1`` for display, as a person writes it: collected in ``A`` and the Fourier
+    coefficient functions, each coefficient factored with its brackets' constant positive,
+    e.g. ``A(Omega**2 - k) - 2(1 - k) a^R_1`` for the negative-stiffness model."""
+    e = sp.expand(A * W - f1)
+    funcs = sorted(
+        e.atoms(StepCoefficient, RampCoefficient, DiracCoefficient), key=sp.default_sort_key
+    )
+    collected = sp.collect(e, [A, *funcs], evaluate=False)
+    terms = []
+    for key in sorted(collected, key=lambda k: (not k.has(A), sp.default_sort_key(k))):
+        c = sp.factor_terms(collected[key])
+        sign, factors = 1, []
+        for f in sp.Mul.make_args(c):
+            if isinstance(f, sp.Add) and f.as_coeff_add()[0].is_negative:
+                sign, f = -sign, -f
+            factors.append(f)
+        numbers = [f for f in factors if f.is_number]
+        coeff = sign * sp.Mul(*numbers)
+        rest = [f for f in factors if not f.is_number]
+        if coeff == 1:
+            terms.append(sp.Mul(*rest, key, evaluate=False) if rest else key)
+        else:
+            terms.append(sp.Mul(coeff, *rest, key, evaluate=False))
+    return sp.Add(*terms, evaluate=False)
 
 
 def modified_lindstedt(
@@ -252,13 +280,13 @@ def modified_lindstedt(
                 _eq(gfun(osc.x), g_expr),
                 _eq(xpp + mu * osc.v + w2 * osc.x + gfun(osc.x), F * sp.cos(Omega * osc.t)),
             ),
-            "The restoring force is a linear reference term plus the remainder g"
+            "The restoring force is a linear reference term plus the remainder $g$"
             + (
                 " (the reference stiffness is the mean stiffness of the outer segments)"
                 if model.ramps and model.default_w0
                 else ""
             )
-            + ". The damping, g and the forcing are taken small, of order epsilon.",
+            + ". The damping, $g$ and the forcing are taken small, of order $\\varepsilon$.",
         ),
         _step(
             "Alpha-transformation",
@@ -275,10 +303,10 @@ def modified_lindstedt(
                     / (1 - alpha),
                 ),
             ),
-            "Time is scaled by the response frequency and its square expanded in epsilon. The "
-            "first-order shift nu defines the new expansion parameter alpha (Cheung, Chen and "
-            "Lau), which stays below one however strong the nonlinearity; the higher shifts "
-            "become the coefficients delta.",
+            "Time is scaled by the response frequency and its square expanded in "
+            "$\\varepsilon$. The first-order shift $\\nu$ defines the new expansion parameter "
+            "$\\alpha$ (Cheung, Chen and Lau), which stays below one however strong the "
+            "nonlinearity; the higher shifts become the coefficients $\\delta_n$.",
         ),
         _step(
             "Transformed equation and expansion",
@@ -298,20 +326,20 @@ def modified_lindstedt(
                 ),
                 _eq(osc.x, sp.Add(*(alpha**n * xf[n](tau) for n in range(order + 1)))),
             ),
-            "Dividing by the squared frequency at first order, which is omega_0 squared plus "
-            "nu, leaves an equation linear in alpha apart from the deltas; x is expanded in "
-            "powers of alpha.",
+            "Dividing by the squared frequency at first order, $\\omega_0^2 + \\nu$, leaves an "
+            "equation linear in $\\alpha$ apart from the $\\delta_n$; $x$ is expanded in powers "
+            "of $\\alpha$.",
         ),
         _step(
-            "Order zero in alpha",
+            "Order zero in $\\alpha$",
             (
                 _eq(sp.Derivative(xf[0](tau), tau, 2) + xf[0](tau), 0),
                 _eq(xf[0](tau), A * sp.cos(psi)),
                 _eq(psi, tau + phi),
             ),
-            "The amplitude A is "
+            "The amplitude $A$ is "
             + (
-                "the initial value x(0)."
+                "the initial value $x(0)$."
                 if amplitude == "initial"
                 else "that of the first harmonic."
             )
@@ -323,13 +351,14 @@ def modified_lindstedt(
     ghat = sp.Function("ghat_1")(A)
     fourier = {f"g_{n}": (2 * c if n == 0 else c).to_sympy() for n, (c, _) in g0.items()}
     fourier["f_1"] = (w2_lp * A_lp + g1).to_sympy()
-    cf = _closed_form_step(ghat, g1.to_sympy(), "First harmonic of g in closed form")
+    cf = _closed_form_step(ghat, g1.to_sympy(), "First harmonic of $g$ in closed form")
     steps.append(
         _step(
-            "Fourier coefficients of g along the generating solution",
+            "Fourier coefficients of $g$ along the generating solution",
             (_eq(ghat, _tidy(g1)),),
-            "g(A cos psi) is expanded in cos(n psi); piecewise-linear terms enter through their "
-            "closed-form ramp and step coefficients, never through a Taylor series.",
+            "$g(A\\cos\\psi)$ is expanded in $\\cos n\\psi$; piecewise-linear terms enter "
+            "through their closed-form ramp and step coefficients, never through a Taylor "
+            "series.",
         )
     )
     if cf is not None:
@@ -357,17 +386,22 @@ def modified_lindstedt(
                 if s1:
                     raise ModelError(f"sine secular term {s1.to_sympy()}: not conservative")
                 conditions = (_eq(nu, _tidy(g1 / A_lp)),)
-                note = "No secular term: the coefficient of cos(psi) vanishes, which gives nu."
+                note = (
+                    "No secular term: the coefficient of $\\cos\\psi$ vanishes, which gives $\\nu$."
+                )
             else:
                 conditions = (
                     _eq(_tidy(c1 * _Lp.atom(nu)), 0),
                     _eq(_tidy(s1 * _Lp.atom(nu)), 0),
                 )
-                note = "No secular terms: the coefficients of cos(psi) and sin(psi) vanish" + (
-                    ". Times nu, these are Zou and Nagarajaiah's eqs. (54) and (55) for their "
-                    "model, without the bookkeeping parameter."
-                    if model.ramps
-                    else "."
+                note = (
+                    "No secular terms: the coefficients of $\\cos\\psi$ and $\\sin\\psi$ vanish"
+                    + (
+                        ". Times $\\nu$, these are Zou and Nagarajaiah's eqs. (54) and (55) for "
+                        "their model, without the bookkeeping parameter."
+                        if model.ramps
+                        else "."
+                    )
                 )
         else:
             # the unknown enters as -delta_n x_0'' = delta_n A cos(psi)
@@ -377,8 +411,14 @@ def modified_lindstedt(
                 if forced is None:
                     raise ModelError(f"sine secular term {s1.to_sympy()}: not conservative")
             conditions = (_eq(deltas[n], _tidy(delta_val[n])),)
-            note = "No secular term: the coefficient of cos(psi) vanishes, which gives delta" + (
-                "; the coefficient of sin(psi) joins the phase condition." if n in sines else "."
+            note = (
+                "No secular term: the coefficient of $\\cos\\psi$ vanishes, which gives "
+                f"$\\delta_{n}$"
+                + (
+                    "; the coefficient of $\\sin\\psi$ joins the phase condition."
+                    if n in sines
+                    else "."
+                )
             )
         xn = _s_solve(rhs)
         if amplitude == "initial":
@@ -389,7 +429,7 @@ def modified_lindstedt(
         shown_delta = deltas[n] * A * sp.cos(psi) if n >= 2 else 0
         steps.append(
             _step(
-                f"Order {n} in alpha",
+                f"Order {n} in $\\alpha$",
                 (
                     _eq(sp.Derivative(xf[n](tau), tau, 2) + xf[n](tau), shown + shown_delta),
                     *conditions,
@@ -503,21 +543,30 @@ def modified_lindstedt(
                     *(_eq(r, 0) for r in residuals),
                     shown_wave(tau + phi, {nu: Omega**2 - w2}),
                 ),
-                "At first order the squared forcing frequency is omega_0 squared plus nu, so "
-                "alpha over nu is one over the squared frequency: the waveform is Zou and "
-                f"Nagarajaiah's eq. (59), here to harmonic {hmax}.",
+                "At first order the squared forcing frequency is $\\omega_0^2 + \\nu$, so "
+                "$\\alpha/\\nu$ is one over the squared frequency: the waveform is Zou and "
+                f"Nagarajaiah's eq. (59), here to harmonic ${hmax}$.",
             )
         )
         steps.append(
             _step(
                 "Frequency-amplitude equation and slow flow",
                 (
+                    _eq(
+                        sp.Add(
+                            sp.Pow(_readable_difference(A, W, f1), 2, evaluate=False),
+                            sp.Pow(sp.Mul(mu, Omega, A, evaluate=False), 2, evaluate=False),
+                            evaluate=False,
+                        ),
+                        F**2,
+                    ),
                     _eq(c2p * W**2 + c1p * W + c0p, 0),
                     _eq(sp.Derivative(A, osc.t), slow_flow[0]),
                     _eq(sp.Derivative(phi, osc.t), slow_flow[1]),
                 ),
-                "Eliminating the phase leaves a quadratic in the squared frequency, with f_1 "
-                "the first harmonic of the whole restoring force: the same curve as "
+                "Squaring and adding the two conditions eliminates the phase; the result is "
+                "a quadratic in the squared frequency, with $f_1$ the first harmonic of the whole "
+                "restoring force (the second equation): the same curve as "
                 "single-harmonic balance. The slow flow comes from averaging the first-order "
                 "ansatz; its fixed points are the two conditions above.",
             )
@@ -572,10 +621,10 @@ def modified_lindstedt(
                 ),
                 shown_wave(tau + phi),
             ),
-            "nu follows from the first-order cosine condition and the deltas from the higher "
-            "ones; the sine conditions of all orders (S, the coefficient of sin(psi) at each "
-            "order) summed fix the phase. Roots where omega_0 squared plus nu nearly vanishes "
-            "(alpha very large) are artefacts of the truncation.",
+            "$\\nu$ follows from the first-order cosine condition and the $\\delta_n$ from the "
+            "higher ones; the sine conditions of all orders ($S_n$, the coefficient of "
+            "$\\sin\\psi$ at order $n$) summed fix the phase. Roots where $\\omega_0^2 + \\nu$ "
+            "nearly vanishes ($\\alpha$ very large) are artefacts of the truncation.",
         )
     )
     return Approximation(

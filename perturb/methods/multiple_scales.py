@@ -122,6 +122,7 @@ from ..fourier_symbols import NUMERIC_IMPLEMENTATIONS, closed_form, series_coeff
 from ..model import Oscillator
 from ..nonsmooth import is_nonsmooth
 from ..parsing import real_symbol
+from ..printing import latex
 from .applicability import check_order, expression_argument, require_centred
 
 __all__ = [
@@ -1670,8 +1671,9 @@ def _steps(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, ...]:
         )
     else:
         text = (
-            f"The model's parameter {c.named} is the bookkeeping parameter: each term's order "
-            f"is its power of {c.named}; terms beyond order {N} are dropped."
+            f"The model's parameter ${latex(c.named)}$ is the bookkeeping parameter: each "
+            f"term's order is its power of ${latex(c.named)}$; terms beyond order ${N}$ are "
+            "dropped."
         )
     steps.append(Step("Ordering", (_eq(lhs, sp.Add(*rhs)),), text))
 
@@ -1682,11 +1684,11 @@ def _steps(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, ...]:
             math_ = (_eq(f["omega0"] ** 2, nu**2 - eps * f["sigma"]), det)
             text = (
                 "The operator is taken at the response frequency and the stiffness mismatch is "
-                "a perturbation (modified Lindstedt-Poincare form)."
+                "a perturbation (modified Lindstedt–Poincaré form)."
             )
         else:
             math_ = (_eq(q * c.Omega, p * f["omega0"] + eps * f["sigma"]), det)
-            text = "The nearness to the resonance is expressed by the detuning sigma."
+            text = "The nearness to the resonance is expressed by the detuning $\\sigma$."
         steps.append(Step("Resonance and detuning", math_, text))
 
     # time scales
@@ -1707,8 +1709,9 @@ def _steps(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, ...]:
                 ),
                 _eq(x, x_exp + sp.Order(eps**N)),
             ),
-            "Slow times and the derivatives with respect to them; the expansion is carried "
-            f"to order {N} in the modulation equations.",
+            "Slow times $T_k = \\varepsilon^k t$ and the derivatives $D_k$ with respect to "
+            "them; the complex amplitude $B(T_1, T_2, \\ldots)$ depends on the slow times, and "
+            f"the expansion is carried to order ${N}$ in the modulation equations.",
         )
     )
 
@@ -1731,14 +1734,14 @@ def _steps(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, ...]:
             )
         ) + (c.hard_const / c.L0 if c.hard_const != 0 else 0)
         zero[0:0] = [_eq(sp.Symbol("x_p"), xp), *f["definitions"]]
-    text = "The complex amplitude B depends on the slow times only."
+    text = "The complex amplitude $B$ depends on the slow times only."
     if forced and not stiffness:
         text += (
-            " The resonant phase theta carries the detuning, so the modulation equations are "
-            "autonomous (Nayfeh's amplitude A is B times the slow phase factor)."
+            " The resonant phase $\\theta$ carries the detuning, so the modulation equations "
+            "are autonomous (Nayfeh's amplitude $A$ is $B$ times the slow phase factor)."
         )
     if c.hard:
-        text += " x_p is the exact order-one response to the hard forcing."
+        text += " $x_p$ is the exact order-one response to the hard forcing."
     steps.append(Step("Order 0", tuple(zero), text))
 
     # PWL coefficient
@@ -1750,11 +1753,11 @@ def _steps(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, ...]:
             Step(
                 "First Fourier coefficient of the nonsmooth term",
                 (_eq(a1s, a1), _eq(a1s, closed), *(_eq(s_, e_) for s_, e_ in defs)),
-                "The nonsmooth force under a cos(psi) has the first Fourier coefficient a_1(a), "
-                "in closed form through the crossing angles (no Taylor series); its secular "
-                "part at order 1 is -a_1(a) B/a"
+                "The nonsmooth force under $x = a\\cos\\psi$ has the first Fourier coefficient "
+                "$a_1(a)$, in closed form through the crossing angles (no Taylor series); its "
+                "secular part at order 1 is $-a_1(a)\\,B/a$"
                 + (
-                    ". Valid where " + ", ".join(sp.sstr(d) for d in domains) + "."
+                    ". Valid where " + ", ".join(f"${latex(d)}$" for d in domains) + "."
                     if domains
                     else "."
                 ),
@@ -1798,14 +1801,14 @@ def _steps(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, ...]:
                 )
             )
         text = (
-            "Lower-order derivatives of B are replaced by their solvability conditions (chain "
-            "rule). The coefficient of exp(i theta) is secular; setting it to zero gives the "
-            f"modulation equation at order {k}"
+            "Lower-order derivatives of $B$ are replaced by their solvability conditions (chain "
+            "rule). The coefficient of $e^{i\\theta}$ is secular; setting it to zero gives the "
+            f"modulation equation at order ${k}$"
         )
         if k < N:
-            text += "; the other modes, divided by their distance from resonance, give y" + str(k)
+            text += f"; the other modes, divided by their distance from resonance, give $y_{k}$"
         if not full:
-            text += ". NST stands for the non-secular terms, not printed"
+            text += "; the non-secular terms are not printed"
         steps.append(Step(f"Order {k}", tuple(math_), text + "."))
 
     dB = sp.Derivative(sp.Function("B")(t), t)
@@ -1889,7 +1892,7 @@ def _steps(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, ...]:
         steady.append(_eq(rates[0], 0))
         text = (
             "Limit cycles are the roots of the amplitude equation; the oscillation frequency is "
-            "omega0 plus the phase rate there."
+            "$\\omega_0$ plus the phase rate there."
         )
     if f["backbone"] is not None:
         steady.append(_eq(real_symbol("omega"), f["backbone"]))
@@ -1908,7 +1911,7 @@ def _steps(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, ...]:
             "Stability",
             (_eq(sp.Symbol("J"), J),),
             "A steady state is asymptotically stable when both eigenvalues of the slow-flow "
-            "Jacobian J have negative real parts. A vanishing determinant marks a saddle-node "
+            "Jacobian $J$ have negative real parts. A vanishing determinant marks a saddle-node "
             "bifurcation, a vertical tangent of the response curve; a vanishing trace with a "
             "positive determinant marks a Hopf bifurcation.",
         )
@@ -1924,8 +1927,8 @@ def _steps(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, ...]:
         Step(
             "Approximate solution",
             tuple(wave_rows),
-            ("With tau = Omega t" if forced else "With tau = omega t")
-            + f", through order {N - 1} in the expansion of x.",
+            ("With $\\tau = \\Omega t$" if forced else "With $\\tau = \\omega t$")
+            + f", through order ${N - 1}$ in the expansion of $x$.",
         )
     )
     return tuple(steps)

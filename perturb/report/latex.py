@@ -1,20 +1,31 @@
-"""LaTeX documents of derivations.
+r"""LaTeX documents of derivations: one writer for every engine.
 
 :func:`latex_document` renders an :class:`~perturb.approximation.Approximation` as a standalone
-document that reads like the derivation in a paper: the equation, the ansatz, the Fourier
-coefficients, the balance equations and the result, one titled step at a time.
+document that reads like the derivation in a methods paper: a title in words, the settings in a
+sentence, the closed forms of the Fourier coefficients it uses (defined before their first
+use), then one titled step at a time — the step's sentence (plain text, with mathematics
+between ``$`` signs) and its equations, whose terms come in the order a person writes them,
+grouped by harmonic and broken over lines to fit the page (:mod:`perturb.report.layout`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 
 import sympy as sp
+from sympy.core.function import AppliedUndef
 
 from ..approximation import Approximation, Step
-from ..printing import latex
+from .layout import TEXT_WIDTH, DocPrinter, equation_rows, tex_width
+from .notation import (
+    coefficient_calls,
+    coefficient_definitions,
+    document_title,
+    settings_sentence,
+)
 
-__all__ = ["latex_document", "step_latex", "escape"]
+__all__ = ["latex_document", "step_latex", "escape", "escape_text", "math_latex"]
 
 _SPECIAL = {
     "\\": r"\textbackslash{}",
@@ -28,6 +39,11 @@ _SPECIAL = {
     "~": r"\textasciitilde{}",
     "^": r"\textasciicircum{}",
 }
+_DASHES = {
+    "Krylov-Bogoliubov": "Krylov--Bogoliubov",
+    "Lindstedt-Poincare": "Lindstedt--Poincar\\'e",
+}
+_UNICODE = {"–": "--", "—": "---", "é": "\\'e", "µ": "$\\mu$", "ε": "$\\varepsilon$"}
 
 
 def escape(text: str) -> str:
@@ -35,19 +51,86 @@ def escape(text: str) -> str:
     return "".join(_SPECIAL.get(c, c) for c in text)
 
 
-def step_latex(step: Step) -> str:
-    """One step as a ``\\subsection*`` with its sentence and an ``align*`` block."""
-    out = [f"\\subsection*{{{escape(step.title)}}}"]
+def escape_text(text: str) -> str:
+    """A step's sentence as LaTeX: plain text escaped, mathematics between ``$`` signs kept
+    as it is (so ``"the shift $\\omega_0^2 + \\nu$"`` prints the formula)."""
+    parts = text.split("$")
+    if len(parts) % 2 == 0:  # an unpaired dollar: all plain text
+        parts = [text]
+    out = []
+    for k, part in enumerate(parts):
+        if k % 2:
+            out.append(f"${part}$")
+        else:
+            plain = escape(part)
+            for a, b in _DASHES.items():
+                plain = plain.replace(a, b)
+            for a, b in _UNICODE.items():
+                plain = plain.replace(a, b)
+            out.append(plain)
+    return "".join(out)
+
+
+def _printer_for(items: Iterable[sp.Basic]) -> tuple[DocPrinter, str]:
+    calls = coefficient_calls(items)
+    short = len(calls) == 1
+    printer = DocPrinter(
+        {"inv_trig_style": "full"}, short_coefficients=calls.keys() if short else ()
+    )
+    return printer, coefficient_definitions(calls, printer.doprint, short)
+
+
+def _continued(m: sp.Basic) -> bool:
+    """A continuation row of an equation split by an older engine (``_Continued(terms)`` or
+    the undefined function ``+(terms)``)."""
+    if type(m).__name__ == "_Continued":
+        return True
+    return isinstance(m, AppliedUndef) and type(m).__name__ == "+" and len(m.args) == 1
+
+
+def math_latex(math: Iterable[sp.Basic], printer: DocPrinter | None = None) -> str:
+    """Equations as ``align*`` blocks that fit the page: each equation broken at its
+    top-level ``+``/``-`` after collecting its terms by harmonic."""
+    items = list(math)
+    if printer is None:  # no definitions paragraph: coefficient functions with their argument
+        printer = DocPrinter({"inv_trig_style": "full"})
+    # rejoin the continuation rows older engines split equations into
+    merged: list[sp.Basic] = []
+    for m in items:
+        if _continued(m) and merged and isinstance(merged[-1], sp.Equality):
+            last = merged[-1]
+            merged[-1] = sp.Eq(last.lhs, sp.Add(last.rhs, m.args[0]), evaluate=False)
+        elif _continued(m):
+            merged.append(m.args[0])
+        else:
+            merged.append(m)
+    lefts = [tex_width(printer.doprint(m.lhs)) + 14.8 for m in merged if isinstance(m, sp.Equality)]
+    column = max((w for w in lefts if w <= 0.4 * TEXT_WIDTH), default=0.0)
+    blocks: list[list[str]] = [[]]
+    for m in merged:
+        if isinstance(m, sp.Equality):
+            rows, own = equation_rows(printer, m.lhs, m.rhs, TEXT_WIDTH, column=column)
+        elif isinstance(m, sp.Expr):
+            rows, own = equation_rows(printer, None, m, TEXT_WIDTH)
+        else:
+            rows, own = [f"&{printer.doprint(m)}"], False
+        if own:
+            blocks.append(rows)
+            blocks.append([])
+        else:
+            blocks[-1].extend(rows)
+    return "\n".join(
+        "\\begin{align*}\n" + " \\\\\n".join(b) + "\n\\end{align*}" for b in blocks if b
+    )
+
+
+def step_latex(step: Step, printer: DocPrinter | None = None) -> str:
+    """One step as a ``\\subsection*`` with its sentence and its equations."""
+    out = [f"\\subsection*{{{escape_text(step.title)}}}"]
     if step.text:
-        out.append(escape(step.text))
+        out.append(escape_text(step.text))
     if step.math:
-        rows = []
-        for m in step.math:
-            if isinstance(m, sp.Equality):
-                rows.append(f"{latex(m.lhs)} &= {latex(m.rhs)}")
-            else:
-                rows.append(f"&{latex(m)}")
-        out.append("\\begin{align*}\n" + " \\\\\n".join(rows) + "\n\\end{align*}")
+        out.append(math_latex(step.math, printer))
     return "\n".join(out)
 
 
@@ -63,20 +146,31 @@ def latex_document(
     path
         If given, the document is also written there.
     title
-        Defaults to the method and model names.
+        Defaults to the method and model in words, e.g. "Second-order modified
+        Lindstedt–Poincaré expansion of the negative-stiffness oscillator".
 
     Returns
     -------
     str
         The document text (compiles with ``pdflatex``; packages: fontenc, lmodern,
-        amsmath, amssymb, geometry); written atomically when ``path`` is given..
+        amsmath, amssymb, geometry); written atomically when ``path`` is given.
     """
     osc = approximation.oscillator
-    title = title or f"{approximation.label} of the {osc.name} oscillator"
+    title = title or document_title(approximation.method, approximation.options, osc.name)
+    everything = [m for s in approximation.steps for m in s.math]
+    printer, definitions = _printer_for(everything)
     values = ", ".join(
-        f"${latex(sp.Symbol(n))} = {val:g}$" for n, val in osc.params.items() if val is not None
+        f"${printer.doprint(sp.Symbol(n))} = {val:g}$"
+        for n, val in osc.params.items()
+        if val is not None
     )
-    body = "\n\n".join(step_latex(s) for s in approximation.steps)
+    settings = settings_sentence(approximation.options, printer.doprint)
+    body = "\n\n".join(step_latex(s, printer) for s in approximation.steps)
+    intro = "Derived by perturb."
+    if settings:
+        intro += " " + settings
+    if values:
+        intro += f" Parameter values used for numbers: {values}."
     doc = "\n".join(
         [
             r"\documentclass[11pt]{article}",
@@ -88,9 +182,13 @@ def latex_document(
             r"\usepackage[margin=2cm]{geometry}",
             r"\allowdisplaybreaks",
             r"\begin{document}",
-            f"\\section*{{{escape(title)}}}",
-            "Derived by perturb."
-            + (f" Parameter values used for numbers: {values}." if values else ""),
+            # long words and formulas in the text break lines rather than run into the margin;
+            # the loose lines that makes are not reported (TeX would print their text, in
+            # its own encoding, to the terminal)
+            r"\sloppy\hbadness=10000",
+            f"\\section*{{{escape_text(title)}}}",
+            intro,
+            definitions,
             body,
             r"\end{document}",
             "",

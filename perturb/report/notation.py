@@ -1,0 +1,194 @@
+r"""Words and definitions of a derivation document: its title, its settings and the closed
+forms of the Fourier-coefficient functions it uses.
+
+The closed forms are those of :mod:`perturb.fourier` (and :func:`perturb.fourier_symbols.
+closed_form`): along ``x = A cos(psi) + b``, with ``theta = arccos((d - b)/A)`` while the orbit
+crosses the switching point ``d``,
+
+- ``a^H_0 = 2 theta/pi``, ``a^H_n = 2 sin(n theta)/(n pi)``  (of ``H(x - d)``),
+- ``a^R_n = (A (a^H_{n-1} + a^H_{n+1}) - 2 (d - b) a^H_n)/2`` with ``a^H_{-1} = a^H_1``
+  (of ``(x - d) H(x - d)``), in closed form ``a^R_0 = 2 (A sin theta - (d - b) theta)/pi``,
+  ``a^R_1 = A (theta - sin theta cos theta)/pi``,
+- ``a^delta_n = 2 cos(n theta)/(pi A sin theta)``  (of ``delta(x - d)``),
+
+``f = a_0/2 + sum_{n >= 1} a_n cos(n psi)``. ``tests/test_latex_engines.py`` checks them
+against the numeric forms.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import sympy as sp
+
+from ..fourier_symbols import DiracCoefficient, RampCoefficient, StepCoefficient
+
+__all__ = ["document_title", "settings_sentence", "coefficient_calls", "coefficient_definitions"]
+
+_METHODS = {
+    "hb1": "single-harmonic balance",
+    "hb": "harmonic balance",
+    "kb": "Krylov–Bogoliubov averaging",
+    "vdp": "van der Pol averaging",
+    "multiple_scales": "multiple-scales expansion",
+    "ms": "multiple-scales expansion",
+    "lp": "Lindstedt–Poincaré expansion",
+    "mlp": "modified Lindstedt–Poincaré expansion",
+}
+_MODELS = {
+    "nsd": "the negative-stiffness oscillator",
+    "duffing": "the Duffing oscillator",
+    "quadratic_cubic": "the oscillator with quadratic and cubic stiffness",
+    "vanderpol": "the van der Pol oscillator",
+    "mathieu": "the Mathieu equation",
+    "pendulum": "the pendulum",
+    "clearance": "the oscillator with a one-sided clearance spring",
+    "deadzone": "the dead-zone oscillator",
+    "saturation": "the oscillator with a saturating spring",
+    "bilinear": "the bilinear oscillator",
+}
+_ORDINALS = ["Zeroth", "First", "Second", "Third", "Fourth", "Fifth", "Sixth", "Seventh"]
+_ORDINALS += ["Eighth", "Ninth", "Tenth", "Eleventh", "Twelfth"]
+_OPTION_WORDS = {
+    "harmonics": "harmonics",
+    "bias": "mean (bias) term",
+    "amplitude": "amplitude",
+    "scaling": "scaling",
+    "resonance": "resonance",
+    "detuning": "detuning",
+    "epsilon": "bookkeeping parameter",
+}
+_VALUE_WORDS = {
+    "first_harmonic": "of the first harmonic",
+    "peak": "the peak value",
+    "scaled": "scaled",
+    "uniform": "uniform",
+    "frequency": "in the frequency",
+    "stiffness": "in the stiffness",
+}
+
+
+def document_title(method: str, options: Mapping[str, Any], model: str) -> str:
+    """The title of a derivation in words, e.g. "Second-order modified Lindstedt–Poincaré
+    expansion of the negative-stiffness oscillator" (plain text, unescaped)."""
+    what = _METHODS.get(method, method.replace("_", " "))
+    order = options.get("order")
+    if isinstance(order, int) and 0 <= order < len(_ORDINALS) and method not in ("kb", "vdp"):
+        what = f"{_ORDINALS[order]}-order {what}"
+    else:
+        what = what[0].upper() + what[1:]
+    of = _MODELS.get(model, "the oscillator")
+    return f"{what} of {of}"
+
+
+def settings_sentence(options: Mapping[str, Any], latex) -> str:
+    """The method's settings as a LaTeX sentence ("" when there are none worth stating)."""
+    parts = []
+    for key, value in options.items():
+        if key == "order":
+            continue
+        if key == "harmonics":
+            parts.append(f"harmonics up to ${int(value)}$" if int(value) > 1 else "")
+            continue
+        if key == "bias":
+            parts.append("with a mean (bias) term" if value else "")
+            continue
+        if key == "omega0":
+            parts.append(f"reference frequency $\\omega_0 = {latex(sp.sympify(value))}$")
+            continue
+        if key == "resonance":
+            parts.append(f"resonance ${str(value).replace('/', ':')}$")
+            continue
+        word = _OPTION_WORDS.get(key, key.replace("_", " "))
+        val = _VALUE_WORDS.get(str(value), str(value).replace("_", " "))
+        parts.append(f"{word} {val}")
+    parts = [p for p in parts if p]
+    if not parts:
+        return ""
+    from .latex import escape_text
+
+    return "Settings: " + "; ".join(escape_text(p) for p in parts) + "."
+
+
+def coefficient_calls(items: Iterable[sp.Basic]) -> dict[tuple, set[type]]:
+    """The argument triples ``(A, b, d)`` of the Fourier-coefficient functions in ``items``
+    and which functions take each."""
+    out: dict[tuple, set[type]] = {}
+    for item in items:
+        if not isinstance(item, sp.Basic):
+            continue
+        for c in item.atoms(StepCoefficient, RampCoefficient, DiracCoefficient):
+            out.setdefault(tuple(c.args[1:]), set()).add(type(c))
+    return out
+
+
+def _abs(tex: str) -> str:
+    return tex if tex.isdigit() else f"|{tex}|"
+
+
+def _times(tex: str) -> str:
+    return "" if tex == "1" else f"{tex}\\,"
+
+
+def coefficient_definitions(calls: Mapping[tuple, set[type]], latex, short: bool) -> str:
+    """A paragraph and display defining the coefficient functions in closed form."""
+    if not calls:
+        return ""
+    kinds = set().union(*calls.values())
+    if RampCoefficient in kinds or DiracCoefficient in kinds:
+        kinds.add(StepCoefficient)  # a^R and a^delta are written with a^H
+    A, b, d = (sp.Symbol("A"), sp.Integer(0), sp.Symbol("d"))
+    if len(calls) == 1:
+        A, b, d = next(iter(calls))
+    tA = latex(A)
+    shift = d - b
+    ts = latex(shift)
+    x = f"{tA}\\cos\\psi" + ("" if b == 0 else f" + {latex(b)}")
+    names = {
+        StepCoefficient: f"$a^H_n$ of $H(x - {ts})$" if b == 0 else "$a^H_n$ of $H(x - d)$",
+        RampCoefficient: f"$a^R_n$ of $(x - {ts})\\,H(x - {ts})$" if b == 0 else "$a^R_n$",
+        DiracCoefficient: f"$a^\\delta_n$ of $\\delta(x - {ts})$" if b == 0 else "$a^\\delta_n$",
+    }
+    which = ", ".join(
+        names[k] for k in (StepCoefficient, RampCoefficient, DiracCoefficient) if k in kinds
+    )
+    if short:
+        lead = (
+            f"Here {which} are the Fourier cosine coefficients along $x = {x}$, written without "
+            f"their argument ($a_n = a_n({x};\\, {latex(d)})$), so that a term equals "
+            "$a_0/2 + \\sum_{n \\ge 1} a_n \\cos n\\psi$."
+        )
+    else:
+        lead = (
+            "Here $a_n(A\\cos\\psi + b;\\, d)$ with the tags $H$, $R$, $\\delta$ are the Fourier "
+            "cosine coefficients of $H(x - d)$, $(x - d)H(x - d)$ and $\\delta(x - d)$ along "
+            "$x = A\\cos\\psi + b$ ($a_0/2 + \\sum_{n \\ge 1} a_n \\cos n\\psi$); below, "
+            "$A$, $b$ and $d$ stand for each call's arguments."
+        )
+        tA, ts = "A", "(d - b)"
+    theta = sp.Symbol("theta")
+    sin_cos_rows = [
+        f"\\theta &= \\arccos\\frac{{{ts if len(calls) == 1 else 'd - b'}}}{{{tA}}}, "
+        f"\\qquad\\text{{while }} {_abs(ts) if len(calls) == 1 else '|d - b|'} < {tA},",
+        "a^H_0 &= \\frac{2\\theta}{\\pi}, \\qquad a^H_n = \\frac{2\\sin n\\theta}{n\\pi}"
+        " \\quad (n \\ge 1),",
+    ]
+    if RampCoefficient in kinds:
+        two_s = "2" if ts == "1" else f"2{ts}"
+        sin_cos_rows += [
+            f"a^R_n &= \\frac{{{tA}\\,\\bigl(a^H_{{n-1}} + a^H_{{n+1}}\\bigr) - {two_s}\\,a^H_n}}"
+            "{2}, \\qquad a^H_{-1} = a^H_1,",
+            f"a^R_0 &= \\frac{{2}}{{\\pi}}\\bigl({tA}\\sin\\theta - {_times(ts)}\\theta\\bigr), "
+            f"\\qquad a^R_1 = \\frac{{{tA}}}{{\\pi}}"
+            "\\bigl(\\theta - \\sin\\theta\\cos\\theta\\bigr),",
+        ]
+    if DiracCoefficient in kinds:
+        sin_cos_rows.append(f"a^\\delta_n &= \\frac{{2\\cos n\\theta}}{{\\pi {tA} \\sin\\theta}},")
+    sin_cos_rows[-1] = sin_cos_rows[-1].rstrip(",") + "."
+    del theta
+    tail = (
+        "Outside that range the coefficients are exact zeros or those of a linear term "
+        "(the numeric layer evaluates every regime)."
+    )
+    return lead + "\n\\begin{align*}\n" + " \\\\\n".join(sin_cos_rows) + "\n\\end{align*}\n" + tail
