@@ -515,3 +515,29 @@ def test_event_family_over_a_parameter_that_moves_a_switching_surface():
     assert a.max_multiplier == pytest.approx(b.max_multiplier, rel=1e-8)
     c = periodic_orbit(by_d.at(0.35), [2.0, 0.0])
     assert abs(c.amplitude - a.amplitude) > 1e-4
+
+
+def test_ode_flow_across_a_jump_ends_with_an_error_instead_of_chattering():
+    """DOP853 without events on a sticking friction orbit: millions of tiny steps (one period
+    ran past 600 s); the step budget ends it with a clear error."""
+    from perturb.errors import PerturbError
+
+    osc = Oscillator.parse(COULOMB)
+    flow = FlowFamily(osc, exact=False).at(0.5)
+    t = time.perf_counter()
+    with pytest.raises(PerturbError, match="step size collapsed"):
+        flow([0.5, 0.0], 0.0, 4 * math.pi, sensitivity=True)
+    assert time.perf_counter() - t < 60.0
+    # a smooth model over 200 periods stays well inside the budget, and matches DOP853
+    duff = FlowFamily(Oscillator.parse("x'' + 0.1*x' + x + x**3 = cos(Omega*t)")).at(1.2)
+    T = 2 * math.pi / 1.2
+    y = duff([0.5, 0.0], 0.0, 200 * T).y
+    ref = solve_ivp(
+        lambda tt, z: [z[1], math.cos(1.2 * tt) - 0.1 * z[1] - z[0] - z[0] ** 3],
+        (0.0, 200 * T),
+        [0.5, 0.0],
+        method="DOP853",
+        rtol=1e-12,
+        atol=1e-12,
+    ).y[:, -1]
+    assert np.max(np.abs(y - ref)) < 1e-7

@@ -139,6 +139,7 @@ class ODEFlow:
         y = _check_span(y0, t0, t1)
         z0 = np.concatenate([y, np.eye(2).ravel()]) if sensitivity else y
         fun = self._augmented if sensitivity else self.rhs.fun
+        budget = _step_budget(t0, t1, self.period)
         sol = solve_ivp(
             fun,
             (t0, t1),
@@ -147,7 +148,17 @@ class ODEFlow:
             rtol=self.rtol,
             atol=self.atol,
             t_eval=None if t_eval is None else np.asarray(t_eval, float),
+            events=[budget],
         )
+        if sol.status == 1:
+            raise PerturbError(
+                f"integration of {self.oscillator.name!r} on [{t0}, {t1}] stopped at "
+                f"t = {float(sol.t[-1])!r} after {budget.max_steps} steps (about "
+                f"{_STEPS_PER_PERIOD} per forcing period allowed): the step size collapsed. A "
+                "force that jumps (e.g. sign(x') friction) makes DOP853 chatter: the "
+                "event-driven flow locates the switches (FlowFamily, EventFlow); or the motion "
+                "is far faster than the forcing (extreme parameters)"
+            )
         if sol.status != 0 or not np.all(np.isfinite(sol.y[:, -1])):
             raise PerturbError(
                 f"integration of {self.oscillator.name!r} failed on [{t0}, {t1}]: {sol.message}"
@@ -155,9 +166,15 @@ class ODEFlow:
         # (solve_ivp integrates across switches of a nonsmooth force without locating them:
         # accuracy there is the step control's, which is why PWL models use ExactPWLFlow)
         if t_eval is not None:
-            final = solve_ivp(fun, (t0, t1), z0, method="DOP853", rtol=self.rtol, atol=self.atol).y[
-                :, -1
-            ]
+            final = solve_ivp(
+                fun,
+                (t0, t1),
+                z0,
+                method="DOP853",
+                rtol=self.rtol,
+                atol=self.atol,
+                events=[_step_budget(t0, t1, self.period)],
+            ).y[:, -1]
         else:
             final = sol.y[:, -1]
         return FlowResult(
@@ -168,6 +185,36 @@ class ODEFlow:
             t=None if t_eval is None else sol.t.copy(),
             ys=None if t_eval is None else sol.y[:2].T.copy(),
         )
+
+
+#: steps of DOP853 allowed per forcing period of the span (a smooth orbit takes a few hundred
+#: at rtol 1e-11; a jump in the field that DOP853 steps across, e.g. sticking under sign(x'),
+#: takes millions), and on top of that
+_STEPS_PER_PERIOD, _STEPS_BASE = 5_000, 20_000
+
+
+def _step_budget(t0: float, t1: float, period: float | None):
+    """A terminal event of ``solve_ivp`` that fires after a budget of steps (solve_ivp calls
+    it once per step; it changes sign only then, so no root finding happens before)."""
+    span_periods = abs(t1 - t0) / (period if period else 2.0 * np.pi)
+    max_steps = int(_STEPS_BASE + _STEPS_PER_PERIOD * min(span_periods, 1e7))
+    count = [0]
+    last = [t0]
+    stop: list[float] = []
+
+    def event(t: float, z: np.ndarray) -> float:
+        if stop:  # fired: a function of t with its root between the last two steps
+            return (stop[0] - t) * (1.0 if t1 >= t0 else -1.0)
+        count[0] += 1
+        if count[0] <= max_steps:
+            last[0] = t
+            return 1.0
+        stop.append(0.5 * (last[0] + t))
+        return (stop[0] - t) * (1.0 if t1 >= t0 else -1.0)
+
+    event.terminal = True  # type: ignore[attr-defined]
+    event.max_steps = max_steps  # type: ignore[attr-defined]
+    return event
 
 
 class FlowFamily:
