@@ -757,6 +757,23 @@ def test_fig18_second_order_beats_first_at_low_frequency(zn):
 # ------------------------------------------------------------------------------------------
 # Fig. 17: multi-harmonic balance against exact orbits at its own frequencies
 # ------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("k", [-0.5, -1.0, -2.0, -3.0])
+def test_fig17_exact_peaks_against_dop853_shooting(zn, k):
+    """The exact resonance peak the Fig. 17 text states: DOP853 shooting at its frequency
+    gives its max|x| and a stable orbit, and 0.5 % to either side a smaller one."""
+    mu, F = 0.05, 2.0
+    W, A, y0, stable = zn.exact_resonance_peak(k, mu, F, zn.FirstOrderPeaks(), True)
+    assert stable
+    y, amp, mult = shoot(k, mu, F, W, y0)
+    assert amp == pytest.approx(A, rel=1e-7) and mult < 1
+    for f in (0.995, 1.005):
+        try:
+            _, a2, m2 = shoot(k, mu, F, W * f, y)
+        except AssertionError:  # past a fold, the branch is gone: no larger orbit there
+            continue
+        assert a2 < amp or m2 > 1, (k, f, a2, amp)
+
+
 def test_hb_curve_beats_first_order_mlp_on_the_main_branch(zn, tmp_path):
     """k = -0.5: the script's HB curve (fast mode) at some of its own points, and first-order
     mLP at the same frequencies, against every exact orbit there (perturb's exact solver:
