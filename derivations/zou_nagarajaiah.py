@@ -1361,7 +1361,7 @@ def bifurcation_diagrams(run: Run) -> Part:
         ax.set_xlabel(d.parameter)
         ax.set_ylabel("stroboscopic $x$")
         ax.set_title(
-            f"{d.title}: " + ", ".join(f"{k} = {v:g}" for k, v in d.fixed.items()), fontsize=9
+            f"Zou {d.title}: " + ", ".join(f"{k} = {v:g}" for k, v in d.fixed.items()), fontsize=9
         )
         run.write_csv(
             f"{d.key}_bifurcation.csv",
@@ -1691,20 +1691,27 @@ def peak_maps(run: Run, fo: FirstOrderPeaks) -> Part:
         cs = ax.contourf(MU, Y, amp, levels=20, cmap="viridis")
         fig.colorbar(cs, ax=ax, label="peak amplitude (mLP order 1)")
         for m, y, p in exact:
-            ax.plot(m, y, "o", color="red", mec="white", mew=1.5, ms=10, zorder=5)
+            # dots on the map's edges are drawn whole, their labels inside the map
+            ax.plot(m, y, "o", color="red", mec="white", mew=1.5, ms=10, zorder=5, clip_on=False)
+            right = m > 0.5 * (mus[0] + mus[-1])
+            top = y > 0.5 * (ys[0] + ys[-1])
             ax.annotate(
-                f"{p.amplitude:.3g}",
+                f"exact {p.amplitude:.3g}",
                 (m, y),
                 fontsize=8,
                 color="k",
-                xytext=(6, 6),
+                xytext=(-8 if right else 8, -8 if top else 8),
                 textcoords="offset points",
+                ha="right" if right else "left",
+                va="top" if top else "bottom",
                 bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.85},
                 zorder=6,
             )
         ax.set_xlabel(r"$\mu$" if key != "fig12" else r"$\bar\mu$")
         ax.set_ylabel({"k": "$k$", "F": "$F$", "kbar": r"$\bar k$"}[yname])
-        ax.set_title(f"{title}: " + ", ".join(f"{k} = {v:g}" for k, v in fixed.items()), fontsize=9)
+        ax.set_title(
+            f"Zou {title}: " + ", ".join(f"{k} = {v:g}" for k, v in fixed.items()), fontsize=9
+        )
         tex_rows.append(
             f"{title} & {len(exact)} & {sci(float(np.nanmax(np.abs(rel))))} & "
             f"{g(float(np.nanmin(amp)))}--{g(float(np.nanmax(amp)))}"
@@ -2645,7 +2652,7 @@ def frequency_response_study(
             if len(resps) == 2:
                 ax.set_ylabel(r"$\max|x|$")
     fig.suptitle(
-        f"{title}: exact (grey, thick) under each approximation; solid stable, dashed unstable",
+        f"Zou {title}: exact (grey, thick) under each approximation; solid stable, dashed unstable",
         fontsize=9,
     )
     fig.tight_layout()
@@ -3210,7 +3217,8 @@ def time_histories(run: Run) -> Part:
         f"({near.stability}); LCP vs exact over the first 10 periods: max |dx| = {dev:.2e}"
     )
     fig = plot_time_history(
-        ex, title="Fig. 13: mu = 0.05, k = -3, F = 2, Omega = 0.9, from rest (exact; dashed: LCP)"
+        ex,
+        title="Zou Fig. 13: mu = 0.05, k = -3, F = 2, Omega = 0.9, from rest (exact; dashed: LCP)",
     )
     ax1 = fig.axes[0]
     ax1.lines[0].set_label("exact")
@@ -3253,7 +3261,7 @@ def time_histories(run: Run) -> Part:
         sl = slice(h.t.size // 2, None)
         _energy_surface(ax3, -2.0, h.x[sl], h.v[sl])
         ax3.set_title(["F = 2", "F = 0.5"][j], fontsize=8)
-    fig.suptitle("Fig. 14: k = -2, mu = 0.18, Omega = 0.4, from (3, 0)", fontsize=9)
+    fig.suptitle("Zou Fig. 14: k = -2, mu = 0.18, Omega = 0.4, from (3, 0)", fontsize=9)
     fig.tight_layout()
     f14 = run.save(fig, "fig14_one_well.png")
 
@@ -3303,7 +3311,7 @@ def time_histories(run: Run) -> Part:
     ax.set_ylabel("$x$")
     ax3 = fig.add_subplot(1, 2, 2, projection="3d")
     _energy_surface(ax3, -2.0, h15.x, h15.v)
-    fig.suptitle("Fig. 15: k = -2, mu = 0.2, F = 4, Omega = 1, from rest", fontsize=9)
+    fig.suptitle("Zou Fig. 15: k = -2, mu = 0.2, F = 4, Omega = 1, from rest", fontsize=9)
     fig.tight_layout()
     f15 = run.save(fig, "fig15_transient.png")
     parts.append(
