@@ -569,8 +569,33 @@ def _split(
     }
 
 
+def _periodic_product(expr: sp.Expr, t: sp.Symbol) -> bool:
+    """True when ``expr`` is a product of positive integer powers of ``cos(w*t + p)`` and
+    ``sin(w*t + p)`` (and factors free of ``t``) with commensurate frequencies: periodic,
+    decided without multiplying the product out. False means "not shown", not "not periodic"."""
+    freqs: list[sp.Expr] = []
+    for factor in sp.Mul.make_args(expr):
+        base, exponent = factor.as_base_exp()
+        if not base.has(t):
+            continue
+        if not (isinstance(base, sp.sin | sp.cos) and exponent.is_Integer and exponent > 0):
+            return False
+        arg = sp.expand(base.args[0])
+        w = arg.coeff(t)
+        if w == 0 or w.has(t) or sp.expand(arg - w * t).has(t):
+            return False
+        freqs.append(w)
+    for w in freqs[1:]:
+        ratio = w / freqs[0]
+        if not ratio.is_Rational and not sp.simplify(ratio).is_Rational:
+            return False
+    return True
+
+
 def _check_parametric(term: sp.Expr, t: sp.Symbol, source: str) -> None:
     _, tpart = term.as_independent(t, as_Add=False)
+    if _periodic_product(tpart, t):  # the common case, without expanding the product
+        return
     try:
         _forcing(tpart, t, source)
     except ModelError:
@@ -606,86 +631,100 @@ def _harmonic_of(term: sp.Expr, t: sp.Symbol, source: str) -> Harmonic | None:
 
 #: Most terms a product of sines and cosines in the forcing (or in a parametric coefficient)
 #: may expand to. Products are multiplied out as complex exponentials one factor at a time,
-#: merging equal frequencies after each step, so commensurate forcings stay small
+#: merging equal frequencies after each step (see ``_spectrum``), so commensurate forcings stay
+#: small
 #: (``cos(t)*cos(2*t)*...*cos(20*t)`` has 105 harmonics, found in 0.2 s); incommensurate ones
 #: double with every factor and are refused here instead of expanding to 2**49 terms.
 MAX_FORCING_TERMS = 200
 
 
-def _product_to_sum(term: sp.Expr, source: str) -> sp.Expr:
-    """``term``, a product of sines, cosines (and factors free of them), as a sum of single
-    sines and cosines.
+_Spectrum = dict[sp.Expr, sp.Expr]  # angle -> coefficient of exp(i*angle)
 
-    Each factor is written as exponentials, ``cos(a) = (E(a) + E(-a))/2`` and
-    ``sin(a) = (E(a) - E(-a))/(2i)``; the product is a dictionary angle -> coefficient,
-    multiplied in one factor at a time (the work is the number of distinct angles, not
-    ``2**factors`` as for a pairwise product-to-sum rewrite).
-    """
-    rest: list[sp.Expr] = []
-    trig: list[sp.Expr] = []
-    for factor in sp.Mul.make_args(term):
-        base, exponent = factor.as_base_exp()
-        if isinstance(base, sp.sin | sp.cos) and exponent.is_Integer and exponent > 0:
-            # the parser bounds exponents (MAX_EXPONENT), so this list is short
-            trig.extend([base] * int(exponent))
-        else:
-            rest.append(factor)
-    if len(trig) < 2:
-        return term
-    half, ihalf = sp.Rational(1, 2), sp.I / 2
-    acc: dict[sp.Expr, sp.Expr] = {sp.Integer(0): sp.Integer(1)}
-    for factor in trig:
-        angle = factor.args[0]
-        pair = (
-            ((angle, half), (-angle, half))
-            if isinstance(factor, sp.cos)
-            else (
-                (angle, -ihalf),
-                (-angle, ihalf),
-            )
-        )
-        out: dict[sp.Expr, sp.Expr] = {}
-        for a, c in acc.items():
-            for b, d in pair:
-                key = a + b
-                out[key] = out.get(key, 0) + c * d
-        acc = {a: c for a, c in out.items() if c != 0}
-        if len(acc) > 2 * MAX_FORCING_TERMS:
-            shown = sp.sstr(term)
-            shown = shown if len(shown) <= 80 else shown[:77] + "..."
-            raise ModelError(
-                f"the product of sines and cosines {shown} in the forcing expands to more than "
-                f"{MAX_FORCING_TERMS} harmonics: expected a forcing with fewer, commensurate "
-                "factors"
-            )
-    # back to real form: c E(a) + c' E(-a) = (c + c') cos(a) + i (c - c') sin(a)
+
+def _too_many_harmonics(expr: sp.Expr) -> ModelError:
+    shown = sp.sstr(expr)
+    shown = shown if len(shown) <= 80 else shown[:77] + "..."
+    return ModelError(
+        f"the products of sines and cosines in {shown} expand to more than "
+        f"{MAX_FORCING_TERMS} harmonics: expected a forcing with fewer, commensurate factors"
+    )
+
+
+def _times(p: _Spectrum, q: _Spectrum, whole: sp.Expr) -> _Spectrum:
+    """The spectrum of a product: angles add, coefficients multiply; equal angles merge."""
+    out: _Spectrum = {}
+    for a, c in p.items():
+        for b, d in q.items():
+            key = a + b
+            out[key] = out.get(key, 0) + c * d
+    # expanded at every step: products of (p + q*I) would otherwise nest ever deeper
+    out = {a: c if c.is_Rational else sp.expand(c) for a, c in out.items()}
+    out = {a: c for a, c in out.items() if c != 0}
+    if len(out) > 2 * MAX_FORCING_TERMS:
+        raise _too_many_harmonics(whole)
+    return out
+
+
+def _spectrum(expr: sp.Expr, t: sp.Symbol, whole: sp.Expr) -> _Spectrum | None:
+    """``expr`` as a sum of ``c * exp(i*angle)``, built along its tree (sums, products and
+    powers of sines and cosines) without expanding it first: ``(cos(t) + sin(3*t) +
+    cos(7*t))**20`` is 231 products of 20 factors once expanded, but its spectrum is 20
+    multiplications of at most 141 angles. None when ``expr`` is not of that form (the caller
+    then reports what is wrong with it)."""
+    if not expr.has(t):
+        return {sp.Integer(0): expr}
+    if isinstance(expr, sp.cos | sp.sin):
+        a = expr.args[0]
+        if isinstance(expr, sp.cos):
+            return {a: sp.Rational(1, 2), -a: sp.Rational(1, 2)}
+        return {a: -sp.I / 2, -a: sp.I / 2}
+    if expr.is_Add or expr.is_Mul:
+        parts = [_spectrum(arg, t, whole) for arg in expr.args]
+        if any(part is None for part in parts):
+            return None
+        out: _Spectrum = dict(parts[0])  # type: ignore[arg-type]
+        for part in parts[1:]:
+            if expr.is_Mul:
+                out = _times(out, part, whole)  # type: ignore[arg-type]
+            else:
+                for a, c in part.items():  # type: ignore[union-attr]
+                    out[a] = out.get(a, 0) + c
+                if len(out) > 2 * MAX_FORCING_TERMS:
+                    raise _too_many_harmonics(whole)
+        return out
+    if expr.is_Pow and expr.exp.is_Integer and 0 < expr.exp <= 2 * MAX_FORCING_TERMS:
+        base = _spectrum(expr.base, t, whole)
+        if base is None:
+            return None
+        out = base
+        for _ in range(int(expr.exp) - 1):  # at most MAX_EXPONENT from the parser
+            out = _times(out, base, whole)
+        return out
+    return None
+
+
+def _real_form(spectrum: _Spectrum) -> sp.Expr:
+    """Back from exponentials: ``c E(a) + c' E(-a) = (c + c') cos(a) + i (c - c') sin(a)``."""
     total: list[sp.Expr] = []
     done: set[sp.Expr] = set()
-    for a, c in acc.items():
+    for a, c in spectrum.items():
         if a in done:
             continue
         if a == 0:
             total.append(sp.expand(c))
             done.add(a)
             continue
-        c2 = acc.get(-a, sp.Integer(0))
+        c2 = spectrum.get(-a, sp.Integer(0))
         done.update((a, -a))
         total.append(sp.expand(c + c2) * sp.cos(a) + sp.expand(sp.I * (c - c2)) * sp.sin(a))
-    return sp.expand(sp.Mul(*rest) * sp.Add(*total))
+    return sp.expand(sp.Add(*total))
 
 
 def _forcing(expr: sp.Expr, t: sp.Symbol, source: str) -> Forcing:
     # Products and powers of harmonics (cos(t)*sin(2t), cos(t)**2) are periodic too:
-    # turn them into sums first.
-    expr = sp.expand(expr)
-    expr = sp.Add(
-        *(
-            _product_to_sum(a, source)
-            if isinstance(a, sp.Mul | sp.Pow) and a.has(sp.sin, sp.cos)
-            else a
-            for a in sp.Add.make_args(expr)
-        )
-    )
+    # turn them into sums first, as exponentials (no 2**factors blow-up, no expand first).
+    spectrum = _spectrum(expr, t, expr) if expr.has(sp.sin, sp.cos) else None
+    expr = _real_form(spectrum) if spectrum is not None else sp.expand(expr)
     harmonics: list[Harmonic] = []
     constant: sp.Expr = sp.Integer(0)
     for term in sp.Add.make_args(expr):

@@ -246,6 +246,22 @@ def test_parametric_power_of_a_trigonometric_sum_within_the_limits_is_answered_i
     )
 
 
+def test_power_of_a_trigonometric_sum_in_the_forcing_is_fast_and_right():
+    # 231 products of 20 factors once expanded (24 s, and a parse-time limit had to refuse
+    # more); multiplied out as exponentials along the tree it is 20 small products
+    text = "x'' + x = (cos(t) + sin(3*t) + cos(7*t))**20 + F*sin(t)*cos(2*t + 1)"
+    start = time.perf_counter()
+    osc = Oscillator.parse(text, {"F": 0.5})
+    assert time.perf_counter() - start < BUDGET
+    expr = osc.forcing.expr(osc.t).subs(osc.substitutions())
+    f = sp.lambdify(osc.t, expr)
+    ts = np.linspace(0.0, 7.0, 29)
+    ref = (np.cos(ts) + np.sin(3 * ts) + np.cos(7 * ts)) ** 20 + 0.5 * np.sin(ts) * np.cos(
+        2 * ts + 1
+    )
+    np.testing.assert_allclose(f(ts), ref, rtol=1e-12, atol=1e-9)
+
+
 def test_forcing_powers_are_reduced_completely():
     # one TR8 pass used to leave cos(2*t)**25 and call the forcing "not periodic"
     osc = Oscillator.parse("x'' + x = cos(t)**50 + sin(2*t)*cos(t + 1)")
