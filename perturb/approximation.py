@@ -22,6 +22,8 @@ contract (docs/architecture.md, "the method contract"):
 
 from __future__ import annotations
 
+import shutil
+import textwrap
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -74,11 +76,43 @@ class Approximation:
         return f"{self.method}({opts})" if opts else self.method
 
     def __str__(self) -> str:
-        lines = [f"Approximation by {self.label} of {self.oscillator}"]
-        lines.append("  unknowns: " + ", ".join(map(str, self.unknowns)))
-        for r in self.residuals:
-            lines.append(f"  0 = {sp.sstr(r)}")
-        lines.append(f"  x({self.tau}) = {sp.sstr(self.waveform)}")
+        return self.summary()
+
+    def summary(self, width: int | None = None, *, limit: int = 4) -> str:
+        """A terminal summary: wrapped to ``width`` columns (the terminal's, at most 100)
+        and abbreviated.
+
+        An equation that prints in at most ``limit`` lines is shown in full, with the Fourier
+        coefficient functions by their short names (``aR_3`` for ``a^R_3``); a longer one
+        as one summary line — its number of terms, its symbols, the coefficient functions it
+        uses and its harmonics. The full expressions are what ``perturb derive --latex`` and
+        ``--json`` write.
+        """
+        if width is None:
+            width = min(shutil.get_terminal_size((100, 24)).columns, 100)
+        width = max(int(width), 40)
+        printer = _ShortStr(_coefficient_keys(self.residuals + (self.waveform,)))
+        lines = _wrap(f"Approximation by {self.label} of {self.oscillator}", width, "    ")
+        lines += _wrap("unknowns: " + ", ".join(map(str, self.unknowns)), width, "    ", "  ")
+        abbreviated = False
+        rows = [(f"equation {k}: 0 = ", r) for k, r in enumerate(self.residuals, 1)]
+        rows.append((f"x({self.tau}) = ", self.waveform))
+        for label, expr in rows:
+            text = printer.doprint(expr)
+            wrapped = _wrap(label + text, width, "      ", "  ")
+            if len(wrapped) > limit:
+                abbreviated = True
+                wrapped = _wrap(label + _describe(expr, self.tau), width, "      ", "  ")
+            lines += wrapped
+        if printer.used:
+            lines += _wrap(
+                "Fourier coefficients: " + "; ".join(sorted(printer.used)),
+                width,
+                "    ",
+                "  ",
+            )
+        if abbreviated:
+            lines.append("  (abbreviated: --latex FILE or --json FILE writes the full expressions)")
         return "\n".join(lines)
 
     def _repr_latex_(self) -> str:
@@ -86,3 +120,83 @@ class Approximation:
         rows = [latex(r) + " = 0" for r in self.residuals]
         rows.append(f"x({latex(self.tau)}) = {latex(self.waveform)}")
         return "$\\begin{aligned}" + " \\\\ ".join(rows) + "\\end{aligned}$"
+
+
+# ------------------------------------------------------------------------------------------
+# terminal summary
+# ------------------------------------------------------------------------------------------
+_TAGS = {"StepCoefficient": "aH", "RampCoefficient": "aR", "DiracCoefficient": "adelta"}
+_WHAT = {"aH": "H(x - d)", "aR": "(x - d)H(x - d)", "adelta": "delta(x - d)"}
+
+
+def _coefficient_keys(exprs: tuple[sp.Expr, ...]) -> set[tuple]:
+    keys = set()
+    for e in exprs:
+        for f in e.atoms(sp.Function):
+            if type(f).__name__ in _TAGS:
+                keys.add(tuple(f.args[1:]))
+    return keys
+
+
+class _ShortStr(sp.printing.str.StrPrinter):
+    """SymPy's text printer with the Fourier coefficient functions as ``aR_3`` when the
+    expression uses one argument triple ``(A, b, d)``, ``aR_3(A, b, d)`` otherwise."""
+
+    def __init__(self, keys: set[tuple]) -> None:
+        super().__init__()
+        self._one = len(keys) == 1
+        self.used: set[str] = set()
+
+    def _print_Function(self, expr) -> str:
+        tag = _TAGS.get(type(expr).__name__)
+        if tag is None:
+            return super()._print_Function(expr)
+        n, A, b, d = (self._print(a) for a in expr.args)
+        shift = A + "*cos(psi)" + ("" if expr.args[2] == 0 else f" + {b}")
+        of = _WHAT[tag].replace("d", d) if self._one else _WHAT[tag]
+        self.used.add(
+            f"{tag}_n = {tag}_n({shift}; {d}), of {of}"
+            if self._one
+            else f"{tag}_n(A, b, d) of {of} along x = A cos(psi) + b"
+        )
+        return f"{tag}_{n}" if self._one else f"{tag}_{n}({A}, {b}, {d})"
+
+
+def _wrap(text: str, width: int, indent: str, first: str = "") -> list[str]:
+    return textwrap.wrap(
+        text,
+        width=width,
+        initial_indent=first,
+        subsequent_indent=indent,
+        break_on_hyphens=False,
+    ) or [first]
+
+
+def _describe(expr: sp.Expr, tau: sp.Symbol) -> str:
+    """One line about a long expression: terms, symbols, coefficient functions, harmonics."""
+    terms = len(sp.Add.make_args(expr))
+    names = sorted({s.name for s in expr.free_symbols}, key=str.lower)
+    parts = [f"{terms} term" + ("s" if terms != 1 else "")]
+    parts.append("in " + ", ".join(names))
+    funcs: dict[str, list[int]] = {}
+    for f in expr.atoms(sp.Function):
+        tag = _TAGS.get(type(f).__name__)
+        if tag is not None and f.args[0].is_Integer:
+            funcs.setdefault(tag, []).append(int(f.args[0]))
+    for tag, ns in sorted(funcs.items()):
+        ns = sorted(set(ns))
+        parts.append(f"{tag}_n for n = {ns[0]}..{ns[-1]} ({len(ns)} of them)")
+    harmonics = set()
+    for f in expr.atoms(sp.cos, sp.sin):
+        c = f.args[0].as_coefficient(tau) if tau in f.args[0].free_symbols else None
+        if c is None:
+            for s in f.args[0].free_symbols:
+                if s.name in ("psi", "theta", "tau"):
+                    c = f.args[0].coeff(s)
+        if c is not None and c.is_Integer:
+            harmonics.add(abs(int(c)))
+    if harmonics:
+        hs = sorted(harmonics)
+        parts.append(f"harmonics {hs[0]}..{hs[-1]}" if len(hs) > 3 else f"harmonics {hs}")
+    parts.append(f"{len(sp.sstr(expr))} characters")
+    return "; ".join(parts)

@@ -557,7 +557,9 @@ def _cmd_derive(args: argparse.Namespace) -> int:
         latex_document(approx, args.latex)
     if args.json:
         _write_text(args.json, json.dumps(approximation_to_dict(approx), indent=1, sort_keys=True))
-    print(str(approx))
+    # wrapped to the terminal (at most 100 columns); long equations as one summary line each,
+    # the full text is in the --latex / --json files
+    print(approx.summary())
     return 0
 
 

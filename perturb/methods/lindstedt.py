@@ -1065,7 +1065,7 @@ def lindstedt_poincare(
         wave_shown = sp.Add(*(xf[n](tau) for n in range(order + 1)))
     steps.append(
         _step(
-            "Result with epsilon = 1",
+            "Result with $\\varepsilon = 1$",
             (
                 _eq(omega, sp.Add(*(_tidy(w) for w in om))),
                 _eq(osc.x, wave_shown),

@@ -503,8 +503,8 @@ def modified_lindstedt(
                     shown_wave(tau),
                 ),
                 "The frequency-amplitude relation (backbone) of the free oscillation and its "
-                "waveform; each alpha-power term is written over powers of omega_0 squared plus "
-                "nu, which keeps it finite where nu vanishes.",
+                "waveform; each term in a power of $\\alpha$ is written over powers of "
+                "$\\omega_0^2 + \\nu$, which keeps it finite where $\\nu$ vanishes.",
             )
         )
         return Approximation(
