@@ -65,7 +65,7 @@ MAX_LCP_STEPS = 5_000_000
 #: Largest ``--m`` (forcing periods per orbit) of ``perturb periodic``.
 MAX_SUBHARMONIC = 16
 #: Largest ``--n`` of ``perturb fourier``.
-MAX_FOURIER_N = 100_000
+MAX_FOURIER_N = 100_000  # = perturb.fourier_symbols.MAX_SERIES_ORDER (not imported: SymPy)
 #: Forcing frequencies the command accepts (``--omega`` of ``frc`` and ``periodic``): a period
 #: a million times longer or shorter than a unit-stiffness oscillator's is beyond every
 #: solver's resolution (``periodic nsd --omega 1e-300`` ran past 25 s; every step of a period
@@ -179,8 +179,11 @@ def _cmd_fourier(args: argparse.Namespace) -> int:
 
     expr = parse_expression(args.expr)
     x = real_symbol(args.var)
+    from .model import validate_parameter_value
+
     values = dict(parse_param(p) for p in args.param or ())
-    subs = {real_symbol(k): sp.Float(v) for k, v in values.items()}
+    # the model's range for parameters (1e-300..1e300 or 0): 1e305 overflows once squared
+    subs = {real_symbol(k): sp.Float(validate_parameter_value(k, v)) for k, v in values.items()}
     expr = expr.xreplace(subs)
     free = sorted(s.name for s in expr.free_symbols if s != x)
     if free:

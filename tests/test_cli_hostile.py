@@ -181,6 +181,7 @@ CASES = [
     (["fourier", "x", "--A", "nan"], "finite"),
     (["fourier", "x", "--A", "1e-5000"], "underflows"),
     (["fourier", "x", "--A", "-1"], "--A -1"),
+    (["fourier", "k*x**3", "--A", "1", "--param", "k=1e305"], "parameter 'k'"),
     # methods, models, equations
     ([*FRC, "--method", "magic"], "--method 'magic'"),
     (["frc", "nosuch"], "builtin name"),
