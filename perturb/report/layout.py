@@ -37,6 +37,8 @@ TEXT_WIDTH = 0.9 * 497.0
 _COEFFICIENTS = (StepCoefficient, RampCoefficient, DiracCoefficient)
 # names of expansion parameters (ascending powers)
 _SMALL = frozenset({"epsilon", "varepsilon", "eps", "alpha", "alphahat"})
+# the state: powers ascending (omega_0^2 x + alpha_2 x^2 + alpha_3 x^3)
+_STATE = frozenset({"x", "y"})
 # display symbols of the engines, printed in words
 _WORDS = {
     "NST": r"\text{(non-secular terms)}",
@@ -110,18 +112,40 @@ def _term_key(term: sp.Expr, phases: frozenset[str]) -> tuple:
         return (0, 1e9, (1e9, 8, 0), 0.0)  # a sum over harmonics after the lone terms
     if isinstance(term, sp.Symbol) and term.name in ("NST", "cc", "...", "\\ldots"):
         return (1, 0.0, (1e9, 9, 0), 0.0)  # "+ ..." and "+ c.c." close a sum
+    if isinstance(term, sp.Order):
+        return (1, 1e9, (1e9, 9, 0), 0.0)  # O(epsilon^n) closes a sum
     trig, _ = _trig_factor(term, phases)
-    eps = _power_of(term, _SMALL)
+    eps, state = _power_of(term, _SMALL), _power_of(term, _STATE)
+    for s in term.free_symbols:
+        if s.name in _STATE and not term.is_polynomial(s):
+            state = 99  # a nonsmooth or transcendental term after the polynomial ones
     try:
-        eps = float(eps)
+        eps, state = float(eps), float(state)
     except TypeError:
-        eps = 0.0
-    return (-_derivative_rank(term), eps, _harmonic(trig, phases), 0.0)
+        eps, state = 0.0, 0.0
+    return (-_derivative_rank(term), eps, _harmonic(trig, phases), state)
 
 
 def ordered_terms(terms: Sequence[sp.Expr], phases: frozenset[str] = _PHASES) -> list[sp.Expr]:
-    """``terms`` in reading order (module docstring); ties keep SymPy's order."""
-    return [t for _, t in sorted(enumerate(terms), key=lambda it: _term_key(it[1], phases))]
+    """``terms`` in reading order (module docstring); ties keep SymPy's order, except that a
+    sum starts with a positive term where one ties with the first (``tau - phi``)."""
+    keys = [_term_key(t, phases) for t in terms]
+    if not any(k[0] < 0 or 2 <= k[3] < 99 for k in keys):
+        # powers of the state order an equation of motion or a polynomial force, not x - 1
+        keys = [k[:3] + (0.0,) for k in keys]
+    keyed = sorted(
+        ((key, k, t) for k, (key, t) in enumerate(zip(keys, terms, strict=True))),
+        key=lambda x: x[:2],
+    )
+    out = [t for _, _, t in keyed]
+    if out and out[0].could_extract_minus_sign():
+        for j, (key, _, t) in enumerate(keyed):
+            if key != keyed[0][0]:
+                break
+            if not t.could_extract_minus_sign():
+                out.insert(0, out.pop(j))
+                break
+    return out
 
 
 # ------------------------------------------------------------------------------------------
@@ -185,6 +209,11 @@ class DocPrinter(_PerturbLatexPrinter):
             return self._raw[name]
         return super()._print_Symbol(expr, style=style)
 
+    def _print_Float(self, expr):
+        if expr == int(expr) and abs(expr) < 1e15:  # 1.0 from a substituted parameter
+            return str(int(expr))
+        return super()._print_Float(expr)
+
     def _print_Derivative(self, expr):
         f = expr.expr
         variables = expr.variable_count
@@ -209,8 +238,12 @@ class DocPrinter(_PerturbLatexPrinter):
     def _print_Function(self, expr, exp=None):
         if isinstance(expr, AppliedUndef):
             tex = self._print(sp.Symbol(type(expr).__name__))
-            if len(expr.args) == 1:  # x_1(tau)
-                tex += f"{{\\left({self._print(expr.args[0])}\\right)}}"
+            slow_times = len(expr.args) > 1 and all(
+                isinstance(a, sp.Symbol) and a.name.startswith("T_") for a in expr.args
+            )
+            if not slow_times:  # x_1(tau), g(a cos psi, -a Omega sin psi)
+                args = ", ".join(self._print(a) for a in expr.args)
+                tex += f"{{\\left({args}\\right)}}"
             # B(T_1, T_2, T_3): the slow times are stated in the text
             return f"{tex}^{{{exp}}}" if exp else tex
         return super()._print_Function(expr, exp=exp)

@@ -95,7 +95,11 @@ def settings_sentence(options: Mapping[str, Any], latex) -> str:
             parts.append("with a mean (bias) term" if value else "")
             continue
         if key == "omega0":
-            parts.append(f"reference frequency $\\omega_0 = {latex(sp.sympify(value))}$")
+            value = sp.sympify(value)
+            if isinstance(value, sp.Symbol):  # the model's own omega_0
+                parts.append(f"reference frequency ${latex(value)}$")
+            else:
+                parts.append(f"reference frequency $\\omega_0 = {latex(value)}$")
             continue
         if key == "resonance":
             parts.append(f"resonance ${str(value).replace('/', ':')}$")
@@ -160,9 +164,15 @@ def coefficient_definitions(calls: Mapping[tuple, set[type]], latex, short: bool
             "$a_0/2 + \\sum_{n \\ge 1} a_n \\cos n\\psi$."
         )
     else:
+        generic = {
+            StepCoefficient: "$a^H_n(A\\cos\\psi + b;\\, d)$ of $H(x - d)$",
+            RampCoefficient: "$a^R_n(A\\cos\\psi + b;\\, d)$ of $(x - d)H(x - d)$",
+            DiracCoefficient: "$a^\\delta_n(A\\cos\\psi + b;\\, d)$ of $\\delta(x - d)$",
+        }
+        used = [generic[k] for k in (StepCoefficient, RampCoefficient, DiracCoefficient)]
+        used = [u for k, u in zip(generic, used, strict=True) if k in kinds]
         lead = (
-            "Here $a_n(A\\cos\\psi + b;\\, d)$ with the tags $H$, $R$, $\\delta$ are the Fourier "
-            "cosine coefficients of $H(x - d)$, $(x - d)H(x - d)$ and $\\delta(x - d)$ along "
+            "Here " + ", ".join(used) + " are the Fourier cosine coefficients along "
             "$x = A\\cos\\psi + b$ ($a_0/2 + \\sum_{n \\ge 1} a_n \\cos n\\psi$); below, "
             "$A$, $b$ and $d$ stand for each call's arguments."
         )
