@@ -209,3 +209,12 @@ def test_derive_terminal_output_is_wrapped_and_abbreviated(capsys, monkeypatch, 
     assert "\\sum_{n = 3, 5, \\ldots, 15}" in tex.read_text()
     # a short equation is printed in full
     assert "equation 2: 0 = A*Omega*mu + F*sin(phi)" in out
+
+
+def test_second_order_mlp_sums_over_the_coefficient_index():
+    """Each harmonic of x_2 collects its products a^R_m a^H_{m +- j} as sums over m."""
+    doc = latex_document(perturb.methods.modified_lindstedt(builtin_model("nsd"), order=2))
+    assert "\\sum_{m = 3, 5, \\ldots, 15}" in doc
+    assert "a^{R}_{m} a^{H}_{m - 3}" in doc and "a^{R}_{m} a^{H}_{m + 3}" in doc
+    # the harmonic is written once in the equation for x_2 and once in its solution
+    assert doc.count("\\cos {3 \\psi}") == 2

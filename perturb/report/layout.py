@@ -107,8 +107,14 @@ def _harmonic(trig: sp.Expr, phases: frozenset[str]) -> tuple:
         return (1e9, kind, 0)
 
 
+def _is_sum(term: sp.Expr) -> bool:
+    """Whether ``term`` is (minus) a placeholder of a sum (:func:`sigma_form`)."""
+    s = term.as_coeff_Mul()[1]
+    return isinstance(s, sp.Symbol) and s.name.startswith("Sigma__")
+
+
 def _term_key(term: sp.Expr, phases: frozenset[str]) -> tuple:
-    if isinstance(term, sp.Symbol) and term.name.startswith("Sigma__"):
+    if _is_sum(term):
         return (0, 1e9, (1e9, 8, 0), 0.0)  # a sum over harmonics after the lone terms
     if isinstance(term, sp.Symbol) and term.name in ("NST", "cc", "...", "\\ldots"):
         return (1, 0.0, (1e9, 9, 0), 0.0)  # "+ ..." and "+ c.c." close a sum
@@ -386,7 +392,7 @@ def harmonic_groups(
     groups: dict[sp.Expr, list[sp.Expr]] = {}
     sums = []  # placeholders of sums over harmonics (sigma_form) come last
     for term in sp.Add.make_args(expr):
-        if isinstance(term, sp.Symbol) and term.name.startswith("Sigma__"):
+        if _is_sum(term):
             sums.append(term)
             continue
         trig, rest = _trig_factor(term, phases)
@@ -397,10 +403,22 @@ def harmonic_groups(
 
 
 def _tidy_group(body: sp.Expr) -> sp.Expr:
-    """The coefficient of one harmonic as a person writes it: products distributed over
-    sums (powers kept), the common factor taken out."""
-    flat = sp.expand(body, power_base=False, power_exp=False, multinomial=False, log=False)
-    return sp.factor_terms(flat)
+    """The coefficient of one harmonic as a person writes it: a product is distributed over
+    a sum of Fourier-coefficient terms (so that each carries its own factor and sums over
+    the index can be recognised); parameter factors such as ``(k - 1)(k - nu - 1)`` stay."""
+    out: list[sp.Expr] = []
+    stack = list(reversed(sp.Add.make_args(body)))
+    while stack:
+        t = stack.pop()
+        if isinstance(t, sp.Mul):
+            adds = [f for f in t.args if isinstance(f, sp.Add) and f.has(*_COEFFICIENTS)]
+            if adds:
+                big = max(adds, key=lambda a: len(a.args))
+                rest = sp.Mul(*(f for f in t.args if f is not big))
+                stack.extend(reversed([rest * u for u in big.args]))
+                continue
+        out.append(t)
+    return sp.Add(*out)
 
 
 def _signed(printer: DocPrinter, term: sp.Expr) -> tuple[str, str]:
@@ -447,9 +465,11 @@ class _Breaker:
         units = []
         groups = harmonic_groups(expr, self.p._phases)
         for trig, coeffs in groups:
-            if trig != 1 and len(coeffs) > 1:
-                units.append(("+", trig, _tidy_group(sp.Add(*coeffs))))
-                continue
+            if trig != 1:
+                body = _tidy_group(sp.Add(*coeffs))
+                if len(sp.Add.make_args(body)) > 1:
+                    units.append(("+", trig, body))
+                    continue
             for c in coeffs:
                 term = trig * c
                 if term.could_extract_minus_sign():
@@ -459,6 +479,8 @@ class _Breaker:
         return units
 
     def _sum(self, expr: sp.Add, first: float, rest: float, depth: int) -> list[str]:
+        if depth > 0:  # inside one harmonic's bracket: sums over the coefficients' index
+            expr, _ = sigma_index_form(self.p, expr)
         lines: list[str] = []
         cur, room = "", first
         for k, (sign, trig, body) in enumerate(self._units(expr)):
@@ -569,30 +591,86 @@ def sigma_form(printer: DocPrinter, expr: sp.Expr, minimum: int = 4) -> tuple[sp
             continue
         template = r.xreplace({k: k.func(_N + (k.args[0] - n), *k.args[1:]) for k in calls})
         families.setdefault((kind, phase, template), []).append((n, c, term))
+    return _place_sums(
+        printer,
+        expr,
+        {key: (key[2] * key[0](_N * key[1]), members) for key, members in families.items()},
+        _N,
+        minimum,
+    )
+
+
+_M = sp.Symbol("m", integer=True, positive=True)
+_LEAD = {"RampCoefficient": 0, "StepCoefficient": 1, "DiracCoefficient": 2}
+
+
+def sigma_index_form(printer: DocPrinter, expr: sp.Expr, minimum: int = 4) -> tuple[sp.Expr, int]:
+    r"""``expr`` (one harmonic's coefficient) with each generic sum over the index of its
+    Fourier coefficient functions replaced by a placeholder that prints as
+    ``\sum_m c(m)\, a^R_m a^H_{m+3}``: at least ``minimum`` terms whose leading coefficient
+    function (ramp before step before Dirac) has index ``m``, the others ``m + const``, with
+    the same rest and numbers ``c_m = C/q(m)``."""
+    if not isinstance(expr, sp.Add) or len(expr.args) < minimum:
+        return expr, 0
+    families: dict[sp.Expr, list[tuple[int, sp.Expr, sp.Expr]]] = {}
+    for term in expr.args:
+        c, r = term.as_coeff_Mul()
+        if not c.is_Rational or r.has(_M):
+            continue
+        calls = sorted(
+            r.atoms(*_COEFFICIENTS),
+            key=lambda k: (_LEAD[type(k).__name__], sp.default_sort_key(k.args[0])),
+        )
+        if not calls or any(not k.args[0].is_Integer for k in calls):
+            continue
+        m = calls[0].args[0]
+        template = r.xreplace({k: k.func(_M + (k.args[0] - m), *k.args[1:]) for k in calls})
+        families.setdefault(template, []).append((int(m), c, term))
+    return _place_sums(
+        printer, expr, {key: (key, members) for key, members in families.items()}, _M, minimum
+    )
+
+
+def _place_sums(
+    printer: DocPrinter,
+    expr: sp.Expr,
+    families: dict,
+    var: sp.Symbol,
+    minimum: int,
+) -> tuple[sp.Expr, int]:
+    """Replace each family ``template -> (summand(var), [(index, number, term)])`` whose
+    indices step evenly and whose numbers fit ``C/q(index)`` by a placeholder symbol."""
     count, out = 0, expr
-    for (kind, phase, template), members in families.items():
+    for summand0, members in families.values():
         if len(members) < minimum:
             continue
-        members.sort(key=lambda m: m[0])
+        members = sorted(members, key=lambda m: m[0])
         ns = [m[0] for m in members]
         step = ns[1] - ns[0]
         if step < 1 or any(b - a != step for a, b in zip(ns, ns[1:], strict=False)):
             continue
-        for q in _FAMILY:
-            values = {m[1] * q.subs(_N, m[0]) for m in members}
-            if len(values) == 1 and next(iter(values)).is_finite and q.subs(_N, ns[0]) != 0:
+        for q0 in _FAMILY:
+            q = q0.xreplace({_N: var})
+            if any(q.subs(var, n) == 0 for n in ns):
+                continue
+            values = {m[1] * q.subs(var, m[0]) for m in members}
+            if len(values) == 1 and next(iter(values)).is_finite:
                 C = next(iter(values))
                 break
         else:
             continue
-        summand = (C / q) * template * kind(_N * phase)
+        summand = (C / q) * summand0
+        sign = 1
+        if summand.could_extract_minus_sign():
+            sign, summand = -1, -summand
+        v = printer.doprint(var)
         if step == 1:
-            under = f"\\sum_{{n={ns[0]}}}^{{{ns[-1]}}}"
+            under = f"\\sum_{{{v}={ns[0]}}}^{{{ns[-1]}}}"
         else:
-            under = f"\\sum_{{n = {ns[0]}, {ns[1]}, \\ldots, {ns[-1]}}}"
+            under = f"\\sum_{{{v} = {ns[0]}, {ns[1]}, \\ldots, {ns[-1]}}}"
         name = f"Sigma__{len(printer._raw)}"
         printer._raw[name] = f"{under} {printer.doprint(summand)}"
-        out = out.xreplace({m[2]: 0 for m in members}) + sp.Symbol(name)
+        out = out.xreplace({m[2]: 0 for m in members}) + sign * sp.Symbol(name)
         count += 1
     return out, count
 
