@@ -218,3 +218,45 @@ def test_second_order_mlp_sums_over_the_coefficient_index():
     assert "a^{R}_{m} a^{H}_{m - 3}" in doc and "a^{R}_{m} a^{H}_{m + 3}" in doc
     # the harmonic is written once in the equation for x_2 and once in its solution
     assert doc.count("\\cos {3 \\psi}") == 2
+
+
+@pytest.mark.parametrize(
+    ("method", "model"), [("kb", "deadzone"), ("hb1", "nsd"), ("hb", "saturation")]
+)
+def test_folded_closed_forms_equal_the_coefficient_functions(method, model):
+    """The closed forms printed with one crossing angle (theta_1 = pi - theta_2 folded in)
+    equal the first harmonic the engine uses, evaluated by perturb.fourier; the dead-zone
+    describing function is the textbook
+    k_1 + k_2 (1 - 2/pi (arcsin(d/a) + d/a sqrt(1 - d^2/a^2)))."""
+    approx = METHODS[method](builtin_model(model))
+    step = next(s for s in approx.steps if "closed form" in s.title)
+    eqs = [m for m in step.math if isinstance(m, sp.Equality)]
+    theta = next(m for m in eqs if m.lhs.name.startswith("theta"))
+    assert theta.lhs.name == "theta" and len([m for m in eqs if m.lhs.is_Symbol]) == 1
+    closed = eqs[0]
+    previous = approx.steps[approx.steps.index(step) - 1]
+    named = {
+        m.lhs: m.rhs for m in previous.math if isinstance(m, sp.Equality) and m.lhs == closed.lhs
+    }
+    assert named
+    for amp in (1.3, 2.0, 4.5):
+        values = {s: float(v) for s, v in zip(*_params(approx), strict=True)}
+        a = next(s for s in closed.lhs.free_symbols)
+        values[a] = amp
+        th = float(theta.rhs.xreplace(values))
+        printed = float(closed.rhs.xreplace({theta.lhs: th, **values}))
+        # the coefficient functions of the step before, evaluated by perturb.fourier
+        reference = float(named[closed.lhs].xreplace(values).evalf())
+        assert printed == pytest.approx(reference, rel=1e-12)
+        if model == "deadzone":
+            k1, k2, d = (values[next(s for s in values if s.name == n)] for n in ("k1", "k2", "d"))
+            u = d / amp
+            textbook = k1 + k2 * (1 - 2 / np.pi * (np.arcsin(u) + u * np.sqrt(1 - u**2)))
+            assert printed == pytest.approx(textbook, rel=1e-12)
+
+
+def _params(approx):
+    osc = approx.oscillator
+    symbols = {s.name: s for s in osc.equation.free_symbols}
+    names = [n for n, v in osc.params.items() if v is not None and n in symbols]
+    return [symbols[n] for n in names], [osc.params[n] for n in names]

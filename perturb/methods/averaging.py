@@ -77,7 +77,7 @@ from ..nonsmooth import is_nonsmooth, to_pwl
 from ..parsing import real_symbol
 from ..printing import latex
 from .applicability import expression_argument, require_centred
-from .trig import harmonics
+from .trig import fold_mirror_angles, harmonics
 
 __all__ = [
     "fourier_components",
@@ -490,6 +490,7 @@ def _linearisation_step(
         )
     ]
     k_c, c_c, defs = eq.closed()
+    (k_c, c_c), defs = fold_mirror_angles((k_c, c_c), defs)
     if defs:
         steps.append(
             Step(

@@ -67,6 +67,7 @@ from ..parsing import real_symbol
 from ..printing import latex
 from .applicability import check_order, expression_argument, require_centred
 from .averaging import _frequency_polynomial, _response_frequency, fourier_components
+from .trig import fold_mirror_angles
 from .trig import harmonics as trig_harmonics
 
 __all__ = [
@@ -137,6 +138,7 @@ def single_harmonic_balance(oscillator: Oscillator) -> Approximation:
     values = {n: v for n, v in osc.params.items() if v is not None}
     a1 = series_coefficient(f, x, 1, A, sp.Integer(0), values=values)
     a1_closed, definitions, domains = closed_form(a1)
+    (a1_closed,), definitions = fold_mirror_angles((a1_closed,), definitions)
     # Everything is first written with a_1(A) by name, as a paper would; the numeric fields
     # get the coefficient substituted in.
     a1s = sp.Function("a_1")(A)
@@ -417,6 +419,7 @@ def _single(osc: Oscillator, bias: bool) -> Approximation:
         )
     )
     closed, definitions, domains = closed_form(sp.Matrix([g0, gc, gs]))
+    closed, definitions = fold_mirror_angles(tuple(closed), definitions)
     if definitions:
         rows = ((sp.Eq(g0f, closed[0]),) if bias else ()) + (
             sp.Eq(gcf, closed[1]),

@@ -70,7 +70,7 @@ from ..nonsmooth import to_pwl
 from ..parsing import parse_expression, real_symbol
 from ..printing import latex
 from .applicability import check_order, expression_argument, require_centred
-from .trig import from_harmonics
+from .trig import fold_mirror_angles, from_harmonics
 
 __all__ = ["lindstedt_poincare", "AMPLITUDES", "SCALINGS", "PWL_MAX_ORDER"]
 
@@ -841,6 +841,7 @@ def _closed_form_step(label: sp.Expr, value: sp.Expr, title: str) -> Step | None
     if not value.has(*_COEFFICIENT_FUNCTIONS):
         return None
     closed, definitions, domains = closed_form(value)
+    (closed,), definitions = fold_mirror_angles((closed,), definitions)
     return _step(
         title,
         (_eq(label, closed),) + tuple(_eq(s, v) for s, v in definitions),

@@ -124,6 +124,7 @@ from ..nonsmooth import is_nonsmooth
 from ..parsing import real_symbol
 from ..printing import latex
 from .applicability import check_order, expression_argument, require_centred
+from .trig import fold_mirror_angles
 
 __all__ = [
     "ModulationEquations",
@@ -1749,6 +1750,7 @@ def _steps(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, ...]:
         a1 = f["fourier"]["a_1"]
         a1s = sp.Function("a_1")(a)
         closed, defs, domains = closed_form(a1)
+        (closed,), defs = fold_mirror_angles((closed,), defs)
         steps.append(
             Step(
                 "First Fourier coefficient of the nonsmooth term",

@@ -20,7 +20,13 @@ import sympy as sp
 
 from ..errors import PerturbError
 
-__all__ = ["Harmonics", "harmonics", "from_harmonics", "solve_harmonic_oscillator"]
+__all__ = [
+    "Harmonics",
+    "harmonics",
+    "from_harmonics",
+    "solve_harmonic_oscillator",
+    "fold_mirror_angles",
+]
 
 Harmonics = Mapping[int, tuple[sp.Expr, sp.Expr]]
 
@@ -116,3 +122,40 @@ def solve_harmonic_oscillator(
             if n != 1
         )
     )
+
+
+def fold_mirror_angles(
+    exprs: tuple[sp.Expr, ...], definitions: tuple[tuple[sp.Symbol, sp.Expr], ...]
+) -> tuple[tuple[sp.Expr, ...], tuple[tuple[sp.Symbol, sp.Expr], ...]]:
+    """Closed forms of a symmetric force written with one crossing angle, for display.
+
+    :func:`~perturb.fourier_symbols.closed_form` gives the switching points ``-d`` and ``d``
+    the angles ``theta_1 = arccos(-d/A)`` and ``theta_2 = arccos(d/A)``; since
+    ``theta_1 = pi - theta_2`` a term in ``theta_1`` folds into ``theta_2``, e.g. the dead-zone
+    describing function ``k_1 + 2 k_2 (theta - sin(theta) cos(theta))/pi`` with
+    ``theta = arccos(d/a)``. The angle left alone is renamed ``theta``.
+    """
+    values = dict(definitions)
+    reps: dict[sp.Symbol, sp.Expr] = {}
+    for s1, v1 in definitions:
+        for s2, v2 in definitions:
+            if s1 is s2 or s2 in reps or s1 in reps or not isinstance(v1, sp.acos):
+                continue
+            if isinstance(v2, sp.acos) and sp.expand(v1.args[0] + v2.args[0]) == 0:
+                if v1.args[0].could_extract_minus_sign():  # fold arccos(-u) into arccos(u)
+                    reps[s1] = sp.pi - s2
+    if not reps:
+        return exprs, definitions
+    left = [s for s in values if s not in reps]
+    out = []
+    for e in exprs:
+        e = sp.expand(e.xreplace(reps))
+        const, rest = e.as_independent(*left, as_Add=True)
+        tidy = min(sp.factor_terms(rest), sp.factor(rest), key=sp.count_ops)
+        out.append(const + tidy)
+    defs = tuple((s, values[s]) for s in left)
+    if len(left) == 1 and left[0].name.startswith("theta_"):
+        theta = sp.Symbol("theta", **left[0].assumptions0)
+        out = [e.xreplace({left[0]: theta}) for e in out]
+        defs = ((theta, values[left[0]]),)
+    return tuple(out), defs

@@ -216,8 +216,9 @@ class DocPrinter(_PerturbLatexPrinter):
         return super()._print_Symbol(expr, style=style)
 
     def _print_Float(self, expr):
-        if expr == int(expr) and abs(expr) < 1e15:  # 1.0 from a substituted parameter
-            return str(int(expr))
+        value = float(expr)
+        if value.is_integer() and abs(value) < 1e15:  # 1.0 from a substituted parameter
+            return str(int(value))
         return super()._print_Float(expr)
 
     def _print_Derivative(self, expr):
