@@ -44,7 +44,7 @@ _WORDS = {
     "NST": r"\text{(non-secular terms)}",
     "cc": r"\text{c.c.}",
     "...": r"\ldots",
-    "eps": r"\mathit{eps}",  # a model's parameter, not the bookkeeping epsilon
+    "eps": r"\operatorname{eps}",  # a model's parameter, not the bookkeeping epsilon
 }
 # names of the fast phase variables of the engines
 _PHASES = frozenset({"tau", "psi", "theta", "t", "T_0", "T0", "phi_0"})
