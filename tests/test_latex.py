@@ -90,3 +90,14 @@ def test_long_equations_are_broken_within_the_page():
     assert all(tex_width(r.split("&", 1)[1]) < TEXT_WIDTH for r in rows)
     # grouped by harmonic: each cos n psi is written once
     assert sum(r.count("\\cos {2 \\psi}") for r in rows) == 1
+
+
+def test_derivation_body_defines_its_coefficients_for_a_larger_document():
+    from perturb.methods import modified_lindstedt
+    from perturb.report.latex import derivation_body
+
+    ap = modified_lindstedt(builtin_model("nsd"), order=1)
+    body = derivation_body(ap.steps)
+    assert body.index("\\theta &= \\arccos\\frac{1}{A}") < body.index("\\subsection*")
+    assert "a^{R}_{1}" in body and "\\!\\left(A\\cos\\psi" not in body
+    assert body in latex_document(ap)

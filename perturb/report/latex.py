@@ -25,7 +25,14 @@ from .notation import (
     settings_sentence,
 )
 
-__all__ = ["latex_document", "step_latex", "escape", "escape_text", "math_latex"]
+__all__ = [
+    "latex_document",
+    "derivation_body",
+    "step_latex",
+    "escape",
+    "escape_text",
+    "math_latex",
+]
 
 _SPECIAL = {
     "\\": r"\textbackslash{}",
@@ -134,6 +141,20 @@ def step_latex(step: Step, printer: DocPrinter | None = None) -> str:
     return "\n".join(out)
 
 
+def derivation_body(steps: Iterable[Step]) -> str:
+    """The steps of a derivation as LaTeX for inclusion in a larger document: the closed
+    forms of the Fourier coefficients it uses first, then every step, all printed with one
+    :class:`~perturb.report.layout.DocPrinter` (so ``a^R_n`` is written without its argument
+    where the derivation uses one argument only and the definitions say so).
+
+    Needs the packages amsmath and amssymb.
+    """
+    steps = tuple(steps)
+    printer, definitions = _printer_for([m for s in steps for m in s.math])
+    body = "\n\n".join(step_latex(s, printer) for s in steps)
+    return f"{definitions}\n{body}" if definitions else body
+
+
 def latex_document(
     approximation: Approximation, path: str | Path | None = None, *, title: str | None = None
 ) -> str:
@@ -158,14 +179,14 @@ def latex_document(
     osc = approximation.oscillator
     title = title or document_title(approximation.method, approximation.options, osc.name)
     everything = [m for s in approximation.steps for m in s.math]
-    printer, definitions = _printer_for(everything)
+    printer, _ = _printer_for(everything)
     values = ", ".join(
         f"${printer.doprint(sp.Symbol(n))} = {val:g}$"
         for n, val in osc.params.items()
         if val is not None
     )
     settings = settings_sentence(approximation.options, printer.doprint)
-    body = "\n\n".join(step_latex(s, printer) for s in approximation.steps)
+    body = derivation_body(approximation.steps)
     intro = "Derived by perturb."
     if settings:
         intro += " " + settings
@@ -188,7 +209,6 @@ def latex_document(
             r"\sloppy\hbadness=10000",
             f"\\section*{{{escape_text(title)}}}",
             intro,
-            definitions,
             body,
             r"\end{document}",
             "",
