@@ -121,3 +121,12 @@ def derivations_fast(tmp_path_factory) -> Callable[[str], Path]:
         return root
 
     return run
+
+
+def pytest_collection_modifyitems(config, items):
+    # The suite runs on pytest-xdist workers (pyproject: -n auto --dist loadgroup). A session
+    # fixture runs once per worker, so every test that needs the derivation scripts' --fast
+    # outputs goes to one worker: the scripts (minutes of CPU) run once, not once per worker.
+    for item in items:
+        if "derivations_fast" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.xdist_group("derivations"))
