@@ -98,6 +98,8 @@ def test_engine_document_compiles_cleanly(method, model, order, tmp_path, compil
     except PerturbError as exc:  # a refusal names what applies; anything else is a crash
         assert str(exc)
         pytest.skip(f"refused: {type(exc).__name__}")
+    summary = approx.summary(width=100)  # what perturb derive prints
+    assert max(map(len, summary.splitlines())) <= 100 and len(summary.splitlines()) <= 20
     tex = tmp_path / "doc.tex"
     doc = latex_document(approx, tex)
     compile_tex(tex, timeout=120)
