@@ -227,10 +227,9 @@ class DocPrinter(_PerturbLatexPrinter):
         if isinstance(f, sp.Symbol) and len(variables) == 1 and not f.name.endswith("'"):
             v, k = variables[0]
             power = "" if k == 1 else f"^{{{k}}}"
-            return (
-                f"\\frac{{\\mathrm{{d}}{power} {self._print(f)}}}"
-                f"{{\\mathrm{{d}} {self._print(v)}{power}}}"
-            )
+            # a rate (\dot a) differentiated by a state is a partial derivative (Jacobian)
+            d = "\\partial" if f.name.startswith("\\dot") else "\\mathrm{d}"
+            return f"\\frac{{{d}{power} {self._print(f)}}}{{{d} {self._print(v)}{power}}}"
         if isinstance(f, AppliedUndef):
             name = self._print(sp.Symbol(type(f).__name__))
             variables = expr.variable_count
@@ -512,6 +511,21 @@ class _Breaker:
         return lines
 
     def _product(self, expr: sp.Mul, first: float, rest: float, depth: int) -> list[str] | None:
+        # epsilon^k (...) over a common denominator: epsilon^k outside, each term its own
+        # fraction inside, as in the other orders' rows
+        small = sp.Mul(
+            *(
+                f
+                for f in expr.args
+                if isinstance(f.as_base_exp()[0], sp.Symbol) and f.as_base_exp()[0].name in _SMALL
+            )
+        )
+        if small != 1:
+            inner = sp.expand(expr / small, power_base=False, power_exp=False, multinomial=False)
+            if isinstance(inner, sp.Add):
+                pre = self.p.doprint(small) + "\\,"
+                w = tex_width(pre)
+                return self._wrap(pre, self.lines(inner, first - w - 8, rest - 8, depth + 1))
         num, den = expr.as_numer_denom()
         sign = ""
         if num.could_extract_minus_sign():
