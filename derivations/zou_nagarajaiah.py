@@ -9,12 +9,16 @@ perturb's public API and checks every claim it can against an independent refere
 
 - free vibration (Fig. 16): the exact period in all three amplitude regimes, derived here from
   the energy integral (closed form and mpmath quadrature), against the period that shooting
-  finds on the exact piecewise-analytic propagator, and the L-P / modified L-P backbones;
+  finds on the exact piecewise-analytic propagator, and the L-P / modified L-P backbones; the
+  orbits x(t) themselves in closed form (eqs. 23-26) against DOP853;
+- the device's theoretical force (Fig. 2; eq. 1 is lost, a pre-compressed spring is assumed)
+  against its piecewise-linear idealisation;
 - phase portraits (Figs. 4, 5) and the claim that every initial condition at the Fig. 5
   parameters reaches one and the same limit cycle;
 - bifurcation diagrams in k, mu and F (Figs. 6-8) by brute-force simulation;
-- peak amplitude maps (Figs. 9, 12) and the capacity/demand chart (Fig. 11) with the paper's
-  conclusion that negative stiffness plus damping lowers the peak restoring force, in numbers;
+- peak amplitude maps (Figs. 9, 12), the damping study (Fig. 10) and the capacity/demand
+  chart (Fig. 11) with the paper's conclusion that negative stiffness plus damping lowers the
+  peak restoring force, in numbers, and a scan of the lost forcing level;
 - frequency responses (Figs. 17, 19) by continuation of exact orbits against first- and
   second-order modified L-P and numeric multi-harmonic balance, limit cycles (Fig. 18) and
   time histories (Figs. 13-15);
@@ -82,12 +86,14 @@ DEFAULT_ROOT = Path(__file__).resolve().parent / "out"
 #: Parameter values read from the damaged seed text, with the reading chosen. The text drops
 #: the digits 0 and 5 and minus signs ("k = 2." is k = -2.0, "mu =." is mu = 0.05).
 RECONSTRUCTED = {
+    "Fig. 2": "eq. 1 lost: a pre-compressed spring (L/a = 1.5, a = 2, 5, 10 gap widths) assumed",
     "Fig. 5": "mu = 0.05 from 'mu =.'",
     "Fig. 6": "Omega = 0.4 from 'Omega =.4' (0.45 also fits)",
     "Fig. 7": "F = 5.0 and Omega = 0.5: both values are lost ('F =.', 'Omega = ')",
     "Fig. 8": "mu = 0.2 from 'mu =.2' (0.25 also fits)",
     "Fig. 9": "mu from 0.05 to 0.4, k from -4 to 1, F from 0.5 to 5 (axis digits lost)",
-    "Fig. 11": "F = 2 as in Fig. 9(a); points A-D: k = 6 / -1, mu = 0.1 / 0.2",
+    "Fig. 10": "F = 4 from 'F = 4.' and mu = 0.05 from 'mu =.'",
+    "Fig. 11": "F = 2 as in Fig. 9(a), and F scanned; points A-D: k = 6 / -1, mu = 0.1 / 0.2",
     "Fig. 12": "mu from 0.02 to 0.4, kbar from -0.8 to 0, F = 2",
     "Fig. 14": "mu = 0.18 from 'mu =.18'",
     "Fig. 15": "mu = 0.2 and Omega = 1.0 from 'mu =.2', 'Omega = 1.'",
