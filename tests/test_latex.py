@@ -101,3 +101,9 @@ def test_derivation_body_defines_its_coefficients_for_a_larger_document():
     assert body.index("\\theta &= \\arccos\\frac{1}{A}") < body.index("\\subsection*")
     assert "a^{R}_{1}" in body and "\\!\\left(A\\cos\\psi" not in body
     assert body in latex_document(ap)
+
+
+def test_one_orbit_several_switching_points_print_as_a_n_of_d():
+    doc = latex_document(single_harmonic_balance(builtin_model("nsd")))
+    assert "a^{R}_{1}(1)" in doc and "a^{R}_{1}(-1)" in doc
+    assert "$d \\in \\{-1, 1\\}$" in doc and "\\theta &= \\arccos\\frac{d}{A}" in doc

@@ -81,10 +81,15 @@ def escape_text(text: str) -> str:
 def _printer_for(items: Iterable[sp.Basic]) -> tuple[DocPrinter, str]:
     calls = coefficient_calls(items)
     short = len(calls) == 1
+    centres = {k[:2] for k in calls}
+    by_switch = len(calls) > 1 and len(centres) == 1  # one orbit, several switching points
     printer = DocPrinter(
-        {"inv_trig_style": "full"}, short_coefficients=calls.keys() if short else ()
+        {"inv_trig_style": "full"},
+        short_coefficients=calls.keys() if short else (),
+        by_switch=centres if by_switch else (),
     )
-    return printer, coefficient_definitions(calls, printer.doprint, short)
+    mode = "short" if short else ("by_switch" if by_switch else "full")
+    return printer, coefficient_definitions(calls, printer.doprint, mode)
 
 
 def _continued(m: sp.Basic) -> bool:

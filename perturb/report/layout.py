@@ -165,6 +165,8 @@ class DocPrinter(_PerturbLatexPrinter):
     short_coefficients
         The argument triples ``(A, b, d)`` of Fourier-coefficient functions that the document
         defines once; their calls print as ``a^R_n`` without the argument.
+    by_switch
+        Pairs ``(A, b)`` whose calls print with their switching point only, ``a^R_n(d)``.
     phases
         Names of the fast phase variables (harmonic grouping).
     """
@@ -175,15 +177,22 @@ class DocPrinter(_PerturbLatexPrinter):
         *,
         short_coefficients: Iterable[tuple] = (),
         phases: frozenset[str] = _PHASES,
+        by_switch: Iterable[tuple] = (),
     ) -> None:
         base = {"fold_func_brackets": True}
         base.update(settings or {})
         super().__init__(base)
         self._short = frozenset(tuple(k) for k in short_coefficients)
+        self._by_switch = frozenset(tuple(k) for k in by_switch)
         self._phases = phases
         self._raw: dict[str, str] = {}  # placeholders of sums over harmonics (sigma_form)
 
     def _print(self, expr, **kwargs) -> str:
+        if isinstance(expr, _COEFFICIENTS) and tuple(expr.args[1:3]) in self._by_switch:
+            n, d = self._print(expr.args[0]), self._print(expr.args[3])
+            tex = f"{expr._letter}^{{{expr._tag}}}_{{{n}}}({d})"
+            exp = kwargs.get("exp")
+            return f"\\left({tex}\\right)^{{{exp}}}" if exp else tex
         if isinstance(expr, _COEFFICIENTS) and tuple(expr.args[1:]) in self._short:
             n = self._print(expr.args[0])
             tex = f"{expr._letter}^{{{expr._tag}}}_{{{n}}}"

@@ -135,19 +135,25 @@ def _times(tex: str) -> str:
     return "" if tex == "1" else f"{tex}\\,"
 
 
-def coefficient_definitions(calls: Mapping[tuple, set[type]], latex, short: bool) -> str:
-    """A paragraph and display defining the coefficient functions in closed form."""
+def coefficient_definitions(calls: Mapping[tuple, set[type]], latex, mode: str) -> str:
+    """A paragraph and display defining the coefficient functions in closed form.
+
+    ``mode``: ``"short"`` (one argument triple, written ``a^R_n``), ``"by_switch"`` (one
+    orbit ``A cos psi + b``, several switching points, written ``a^R_n(d)``) or ``"full"``.
+    """
     if not calls:
         return ""
     kinds = set().union(*calls.values())
     if RampCoefficient in kinds or DiracCoefficient in kinds:
         kinds.add(StepCoefficient)  # a^R and a^delta are written with a^H
     A, b, d = (sp.Symbol("A"), sp.Integer(0), sp.Symbol("d"))
-    if len(calls) == 1:
+    if mode == "short":
         A, b, d = next(iter(calls))
+    elif mode == "by_switch":
+        A, b, _ = next(iter(calls))
     tA = latex(A)
     shift = d - b
-    ts = latex(shift)
+    ts = latex(shift) if not isinstance(shift, sp.Add) else f"({latex(shift)})"
     x = f"{tA}\\cos\\psi" + ("" if b == 0 else f" + {latex(b)}")
     names = {
         StepCoefficient: f"$a^H_n$ of $H(x - {ts})$" if b == 0 else "$a^H_n$ of $H(x - d)$",
@@ -157,7 +163,15 @@ def coefficient_definitions(calls: Mapping[tuple, set[type]], latex, short: bool
     which = ", ".join(
         names[k] for k in (StepCoefficient, RampCoefficient, DiracCoefficient) if k in kinds
     )
-    if short:
+    if mode == "by_switch":
+        points = ", ".join(latex(k[2]) for k in sorted(calls, key=lambda k: str(k[2])))
+        lead = (
+            f"Here {which} are the Fourier cosine coefficients along $x = {x}$, written with "
+            f"their switching point $d$ only ($a_n(d) = a_n({x};\\, d)$, "
+            f"$d \\in \\{{{points}\\}}$), "
+            "so that a term equals $a_0/2 + \\sum_{n \\ge 1} a_n \\cos n\\psi$."
+        )
+    elif mode == "short":
         lead = (
             f"Here {which} are the Fourier cosine coefficients along $x = {x}$, written without "
             f"their argument ($a_n = a_n({x};\\, {latex(d)})$), so that a term equals "
@@ -177,10 +191,10 @@ def coefficient_definitions(calls: Mapping[tuple, set[type]], latex, short: bool
             "$A$, $b$ and $d$ stand for each call's arguments."
         )
         tA, ts = "A", "(d - b)"
-    theta = sp.Symbol("theta")
+    one = mode != "full"
     sin_cos_rows = [
-        f"\\theta &= \\arccos\\frac{{{ts if len(calls) == 1 else 'd - b'}}}{{{tA}}}, "
-        f"\\qquad\\text{{while }} {_abs(ts) if len(calls) == 1 else '|d - b|'} < {tA},",
+        f"\\theta &= \\arccos\\frac{{{ts if one else 'd - b'}}}{{{tA}}}, "
+        f"\\qquad\\text{{while }} {_abs(ts) if one else '|d - b|'} < {tA},",
         "a^H_0 &= \\frac{2\\theta}{\\pi}, \\qquad a^H_n = \\frac{2\\sin n\\theta}{n\\pi}"
         " \\quad (n \\ge 1),",
     ]
@@ -196,7 +210,6 @@ def coefficient_definitions(calls: Mapping[tuple, set[type]], latex, short: bool
     if DiracCoefficient in kinds:
         sin_cos_rows.append(f"a^\\delta_n &= \\frac{{2\\cos n\\theta}}{{\\pi {tA} \\sin\\theta}},")
     sin_cos_rows[-1] = sin_cos_rows[-1].rstrip(",") + "."
-    del theta
     tail = (
         "Outside that range the coefficients are exact zeros or those of a linear term "
         "(the numeric layer evaluates every regime)."
