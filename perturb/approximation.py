@@ -140,11 +140,13 @@ def _coefficient_keys(exprs: tuple[sp.Expr, ...]) -> set[tuple]:
 
 class _ShortStr(sp.printing.str.StrPrinter):
     """SymPy's text printer with the Fourier coefficient functions as ``aR_3`` when the
-    expression uses one argument triple ``(A, b, d)``, ``aR_3(A, b, d)`` otherwise."""
+    expression uses one argument triple ``(A, b, d)``, ``aR_3(d)`` when the triples share
+    the orbit ``(A, b)``, ``aR_3(A, b, d)`` otherwise."""
 
     def __init__(self, keys: set[tuple]) -> None:
         super().__init__()
         self._one = len(keys) == 1
+        self._by_d = len(keys) > 1 and len({k[:2] for k in keys}) == 1
         self.used: set[str] = set()
 
     def _print_Function(self, expr) -> str:
@@ -154,12 +156,14 @@ class _ShortStr(sp.printing.str.StrPrinter):
         n, A, b, d = (self._print(a) for a in expr.args)
         shift = A + "*cos(psi)" + ("" if expr.args[2] == 0 else f" + {b}")
         of = _WHAT[tag].replace("d", d) if self._one else _WHAT[tag]
-        self.used.add(
-            f"{tag}_n = {tag}_n({shift}; {d}), of {of}"
-            if self._one
-            else f"{tag}_n(A, b, d) of {of} along x = A cos(psi) + b"
-        )
-        return f"{tag}_{n}" if self._one else f"{tag}_{n}({A}, {b}, {d})"
+        if self._one:
+            self.used.add(f"{tag}_n = {tag}_n({shift}; {d}), of {of}")
+            return f"{tag}_{n}"
+        if self._by_d:
+            self.used.add(f"{tag}_n(d) = {tag}_n({shift}; d), of {of}")
+            return f"{tag}_{n}({d})"
+        self.used.add(f"{tag}_n(A, b, d) of {of} along x = A cos(psi) + b")
+        return f"{tag}_{n}({A}, {b}, {d})"
 
 
 def _wrap(text: str, width: int, indent: str, first: str = "") -> list[str]:
