@@ -29,7 +29,16 @@ from sympy.core.function import AppliedUndef
 from ..fourier_symbols import DiracCoefficient, RampCoefficient, StepCoefficient
 from ..printing import _PerturbLatexPrinter
 
-__all__ = ["DocPrinter", "tex_width", "equation_rows", "harmonic_groups", "TEXT_WIDTH"]
+__all__ = [
+    "DocPrinter",
+    "TEXT_WIDTH",
+    "equation_rows",
+    "harmonic_groups",
+    "ordered_terms",
+    "sigma_form",
+    "sigma_index_form",
+    "tex_width",
+]
 
 #: Width of the text block in points: US letter (article's default) less 2 cm margins, less
 #: a safety margin for the estimate of :func:`tex_width`.
