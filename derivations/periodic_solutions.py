@@ -78,11 +78,17 @@ from perturb.fourier import (  # noqa: E402
 )
 from perturb.methods.averaging import equivalent_linearisation  # noqa: E402
 from perturb.model import Oscillator, builtin_model  # noqa: E402
+from perturb.numeric.continuation import (  # noqa: E402
+    ContinuationError,
+    continue_curve,
+    newton_fixed,
+)
 from perturb.parsing import real_symbol  # noqa: E402
 from perturb.printing import latex  # noqa: E402
 from perturb.report.latex import escape  # noqa: E402
 from perturb.simulate.collocation import collocation_orbit  # noqa: E402
 from perturb.simulate.event_driven import EventFlow  # noqa: E402
+from perturb.simulate.event_driven import simulate as event_driven_simulate  # noqa: E402
 from perturb.simulate.exact_flow import ExactPWLFlow  # noqa: E402
 from perturb.simulate.flow import ODEFlow  # noqa: E402
 from perturb.simulate.shooting import (  # noqa: E402
@@ -1398,6 +1404,350 @@ def _measure(case: LureCase, segments, ups: list[float], n_samples: int) -> Stea
 
 
 # ============================================================================================
+# 4. dry friction and stick-slip, the event map of van der Pol, continuation through a fold
+# ============================================================================================
+#: a mass on a moving belt, m x'' + c x' + k x = N mu(v_b - x'), m = k = N = 1 (representative
+#: values; the seed gives none): Coulomb friction with a static coefficient above the kinetic
+#: one (c = 0, for the closed form) and Stribeck friction
+#: mu(v) = sign(v) (mu_k + (mu_s - mu_k) exp(-|v|/v_s)) with c > 0
+BELT = {"v_b": 0.2, "mu_s": 0.4, "mu_k": 0.3}
+STRIBECK = {"c": 0.05, "v_s": 0.2}
+#: forced Duffing x'' + mu x' + x + alpha x^3 = F cos(Omega t), one-harmonic balance
+FOLD_DUFFING = {"mu": 0.1, "alpha": 1.0, "F": 0.5}
+FOLD_WINDOW = (0.5, 2.5)
+VDP_EPS = (0.1, 1.0, 5.0)
+
+
+def stribeck_oscillator() -> Oscillator:
+    """The Stribeck belt system as perturb reads it: x'' + c x' + x - mu(v_b - x') = 0."""
+    b, s_ = BELT, STRIBECK
+    rel = f"({b['v_b']!r} - x')"
+    law = f"sign{rel}*({b['mu_k']!r} + {b['mu_s'] - b['mu_k']!r}*exp(-Abs{rel}/{s_['v_s']!r}))"
+    return Oscillator.parse(f"x'' + {s_['c']!r}*x' + x - {law} = 0")
+
+
+def stribeck_mu(v_rel: float) -> float:
+    b, s_ = BELT, STRIBECK
+    mu = b["mu_k"] + (b["mu_s"] - b["mu_k"]) * math.exp(-abs(v_rel) / s_["v_s"])
+    return math.copysign(mu, v_rel)
+
+
+def coulomb_cycle_closed_form() -> dict[str, float]:
+    """The Coulomb stick-slip cycle of the undamped belt system (m = k = N = 1), in closed form.
+
+    Stick: x' = v_b until the spring force reaches static friction, x_s = mu_s.  Slip:
+    harmonic motion about x_k = mu_k, from (x_s, v_b): x - x_k = A sin(t + psi) with
+    A sin psi = d = x_s - x_k, A cos psi = v_b; it returns to x' = v_b at x = x_k - d after
+    2 pi - 2 psi, then sticks for 2 d / v_b.
+    """
+    b = BELT
+    d = b["mu_s"] - b["mu_k"]
+    A = math.hypot(d, b["v_b"])
+    psi = math.atan2(d, b["v_b"])
+    t_slip, t_stick = TWO_PI - 2.0 * psi, 2.0 * d / b["v_b"]
+    return {
+        "period": t_slip + t_stick,
+        "t_slip": t_slip,
+        "t_stick": t_stick,
+        "x_max": b["mu_k"] + A,
+        "x_min": b["mu_k"] - A,
+        "amplitude": A,
+    }
+
+
+@dataclass
+class StickSlip:
+    """A stick-slip limit cycle: period, extremes of x, stick time, one cycle for the figure."""
+
+    law: str
+    period: float
+    x_max: float
+    x_min: float
+    t_stick: float
+    stick_onsets: np.ndarray
+    periods: np.ndarray  # every completed cycle's period (the cycle is reached at once)
+    cycle: tuple[np.ndarray, np.ndarray, np.ndarray]  # t (from a stick onset), x, x'
+
+    @property
+    def amplitude(self) -> float:
+        return 0.5 * (self.x_max - self.x_min)
+
+
+def coulomb_stick_slip(n_cycles: int, rtol: float) -> StickSlip:
+    """The Coulomb belt system (mu_s > mu_k, c = 0) by ``solve_ivp`` with located switches.
+
+    perturb's event-driven integrator reads ``sign(v_b - x')`` with Filippov sliding, whose
+    sticking limit is the kinetic coefficient, so it cannot hold a static coefficient above the
+    kinetic one: this system is integrated here.  Stick: x' = v_b exactly, x grows linearly
+    until x = mu_s (closed form).  Slip (x' < v_b): DOP853 on the smooth field with the friction
+    frozen at +mu_k, a terminal event at x' = v_b (from below) and the extremes of x at the
+    located zeros of x'; the mass sticks there if |x| <= mu_s (it does for these values) and
+    an error is raised otherwise.  From rest the mass sticks at once.
+    """
+    b = BELT
+    v_b, mu_s, mu_k = b["v_b"], b["mu_s"], b["mu_k"]
+
+    def slip(_t, y):  # the friction force frozen at +mu_k: x' < v_b throughout a slip
+        return [y[1], -y[0] + mu_k]
+
+    def back_to_belt(_t, y):
+        return y[1] - v_b
+
+    back_to_belt.terminal, back_to_belt.direction = True, 1.0
+
+    def turn(_t, y):
+        return y[1]
+
+    t, x = 0.0, 0.0
+    onsets, stuck, extremes, pieces = [], [], [], []
+    for _ in range(n_cycles + 1):  # capped: one stick and one slip per cycle
+        if abs(x) > mu_s:
+            raise RuntimeError("Coulomb belt: the mass does not stick on the belt")
+        onsets.append(t)
+        stuck.append((mu_s - x) / v_b)
+        ts = np.linspace(t, t + stuck[-1], 40)
+        pieces.append((ts, x + v_b * (ts - t), np.full_like(ts, v_b)))
+        t, x = t + stuck[-1], mu_s
+        sol = solve_ivp(
+            slip, (t, t + 100.0), [x, v_b], method="DOP853", rtol=rtol, atol=1e-2 * rtol,
+            events=[back_to_belt, turn], dense_output=True,
+        )  # fmt: skip
+        if sol.status != 1:
+            raise RuntimeError("Coulomb belt: no return to the belt speed")
+        extremes.append([float(sol.sol(te)[0]) for te in sol.t_events[1]])
+        ts = np.linspace(t, sol.t[-1], 400)
+        pieces.append((ts, *sol.sol(ts)))
+        t, x = float(sol.t[-1]), float(sol.y[0, -1])
+    onsets = np.array(onsets)
+    last = [p for p in pieces[-4:-2]]  # the last complete cycle: stick, slip
+    t0 = last[0][0][0]
+    cycle = tuple(np.concatenate([p[k] for p in last]) for k in range(3))
+    return StickSlip(
+        "Coulomb", float(onsets[-1] - onsets[-2]), max(extremes[-2]), min(extremes[-2]),
+        stuck[-2], onsets, np.diff(onsets), (cycle[0] - t0, cycle[1], cycle[2]),
+    )  # fmt: skip
+
+
+def _refined_extremes(t, x, v, accel) -> list[float]:
+    """x at the zeros of x' between samples: one Taylor step from the nearer sample,
+    x + v d + a d^2/2 with d = -v/a (error O(d^3), d at most half a sample spacing)."""
+    out = []
+    for j in np.nonzero(np.sign(v[:-1]) * np.sign(v[1:]) < 0)[0]:
+        k = j if abs(v[j]) < abs(v[j + 1]) else j + 1
+        a = accel(x[k], v[k])
+        d = -v[k] / a
+        out.append(float(x[k] + v[k] * d + 0.5 * a * d * d))
+    return out
+
+
+def stribeck_stick_slip(n_cycles: int, rtol: float, n_samples: int) -> StickSlip:
+    """The Stribeck belt system by perturb's event-driven integrator (Filippov sticking).
+
+    The period is the spacing of the 'stick' events; the extremes of x come from a second run
+    over the last cycle, started at its stick onset, sampled ``n_samples`` times and refined
+    at the zeros of x' by :func:`_refined_extremes`.
+    """
+    osc = stribeck_oscillator()
+    c, v_b = STRIBECK["c"], BELT["v_b"]
+    T_guess = TWO_PI + 2.0 * (BELT["mu_s"] - BELT["mu_k"]) / v_b
+    tr = event_driven_simulate(osc, [0.0, 0.0], (0.0, (n_cycles + 1) * T_guess), rtol=rtol,
+                               atol=rtol * 1e-2)  # fmt: skip
+    sticks = [e for e in tr.events if e.kind == "stick"]
+    slips = [e for e in tr.events if e.kind == "slip"]
+    onsets = np.array([e.time for e in sticks])
+    period = float(onsets[-1] - onsets[-2])
+    start = sticks[-2]
+    t_stick = next(e.time for e in slips if e.time > start.time) - start.time
+    times = np.linspace(0.0, period, n_samples)
+    one = event_driven_simulate(osc, [start.x, start.v], (0.0, period), t_eval=times, rtol=rtol,
+                                atol=rtol * 1e-2)  # fmt: skip
+
+    def accel(x, v):
+        return -c * v - x + stribeck_mu(v_b - v)
+
+    ext = _refined_extremes(one.t, one.x, one.v, accel)
+    return StickSlip(
+        "Stribeck", period, max(ext), min(ext), float(t_stick), onsets, np.diff(onsets),
+        (one.t, one.x, one.v),
+    )  # fmt: skip
+
+
+# --------------------------------------------------------------------------------------------
+# the event map of van der Pol: x at successive maxima (section x' = 0, x > 0)
+# --------------------------------------------------------------------------------------------
+@cache
+def _vdp_rhs(eps: float) -> NumericRHS:
+    return first_order_rhs(builtin_model("vanderpol", eps=eps))
+
+
+def vdp_return(eps: float, a: float, rtol: float = 1e-12) -> tuple[float, float]:
+    """The return map P(a) and return time of van der Pol on the section x' = 0 (x' turning
+    negative, a maximum of x), from (a, 0); DOP853 on perturb's right-hand side with the
+    crossing located as an event (the event is off for t < 1, before the orbit leaves the
+    section)."""
+    fun = _vdp_rhs(eps).fun
+
+    def section(t, y):
+        return y[1] if t > 1.0 else -1.0
+
+    section.terminal, section.direction = True, -1.0
+    T_max = 4.0 * (TWO_PI + 2.0 * eps)
+    sol = solve_ivp(
+        fun, (0.0, T_max), [a, 0.0], method="DOP853", rtol=rtol, atol=1e-3 * rtol,
+        events=section,
+    )  # fmt: skip
+    if sol.status != 1:
+        raise RuntimeError(f"van der Pol eps={eps}: no return to x' = 0 from a = {a}")
+    return float(sol.y_events[0][0][0]), float(sol.t_events[0][0])
+
+
+@dataclass
+class ReturnMap:
+    eps: float
+    grid: np.ndarray
+    P: np.ndarray
+    fixed: float
+    period: float
+    slope: float  # P'(a*), central difference of the map
+    multiplier: float  # det of the monodromy matrix (perturb's ODEFlow, sensitivities)
+    iterates: np.ndarray  # a_0, P(a_0), P(P(a_0)), ...
+
+
+def vdp_return_map(eps: float, n_grid: int, n_iter: int = 6) -> ReturnMap:
+    """P on a grid of a in [0.25, 4], its fixed point a* (brentq on P(a) - a), the slope
+    P'(a*) by a central difference and, for comparison, the non-trivial Floquet multiplier:
+    the monodromy matrix of a planar autonomous flow has the eigenvalue 1 (along the orbit),
+    so the other one is its determinant, and it equals P'(a*)."""
+    grid = np.linspace(0.25, 4.0, n_grid)
+    P = np.array([vdp_return(eps, a)[0] for a in grid])
+    fixed = brentq(lambda a: vdp_return(eps, a)[0] - a, 1.0, 3.5, xtol=1e-14, rtol=1e-15)
+    h = 1e-4
+    slope = (vdp_return(eps, fixed + h)[0] - vdp_return(eps, fixed - h)[0]) / (2 * h)
+    period = vdp_return(eps, fixed)[1]
+    flow = ODEFlow(builtin_model("vanderpol", eps=eps), rtol=1e-12, atol=1e-14)
+    M = flow([fixed, 0.0], 0.0, period, sensitivity=True).sensitivity
+    its = [0.5]
+    for _ in range(n_iter):  # capped cobweb
+        its.append(vdp_return(eps, its[-1])[0])
+    return ReturnMap(eps, grid, P, fixed, period, slope, float(np.linalg.det(M)), np.array(its))
+
+
+# --------------------------------------------------------------------------------------------
+# sequential (natural-parameter) continuation against pseudo-arclength at a fold
+# --------------------------------------------------------------------------------------------
+def duffing_hb1(u, Om):
+    """One-harmonic balance of x'' + mu x' + x + alpha x^3 = F cos(Om t), x = a cos + b sin."""
+    d = FOLD_DUFFING
+    a, b = u
+    k = 1.0 + 0.75 * d["alpha"] * (a * a + b * b) - Om * Om
+    return np.array([k * a + d["mu"] * Om * b - d["F"], k * b - d["mu"] * Om * a])
+
+
+def duffing_hb1_jac(u, Om):
+    d = FOLD_DUFFING
+    a, b = u
+    k = 1.0 + 0.75 * d["alpha"] * (a * a + b * b) - Om * Om
+    g = 1.5 * d["alpha"]
+    mO = d["mu"] * Om
+    Fu = np.array([[k + g * a * a, g * a * b + mO], [g * a * b - mO, k + g * b * b]])
+    Fl = np.array([-2.0 * Om * a + d["mu"] * b, -2.0 * Om * b - d["mu"] * a])
+    return Fu, Fl
+
+
+@dataclass
+class Sweep:
+    """Natural-parameter continuation: Newton at each Omega from the previous solution."""
+
+    direction: int
+    Omega: np.ndarray
+    amplitude: np.ndarray  # nan where Newton failed
+    iterations: np.ndarray
+    fail: int  # index of the first point off the branch it started on (-1: none)
+    recovered: int  # index of the first converged point after ``fail`` (-1: none)
+
+
+def sequential_sweep(direction: int, step: float) -> Sweep:
+    lo, hi = FOLD_WINDOW
+    n = int(round((hi - lo) / step)) + 1
+    Om = np.linspace(lo, hi, n)[:: 1 if direction > 0 else -1]
+    u = newton_fixed(duffing_hb1, duffing_hb1_jac, [FOLD_DUFFING["F"], 0.0], Om[0], tol=1e-13)[0]
+    amp, its = [], []
+    for w in Om:  # capped by the grid
+        try:
+            u, it = newton_fixed(duffing_hb1, duffing_hb1_jac, u, w, tol=1e-13, max_iterations=50)
+        except ContinuationError:
+            amp.append(math.nan)
+            its.append(50)
+            continue
+        amp.append(float(np.hypot(*u)))
+        its.append(it)
+    amp = np.array(amp)
+    rel = np.abs(np.diff(amp)) / amp[:-1]
+    off = np.nonzero((rel > 0.25) | ~np.isfinite(rel))[0]
+    fail = int(off[0] + 1) if len(off) else -1
+    back = np.nonzero(np.isfinite(amp[fail:]))[0] if fail >= 0 else []
+    rec = int(fail + back[0]) if len(back) else -1
+    return Sweep(direction, Om, amp, np.array(its), fail, rec)
+
+
+def arclength_curve(ds_max: float):
+    lo, hi = FOLD_WINDOW
+    u0 = newton_fixed(duffing_hb1, duffing_hb1_jac, [FOLD_DUFFING["F"], 0.0], lo, tol=1e-13)[0]
+    return continue_curve(
+        duffing_hb1, duffing_hb1_jac, u0, lo, FOLD_WINDOW, ds_max=ds_max, tol=1e-12,
+        max_points=20000,
+    )  # fmt: skip
+
+
+def coulomb_equal_coefficients(n_turns: int = 6) -> dict:
+    """mu_s = mu_k (plain Coulomb, c = 0) on perturb's event-driven integrator, from rest:
+    after the first stick the slip ellipse about x = mu_k only touches the belt speed.
+    Returns the event kinds after the first slip and the spacing of those events."""
+    b = BELT
+    osc = Oscillator.parse(f"x'' + x - {b['mu_k']!r}*sign({b['v_b']!r} - x') = 0")
+    tr = event_driven_simulate(osc, [0.0, 0.0], (0.0, (n_turns + 1.5) * TWO_PI), rtol=1e-11,
+                               atol=1e-13)  # fmt: skip
+    first_slip = next(j for j, e in enumerate(tr.events) if e.kind == "slip")
+    later = tr.events[first_slip + 1 :]
+    times = np.array([e.time for e in later])
+    return {
+        "kinds": sorted({e.kind for e in later}),
+        "n_later": len(later),
+        "spacing_error": float(np.max(np.abs(np.diff(times) - TWO_PI))) if len(later) > 1
+        else math.inf,
+        "v_max": float(np.max(tr.v)),
+    }  # fmt: skip
+
+
+@dataclass
+class LimitCycleTools:
+    coulomb: StickSlip
+    coulomb_exact: dict[str, float]
+    stribeck: StickSlip
+    maps: list[ReturnMap]
+    up: Sweep
+    down: Sweep
+    curve: object
+    step: float
+    equal: dict = field(default_factory=dict)
+    seconds: float = 0.0
+
+
+def study_limit_cycle_tools(fast: bool) -> LimitCycleTools:
+    t0 = time.perf_counter()
+    coulomb = coulomb_stick_slip(4 if fast else 10, rtol=1e-12)
+    stribeck = stribeck_stick_slip(4 if fast else 10, rtol=1e-11, n_samples=4001 if fast else 20001)
+    maps = [vdp_return_map(eps, 12 if fast else 40) for eps in VDP_EPS]
+    step = 0.02 if fast else 0.005
+    up, down = sequential_sweep(+1, step), sequential_sweep(-1, step)
+    curve = arclength_curve(0.05 if fast else 0.02)
+    return LimitCycleTools(
+        coulomb, coulomb_cycle_closed_form(), stribeck, maps, up, down, curve, step,
+        coulomb_equal_coefficients(), time.perf_counter() - t0,
+    )  # fmt: skip
+
+
+# ============================================================================================
 # the study
 # ============================================================================================
 @dataclass(frozen=True)
@@ -1452,6 +1802,7 @@ class Results:
     rejection: str
     lure: list[LureResult]
     nsd_fd: list[MethodRun] = field(default_factory=list)
+    tools: LimitCycleTools | None = None
     checks: list[Check] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
 
@@ -1751,7 +2102,10 @@ def run(fast: bool) -> Results:
         fast, cases, refs, runs, wp, wp_cases, nls, a_grid, values, df_checks, symbolic, memory,
         perturb_rejects_hysteresis(), lure, nsd_fd, seconds=seconds,
     )  # fmt: skip
-    res.checks = _claims(res)
+    t0 = time.perf_counter()
+    res.tools = study_limit_cycle_tools(fast)
+    res.seconds["friction, event map, fold"] = time.perf_counter() - t0
+    res.checks = _claims(res) + _tool_claims(res.tools)
     return res
 
 
@@ -1772,6 +2126,316 @@ def _run_row(r: MethodRun) -> list[object]:
         r.ok, r.seconds, r.iterations, r.nfev, r.njev, r.period, r.period_error, r.state_error,
         r.amplitude_error, r.stability, r.max_multiplier, r.message,
     ]  # fmt: skip
+
+
+def fold_polynomial_residual(Omega: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """The one-harmonic Duffing response in closed form, A^2[(1 - W^2 + 3 alpha A^2/4)^2 +
+    (mu W)^2] - F^2, relative to F^2: zero on the curve."""
+    d = FOLD_DUFFING
+    k = 1.0 - Omega**2 + 0.75 * d["alpha"] * A**2
+    return (A**2 * (k**2 + (d["mu"] * Omega) ** 2) - d["F"] ** 2) / d["F"] ** 2
+
+
+def _in_unit(x: float) -> float:
+    """x when it lies in (0, 1], else inf (a failed check)."""
+    return x if 0.0 < x <= 1.0 else math.inf
+
+
+def _tool_claims(lt: LimitCycleTools) -> list[Check]:
+    cf, co, sb = lt.coulomb_exact, lt.coulomb, lt.stribeck
+    curve = lt.curve
+    amps = np.hypot(curve.u[:, 0], curve.u[:, 1])
+    hi_fold = max(f.lam for f in curve.folds) if curve.folds else math.nan
+    lo_fold = min(f.lam for f in curve.folds) if curve.folds else math.nan
+    up, down = lt.up, lt.down
+    checks = [
+        Check(
+            "Coulomb stick-slip: period vs closed form",
+            r"Coulomb belt: $|T - T_{\mathrm{closed}}|/T_{\mathrm{closed}}$",
+            abs(co.period / cf["period"] - 1.0),
+            1e-9,
+        ),
+        Check(
+            "Coulomb stick-slip: extremes vs closed form",
+            r"Coulomb belt: $\max(|\Delta x_{\max}|, |\Delta x_{\min}|)$ vs closed form",
+            max(abs(co.x_max - cf["x_max"]), abs(co.x_min - cf["x_min"])),
+            1e-9,
+        ),
+        Check(
+            "Stribeck stick-slip: the cycle repeats",
+            r"Stribeck belt (perturb, event-driven): spread of the last periods",
+            float(np.ptp(sb.periods[1:])),
+            1e-8,
+        ),
+        Check(
+            "Stribeck: stick time = (x_break - x_onset)/v_b",
+            r"Stribeck belt: stick time vs $(\mu_s - c v_b - x_{\mathrm{onset}})/v_b$",
+            abs(
+                sb.t_stick
+                - (BELT["mu_s"] - STRIBECK["c"] * BELT["v_b"] - sb.cycle[1][0]) / BELT["v_b"]
+            ),
+            1e-8,
+        ),
+    ]
+    checks.append(
+        Check(
+            "mu_s = mu_k: no stick after the first, grazes every 2 pi",
+            r"Coulomb belt, $\mu_s=\mu_k$ (perturb): spacing of the later events $-2\pi$ "
+            r"(all grazes)",
+            lt.equal["spacing_error"] if lt.equal["kinds"] == ["graze"] else math.inf,
+            1e-8,
+        )
+    )
+    for rm in lt.maps:
+        checks.append(
+            Check(
+                f"van der Pol eps={rm.eps:g}: P'(a*) = Floquet multiplier",
+                rf"van der Pol, $\varepsilon={rm.eps:g}$: $|P'(a^*) - \det M|$",
+                abs(rm.slope - rm.multiplier),
+                1e-6,
+            )
+        )
+    checks += [
+        Check(
+            "pseudo-arclength passes both folds",
+            r"forced Duffing (HB1): folds found by pseudo-arclength",
+            float(len(curve.folds)),
+            2.0,
+            above=True,
+        ),
+        Check(
+            "pseudo-arclength curve on the closed-form response",
+            r"forced Duffing: $\max|A^2[(1-\Omega^2+\frac34\alpha A^2)^2+\mu^2\Omega^2]-F^2|/F^2$",
+            float(np.max(np.abs(fold_polynomial_residual(curve.lam, amps)))),
+            1e-9,
+        ),
+        Check(
+            "sequential sweep up leaves the branch at the first step past the fold",
+            r"sweep up: $(\Omega_{\mathrm{fail}}-\Omega_{\mathrm{fold}})/\Delta\Omega\in(0,1]$",
+            _in_unit((up.Omega[up.fail] - hi_fold) / lt.step) if up.fail > 0 else math.inf,
+            1.0,
+        ),
+        Check(
+            "sequential sweep down leaves the branch at the first step past the fold",
+            r"sweep down: $(\Omega_{\mathrm{fold}}-\Omega_{\mathrm{fail}})/\Delta\Omega\in(0,1]$",
+            _in_unit((lo_fold - down.Omega[down.fail]) / lt.step) if down.fail > 0 else math.inf,
+            1.0,
+        ),
+    ]
+    return checks
+
+
+def figure_tools(res: Results, path: Path) -> None:
+    """Stick-slip cycles, the van der Pol return maps, continuation through the folds."""
+    plt = _plt()
+    lt = res.tools
+    fig, axes = plt.subplots(2, 2, figsize=(10, 7.6))
+    ax = axes[0, 0]
+    for sl, col in ((lt.coulomb, "C0"), (lt.stribeck, "C3")):
+        ax.plot(sl.cycle[1], sl.cycle[2], "-", color=col, lw=1.2,
+                label=f"{sl.law}: T = {sl.period:.6f}")  # fmt: skip
+    ax.axhline(BELT["v_b"], color="k", lw=0.6, ls="--", label="belt speed (stick)")
+    ax.set_xlabel("x")
+    ax.set_ylabel("x'")
+    ax.set_title("stick-slip limit cycles on the belt", fontsize=9)
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    ax = axes[0, 1]
+    for sl, col in ((lt.coulomb, "C0"), (lt.stribeck, "C3")):
+        ax.plot(sl.cycle[0], sl.cycle[1], "-", color=col, lw=1.2, label=sl.law)
+    ax.set_xlabel("t (from a stick onset)")
+    ax.set_ylabel("x")
+    ax.set_title("one cycle: stick (linear rise), then slip", fontsize=9)
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    ax = axes[1, 0]
+    ax.plot([0, 4], [0, 4], "k-", lw=0.6)
+    for rm, col in zip(lt.maps, ("C0", "C1", "C2"), strict=False):
+        ax.plot(rm.grid, rm.P, "o-", color=col, ms=3, lw=1.0,
+                label=rf"$\varepsilon={rm.eps:g}$: $a^*={rm.fixed:.6f}$")  # fmt: skip
+        xs, ys = [rm.iterates[0]], [rm.iterates[0]]
+        for a, b in zip(rm.iterates[:-1], rm.iterates[1:], strict=True):
+            xs += [a, b]
+            ys += [b, b]
+        ax.plot(xs, ys, ":", color=col, lw=0.8)
+    ax.set_xlabel("a (x at a maximum)")
+    ax.set_ylabel("P(a) (x at the next maximum)")
+    ax.set_title("van der Pol return map on x' = 0, x > 0 (dotted: cobweb from 0.5)", fontsize=9)
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    ax = axes[1, 1]
+    cv = lt.curve
+    ax.plot(cv.lam, np.hypot(cv.u[:, 0], cv.u[:, 1]), "k-", lw=1.2, label="pseudo-arclength")
+    for sw, mk, col in ((lt.up, "^", "C0"), (lt.down, "v", "C3")):
+        good = np.isfinite(sw.amplitude)
+        ax.plot(sw.Omega[good][::2], sw.amplitude[good][::2], mk, color=col, ms=3, mfc="none",
+                label="sequential, " + ("up" if sw.direction > 0 else "down"))  # fmt: skip
+        if sw.fail > 0:
+            ax.axvline(sw.Omega[sw.fail], color=col, lw=0.7, ls="--")
+    for f in cv.folds:
+        ax.plot([f.lam], [np.hypot(*f.u)], "ks", ms=5)
+    ax.set_xlabel(r"$\Omega$")
+    ax.set_ylabel("A")
+    ax.set_title("forced Duffing (HB1): folds (squares), first failures (dashed)", fontsize=9)
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+
+
+def write_tools_csv(st: Study, lt: LimitCycleTools) -> None:
+    cf = lt.coulomb_exact
+    rows = []
+    for sl in (lt.coulomb, lt.stribeck):
+        rows.append((sl.law, sl.period, sl.x_max, sl.x_min, sl.amplitude, sl.t_stick))
+    rows.append(("Coulomb closed form", cf["period"], cf["x_max"], cf["x_min"], cf["amplitude"],
+                 cf["t_stick"]))  # fmt: skip
+    st.write_csv(
+        "stick_slip.csv", ["law", "period", "x_max", "x_min", "half_range", "stick_time"], rows
+    )
+    st.write_csv(
+        "vdp_return_map.csv",
+        ["eps", "a", "P(a)"],
+        [
+            (rm.eps, float(a), float(p))
+            for rm in lt.maps
+            for a, p in zip(rm.grid, rm.P, strict=True)
+        ],
+    )
+    st.write_csv(
+        "vdp_fixed_points.csv",
+        ["eps", "a_star", "period", "slope_P", "floquet_multiplier_detM"],
+        [(rm.eps, rm.fixed, rm.period, rm.slope, rm.multiplier) for rm in lt.maps],
+    )
+    st.write_csv(
+        "fold_sequential.csv",
+        ["direction", "Omega", "amplitude", "newton_iterations"],
+        [
+            (sw.direction, float(w), float(a), int(i))
+            for sw in (lt.up, lt.down)
+            for w, a, i in zip(sw.Omega, sw.amplitude, sw.iterations, strict=True)
+        ],
+    )
+    st.write_csv(
+        "fold_arclength.csv",
+        ["Omega", "a", "b", "amplitude"],
+        [(float(w), float(u[0]), float(u[1]), float(np.hypot(*u)))
+         for w, u in zip(lt.curve.lam, lt.curve.u, strict=True)],
+    )  # fmt: skip
+    st.write_csv(
+        "fold_points.csv",
+        ["Omega", "amplitude", "refined"],
+        [(float(f.lam), float(np.hypot(*f.u)), f.refined) for f in lt.curve.folds],
+    )
+
+
+def _tools_tex(st: Study, res: Results) -> str:
+    lt = res.tools
+    cf, co, sb = lt.coulomb_exact, lt.coulomb, lt.stribeck
+    b, s_ = BELT, STRIBECK
+    up, down, cv = lt.up, lt.down, lt.curve
+    folds = sorted(cv.folds, key=lambda f: f.lam)
+    lo, hi = folds[0], folds[-1]
+    period_err = abs(co.period / cf["period"] - 1.0)
+    ext_err = max(abs(co.x_max - cf["x_max"]), abs(co.x_min - cf["x_min"]))
+    neg_damp = (b["mu_s"] - b["mu_k"]) / s_["v_s"] * math.exp(-b["v_b"] / s_["v_s"])
+    maps = ", ".join(
+        rf"$a^*={rm.fixed:.6f}$ ($\varepsilon={rm.eps:g}$, $T={rm.period:.4f}$, "
+        rf"$P'(a^*)={_num(rm.slope)}$)"
+        for rm in lt.maps
+    )
+    big = lt.maps[-1]
+    mult_diff = max(abs(rm.slope - rm.multiplier) for rm in lt.maps)
+    one = next((rm for rm in lt.maps if rm.eps == 1.0), lt.maps[0])
+    iters = ", ".join(f"{a:.6f}" for a in one.iterates[:5])
+
+    def after(sw):
+        if sw.recovered < 0:
+            return (
+                "never converges again in the window (Newton keeps starting from the last "
+                "point of the lost branch)"
+            )
+        return (
+            rf"converges again only at $\Omega={sw.Omega[sw.recovered]:.3f}$, on the other "
+            rf"branch ($A={sw.amplitude[sw.recovered]:.4f}$)"
+        )
+
+    up_last, dn_last = up.fail - 1, down.fail - 1
+    eq = lt.equal
+    eq_kinds = " and ".join(k + "s" for k in eq["kinds"])
+    fig = st.tex_path("limit_cycle_tools.png")
+    return rf"""\subsection{{Dry friction, an event map and continuation through a fold}}
+\label{{sec:ps-tools}}
+Dry friction is the study's first cause of limit cycling; event maps and sequential against
+pseudo-arclength continuation are among its tools. Three small cases put numbers on them
+(representative values: the seed gives none).
+
+\emph{{Stick--slip on a moving belt.}} $\ddot x + c\dot x + x = \mu(v_b-\dot x)$ ($m=k=N=1$),
+$v_b={b["v_b"]:g}$, static and kinetic coefficients $\mu_s={b["mu_s"]:g}$, $\mu_k={b["mu_k"]:g}$.
+\emph{{Coulomb}} ($\mu=\mu_k\operatorname{{sign}}v$ while slipping, up to $\mu_s$ while stuck,
+$c=0$): the mass rides the belt until $x=\mu_s$, then slips harmonically about $x=\mu_k$ from
+$(\mu_s, v_b)$ with amplitude $A=\sqrt{{(\mu_s-\mu_k)^2+v_b^2}}$ and returns to the belt speed at
+$x=2\mu_k-\mu_s$, so in closed form $T = 2\pi - 2\operatorname{{atan2}}(\mu_s-\mu_k, v_b) +
+2(\mu_s-\mu_k)/v_b = {cf["period"]:.10f}$ (slip ${cf["t_slip"]:.6f}$, stick ${cf["t_stick"]:.6f}$),
+$x\in[{cf["x_min"]:.8f}, {cf["x_max"]:.8f}]$. perturb's event-driven integrator sticks by
+Filippov's rule on $\operatorname{{sign}}(v_b-\dot x)$, whose sticking limit is the kinetic
+coefficient itself, so it cannot hold $\mu_s>\mu_k$; this case runs on \texttt{{solve\_ivp}}
+written here (stick in closed form, slip by DOP853 with the return to $v_b$ and the zeros of
+$\dot x$ located as events) and matches the closed form to ${_num(period_err, 2)}$ (period,
+relative) and ${_num(ext_err, 2)}$ (extremes). With $\mu_s=\mu_k$ (which perturb does take)
+the mass from rest sticks once, then slips on the ellipse about $x=\mu_k$ of radius $v_b$ that
+only touches the belt speed: the event-driven integrator logs {eq["n_later"]} later events,
+all {eq_kinds}, spaced by $2\pi$ to ${_num(eq["spacing_error"], 2)}$; no stick--slip cycle. The
+cause of the cycle is the drop from static to kinetic friction.
+\emph{{Stribeck}} ($\mu(v)=\operatorname{{sign}}v\,(\mu_k+(\mu_s-\mu_k)
+e^{{-|v|/v_s}})$, $v_s={s_["v_s"]:g}$, $c={s_["c"]:g}$) is a switch perturb reads, and runs on
+\texttt{{perturb.simulate.event\_driven}}: the falling friction law acts as a negative damping
+${_num(neg_damp)}>c$ at $v_b$, steady sliding is unstable, and the orbit settles on a stick--slip
+cycle of period $T={sb.period:.10f}$ (stuck for ${sb.t_stick:.6f}$ of it),
+$x\in[{sb.x_min:.8f}, {sb.x_max:.8f}]$ (half range ${sb.amplitude:.8f}$; the Coulomb
+cycle's is ${co.amplitude:.8f}$). Every stick ends at the same state $(\mu_s-cv_b, v_b)$, so
+the cycle is reached at the first stick (a stick erases any perturbation of the slip): the
+periods after the first differ by ${_num(float(np.ptp(sb.periods[1:])), 2)}$.
+
+\emph{{The event map of van der Pol.}} On the section $\dot x=0$, $x>0$ (the maxima of $x$),
+$P(a)$ is the next maximum from $(a,0)$, computed by DOP853 on perturb's right-hand side with
+the section crossing located as an event. Its fixed points (\texttt{{brentq}} on $P(a)-a$) are
+the limit cycles: {maps}. From $a_0=0.5$ at $\varepsilon=1$ the iterates are {iters}, \ldots:
+the map contracts by $P'(a^*)$ per turn. $P'(a^*)$ (central difference) equals the determinant
+of the monodromy matrix (perturb's \texttt{{ODEFlow}} with sensitivities; the other multiplier
+of a planar autonomous orbit is 1) to ${_num(mult_diff, 2)}$; at $\varepsilon={big.eps:g}$
+both are at rounding level: the relaxation cycle forgets its start in one turn.
+
+\emph{{Sequential continuation at a fold.}} The one-harmonic balance of
+$\ddot x+\mu\dot x+x+\alpha x^3=F\cos\Omega t$ ($\mu={FOLD_DUFFING["mu"]:g}$,
+$\alpha={FOLD_DUFFING["alpha"]:g}$, $F={FOLD_DUFFING["F"]:g}$, the Duffing case above) in
+$x=a\cos\Omega t+b\sin\Omega t$ is traced over $\Omega\in[{FOLD_WINDOW[0]:g},
+{FOLD_WINDOW[1]:g}]$ twice. Pseudo-arclength continuation (\texttt{{perturb.numeric.continuation.
+continue\_curve}}, {len(cv.lam)} points) passes both folds, at $\Omega={hi.lam:.6f}$
+($A={np.hypot(*hi.u):.6f}$) and $\Omega={lo.lam:.6f}$ ($A={np.hypot(*lo.u):.6f}$), and stays on
+the closed-form response $A^2[(1-\Omega^2+\tfrac34\alpha A^2)^2+\mu^2\Omega^2]=F^2$.
+Sequential continuation, Newton (perturb's damped \texttt{{newton\_fixed}}) at
+$\Omega_{{j+1}}=\Omega_j\pm{lt.step:g}$ from the solution at $\Omega_j$, follows the upper branch
+upwards to $\Omega={up.Omega[up_last]:.3f}$ ($A={up.amplitude[up_last]:.4f}$) and fails at the
+next step, $\Omega={up.Omega[up.fail]:.3f}$, just past the fold; it {after(up)}. Downwards it
+follows the lower branch to $\Omega={down.Omega[dn_last]:.3f}$, fails at
+$\Omega={down.Omega[down.fail]:.3f}$ and {after(down)}. A natural-parameter method cannot turn
+at a fold: it loses the branch there and, at best, lands on another (the jump of a slow sweep);
+the middle branch between the folds is reached only by arclength (Fig.~\ref{{fig:ps-tools}}).
+
+\begin{{figure}}[ht]
+\centering
+\includegraphics[width=\textwidth]{{{fig}}}
+\caption{{Top: the stick--slip cycles of the belt system (Coulomb with $\mu_s>\mu_k$, closed
+form and event-located \texttt{{solve\_ivp}}; Stribeck, perturb's event-driven integrator);
+representative values. Bottom left: van der Pol's return map on $\dot x=0$, $x>0$ with cobwebs
+from $a_0=0.5$; its fixed points are the limit-cycle amplitudes. Bottom right: one-harmonic
+forced Duffing, pseudo-arclength (line, folds as squares) against sequential sweeps up and down
+(every second point), which lose their branch at the dashed lines.}}
+\label{{fig:ps-tools}}
+\end{{figure}}
+"""
 
 
 def write_csv(st: Study, res: Results) -> None:
@@ -2324,6 +2988,8 @@ The backlash loop has a second, smaller root ($a = {bl.predictions[0].a:.3f}$) t
 criterion marks unstable: the threshold below which the loop comes to rest inside the gap.
 The seed's ``probably'' and ``close to'' are, for these loops, a few per cent.
 
+{_tools_tex(st, res)}
+
 \subsection{{Checks}}
 
 {n_ok} of {len(res.checks)} checks hold (Table~\ref{{tab:ps-checks}}; \texttt{{checks.csv}}).
@@ -2359,7 +3025,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     figure_orbits(res, st.path("orbits.png"))
     figure_describing(res, st.path("describing.png"))
     figure_lure(res, st.path("lure.png"))
+    figure_tools(res, st.path("limit_cycle_tools.png"))
     write_csv(st, res)
+    write_tools_csv(st, res.tools)
     res.seconds["figures"] = time.perf_counter() - t0
     seconds = time.perf_counter() - start
     st.write_section(section_tex(st, res, seconds))

@@ -27,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.integrate import quad
+import sympy as sp
+from scipy.integrate import quad, solve_ivp
 from scipy.linalg import expm
 from scipy.optimize import brentq, fsolve, root
 
@@ -476,6 +477,172 @@ def test_finite_differences_lose_their_order_on_the_nsd_orbit(ps):
 
 
 # ------------------------------------------------------------------------------------------
+# dry friction and stick-slip, the van der Pol event map, continuation through a fold
+# ------------------------------------------------------------------------------------------
+def test_coulomb_stick_slip_against_the_closed_form(ps):
+    # oracle: the cycle assembled here from the harmonic slip (m = k = N = 1, c = 0):
+    # x - mu_k = R cos(theta), x' = -R sin(theta), theta = t + const; the slip starts at
+    # (mu_s, v_b), theta = -phi with cos(phi) = d/R, and x' = v_b again at theta = pi + phi
+    # (the mirror point x = mu_k - d); then the mass sticks for 2d/v_b
+    v_b, mu_s, mu_k = ps.BELT["v_b"], ps.BELT["mu_s"], ps.BELT["mu_k"]
+    d = mu_s - mu_k
+    R = math.sqrt(d * d + v_b * v_b)
+    phi = math.acos(d / R)
+    t_slip = math.pi + 2.0 * phi
+    T = t_slip + 2.0 * d / v_b
+    co = ps.coulomb_stick_slip(5, rtol=1e-12)
+    assert co.period == pytest.approx(T, rel=1e-10)
+    assert co.x_max == pytest.approx(mu_k + R, abs=1e-10)
+    assert co.x_min == pytest.approx(mu_k - R, abs=1e-10)
+    assert co.t_stick == pytest.approx(2.0 * d / v_b, abs=1e-10)
+    # from rest the mass sticks at once (from x = 0 to mu_s), then slips
+    assert co.periods[0] == pytest.approx(mu_s / v_b + t_slip, rel=1e-10)
+    assert np.ptp(co.periods[1:]) < 1e-10
+
+
+def _stribeck_oracle(n_cycles: int, rtol: float = 1e-13):
+    """Belt with Stribeck friction by DOP853 with event-located stick and slip, written here:
+    slip (x' < v_b) with mu evaluated at v_rel = v_b - x' > 0; stick (x' = v_b) until
+    x + c v_b = mu_s.  Returns stick onsets and the extremes of x at the zeros of x'."""
+    v_b, mu_s, mu_k = 0.2, 0.4, 0.3
+    c, v_s = 0.05, 0.2
+
+    def slip(_t, y):
+        mu = mu_k + (mu_s - mu_k) * math.exp(-(v_b - y[1]) / v_s)
+        return [y[1], -c * y[1] - y[0] + mu]
+
+    def hit(_t, y):
+        return y[1] - v_b
+
+    hit.terminal, hit.direction = True, 1.0
+
+    def turn(_t, y):
+        return y[1]
+
+    t, y = 0.0, [0.0, 0.0]
+    onsets, ext = [], []
+    for _ in range(n_cycles + 2):
+        sol = solve_ivp(slip, (t, t + 50.0), y, method="DOP853", rtol=rtol, atol=1e-15,
+                        events=[hit, turn], dense_output=True)  # fmt: skip
+        assert sol.status == 1
+        ext += [float(sol.sol(te)[0]) for te in sol.t_events[1]]
+        t, x = float(sol.t[-1]), float(sol.y[0, -1])
+        assert abs(x + c * v_b) <= mu_s  # the mass sticks
+        onsets.append(t)
+        x_break = mu_s - c * v_b
+        t += (x_break - x) / v_b
+        y = [x_break, v_b]
+    return np.array(onsets), ext
+
+
+def test_stribeck_stick_slip_against_an_event_located_dop853_run(ps):
+    sb = ps.stribeck_stick_slip(4, rtol=1e-11, n_samples=4001)
+    onsets, ext = _stribeck_oracle(12)
+    T = onsets[-1] - onsets[-2]
+    assert np.ptp(np.diff(onsets)[1:]) < 1e-10  # the oracle's own cycle repeats
+    assert sb.period == pytest.approx(T, abs=1e-8)
+    assert sb.x_max == pytest.approx(max(ext[-2:]), abs=1e-8)
+    assert sb.x_min == pytest.approx(min(ext[-2:]), abs=1e-8)
+    # the steady sliding state is unstable: negative friction slope beats the damping
+    slope = (0.4 - 0.3) / 0.2 * math.exp(-0.2 / 0.2)
+    assert slope > 0.05
+
+
+def test_equal_coefficients_give_no_stick_slip_cycle(ps):
+    eq = ps.coulomb_equal_coefficients()
+    assert eq["kinds"] == ["graze"] and eq["n_later"] >= 5
+    # oracle: the slip about x = mu_k from (mu_k, v_b) is x' = v_b cos t, touching v_b every 2 pi
+    assert eq["spacing_error"] < 1e-8
+    assert eq["v_max"] == pytest.approx(ps.BELT["v_b"], abs=1e-8)
+
+
+def _vdp(eps):
+    def f(_t, y):
+        return [y[1], eps * (1.0 - y[0] ** 2) * y[1] - y[0]]
+
+    return f
+
+
+@pytest.mark.parametrize("eps", [0.1, 1.0, 5.0])
+def test_vdp_return_map_fixed_point_against_a_long_run(ps, eps):
+    rm = ps.vdp_return_map(eps, 6, n_iter=2)
+    # oracle: a long DOP853 run from (0.5, 0); the last maxima of x, located as events
+    n_turns = 60 if eps < 0.5 else 12
+    T_end = n_turns * (2 * math.pi + 2 * eps)
+
+    def top(_t, y):
+        return y[1]
+
+    top.direction = -1.0
+    sol = solve_ivp(_vdp(eps), (0.0, T_end), [0.5, 0.0], method="DOP853", rtol=1e-12,
+                    atol=1e-14, events=top, dense_output=True)  # fmt: skip
+    tops = sol.y_events[0][:, 0]
+    tops_t = sol.t_events[0]
+    assert abs(tops[-1] - tops[-2]) < 1e-10
+    assert rm.fixed == pytest.approx(tops[-1], abs=1e-9)
+    assert rm.period == pytest.approx(tops_t[-1] - tops_t[-2], abs=1e-8)
+    if eps == 1.0:
+        assert round(rm.fixed, 4) == 2.0086
+    # the slope of the map = exp of the divergence integrated over one period (Liouville)
+    t0 = tops_t[-2]
+    div = quad(lambda tt: eps * (1.0 - sol.sol(tt)[0] ** 2), t0, tops_t[-1], limit=400,
+               epsabs=1e-13, epsrel=1e-12)[0]  # fmt: skip
+    mult = math.exp(div)
+    assert rm.multiplier == pytest.approx(mult, abs=1e-8)
+    assert rm.slope == pytest.approx(mult, abs=1e-6)
+
+
+def _duffing_folds(mu=0.1, alpha=1.0, F=0.5):
+    """Folds of the one-harmonic forced Duffing response in closed form: z = A^2, w = Omega^2,
+    G = z((1 - w + 3 alpha z/4)^2 + mu^2 w) - F^2 = 0 and dG/dz = 0, by a resultant."""
+    z, w = sp.symbols("z w")
+    mu, alpha, F = (sp.nsimplify(v) for v in (mu, alpha, F))  # exact rationals
+    G = z * ((1 - w + sp.Rational(3, 4) * alpha * z) ** 2 + mu**2 * w) - F**2
+    res = sp.Poly(sp.resultant(G, sp.diff(G, z), z), w)
+    folds = []
+    for r in np.roots([float(cf) for cf in res.all_coeffs()]):
+        if abs(r.imag) < 1e-9 and r.real > 0:
+            wr = float(r.real)
+            zs = np.roots([float(cf) for cf in sp.Poly(G.subs(w, wr), z).all_coeffs()])
+            zs = [q.real for q in zs if abs(q.imag) < 1e-6 and q.real > 0]
+            dz = [abs(float(sp.diff(G, z).subs({w: wr, z: q}))) for q in zs]
+            folds.append((math.sqrt(wr), math.sqrt(zs[int(np.argmin(dz))])))
+    return sorted(folds)
+
+
+def _n_solutions(Om, mu=0.1, alpha=1.0, F=0.5):
+    k = 1.0 - Om * Om
+    cubic = [(0.75 * alpha) ** 2, 1.5 * alpha * k, k * k + (mu * Om) ** 2, -F * F]
+    return sum(1 for q in np.roots(cubic) if abs(q.imag) < 1e-9 and q.real > 0)
+
+
+def test_folds_and_the_failure_of_sequential_continuation(ps):
+    folds = _duffing_folds(**ps.FOLD_DUFFING)
+    assert len(folds) == 2
+    curve = ps.arclength_curve(0.05)
+    got = sorted((f.lam, float(np.hypot(*f.u))) for f in curve.folds)
+    assert len(got) == 2
+    for (w_or, a_or), (w, a) in zip(folds, got, strict=True):
+        assert w == pytest.approx(w_or, abs=1e-8)
+        assert a == pytest.approx(a_or, abs=1e-6)
+    step = 0.02
+    up, down = ps.sequential_sweep(+1, step), ps.sequential_sweep(-1, step)
+    (w_lo, _), (w_hi, _) = folds
+    # the sweep up loses the upper branch at the first grid point past the upper fold, where the
+    # closed form leaves only one (the lower) solution; the same downwards at the lower fold
+    assert up.Omega[up.fail - 1] < w_hi < up.Omega[up.fail]
+    assert _n_solutions(up.Omega[up.fail - 1]) == 3 and _n_solutions(up.Omega[up.fail]) == 1
+    assert down.Omega[down.fail] < w_lo < down.Omega[down.fail - 1]
+    assert _n_solutions(down.Omega[down.fail]) == 1
+    # before failing, each sweep is on the closed-form response
+    for sw in (up, down):
+        A = sw.amplitude[: sw.fail]
+        W = sw.Omega[: sw.fail]
+        k = 1.0 - W**2 + 0.75 * A**2
+        assert np.max(np.abs(A**2 * (k**2 + (0.1 * W) ** 2) - 0.25)) < 1e-10
+
+
+# ------------------------------------------------------------------------------------------
 # the whole script in --fast mode
 # ------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
@@ -495,13 +662,14 @@ def test_script_writes_outputs_and_claims(fast_run):
         "section.tex", "orbits.png", "work_precision.png", "describing.png", "lure.png",
         "orbit_methods.csv", "work_precision.csv", "nsd_finite_differences.csv",
         "references.csv", "describing_functions.csv", "lure_cycles.csv", "lure_waveforms.csv",
-        "checks.csv",
+        "checks.csv", "limit_cycle_tools.png", "stick_slip.csv", "vdp_return_map.csv",
+        "vdp_fixed_points.csv", "fold_sequential.csv", "fold_arclength.csv", "fold_points.csv",
     ):  # fmt: skip
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
     text = (out / "section.tex").read_text()
     assert text.startswith(r"\section{Periodic solutions:")
     figures = re.findall(r"\\includegraphics\[[^]]*\]\{([^}]+)\}", text)
-    assert len(figures) == 4
+    assert len(figures) == 5
     for fig in figures:
         assert fig.startswith("periodic_solutions/") and (fast_run / fig).is_file(), fig
     labels = set(re.findall(r"\\label\{([^}]+)\}", text))
@@ -528,6 +696,17 @@ def test_script_writes_outputs_and_claims(fast_run):
     T, A = _vdp_spectral(1.0)
     assert float(refs_rows["vdp1"]["period"]) == pytest.approx(T, abs=1e-11)
     assert float(refs_rows["vdp1"]["amplitude"]) == pytest.approx(A, abs=1e-10)
+    # the friction, event-map and fold numbers are printed as computed
+    fixed = {float(r["eps"]): float(r["a_star"]) for r in _rows(out / "vdp_fixed_points.csv")}
+    assert fixed[1.0] == pytest.approx(A, abs=1e-9)  # max|x| of the cycle = the map's fixed point
+    for eps, a in fixed.items():
+        assert f"$a^*={a:.6f}$ ($\\varepsilon={eps:g}$" in text
+    folds = _duffing_folds()
+    for w, _ in folds:
+        assert f"$\\Omega={w:.6f}$" in text
+    stick = {r["law"]: r for r in _rows(out / "stick_slip.csv")}
+    assert f"{float(stick['Stribeck']['period']):.10f}" in text
+    assert f"{float(stick['Coulomb closed form']['period']):.10f}" in text
 
 
 @pytest.mark.slow
