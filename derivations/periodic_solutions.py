@@ -2340,13 +2340,26 @@ def _tools_tex(st: Study, res: Results) -> str:
     period_err = abs(co.period / cf["period"] - 1.0)
     ext_err = max(abs(co.x_max - cf["x_max"]), abs(co.x_min - cf["x_min"]))
     neg_damp = (b["mu_s"] - b["mu_k"]) / s_["v_s"] * math.exp(-b["v_b"] / s_["v_s"])
+
+    def slope_tex(rm):
+        if abs(rm.slope) < 1e-8:  # a central difference of rounding errors
+            return r"$|P'(a^*)|<10^{-8}$"
+        return rf"$P'(a^*)={_num(rm.slope)}$"
+
     maps = ", ".join(
-        rf"$a^*={rm.fixed:.6f}$ ($\varepsilon={rm.eps:g}$, $T={rm.period:.4f}$, "
-        rf"$P'(a^*)={_num(rm.slope)}$)"
+        rf"$a^*={rm.fixed:.6f}$ ($\varepsilon={rm.eps:g}$, $T={rm.period:.4f}$, {slope_tex(rm)})"
         for rm in lt.maps
     )
     big = lt.maps[-1]
     mult_diff = max(abs(rm.slope - rm.multiplier) for rm in lt.maps)
+    if max(abs(big.slope), abs(big.multiplier)) < 1e-8:
+        big_tex = (
+            rf"at $\varepsilon={big.eps:g}$ both are below $10^{{-8}}$ ($\det M = "
+            rf"{_num(big.multiplier, 2)}$, rounding level): the relaxation cycle forgets its "
+            "start in one turn"
+        )
+    else:
+        big_tex = rf"at $\varepsilon={big.eps:g}$, $P'(a^*)={_num(big.slope)}$"
     one = next((rm for rm in lt.maps if rm.eps == 1.0), lt.maps[0])
     iters = ", ".join(f"{a:.6f}" for a in one.iterates[:5])
 
@@ -2404,8 +2417,7 @@ the section crossing located as an event. Its fixed points (\texttt{{brentq}} on
 the limit cycles: {maps}. From $a_0=0.5$ at $\varepsilon=1$ the iterates are {iters}, \ldots:
 the map contracts by $P'(a^*)$ per turn. $P'(a^*)$ (central difference) equals the determinant
 of the monodromy matrix (perturb's \texttt{{ODEFlow}} with sensitivities; the other multiplier
-of a planar autonomous orbit is 1) to ${_num(mult_diff, 2)}$; at $\varepsilon={big.eps:g}$
-both are at rounding level: the relaxation cycle forgets its start in one turn.
+of a planar autonomous orbit is 1) to ${_num(mult_diff, 2)}$; {big_tex}.
 
 \emph{{Sequential continuation at a fold.}} The one-harmonic balance of
 $\ddot x+\mu\dot x+x+\alpha x^3=F\cos\Omega t$ ($\mu={FOLD_DUFFING["mu"]:g}$,
