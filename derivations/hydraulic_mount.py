@@ -1610,7 +1610,7 @@ def _quasi_tex(st: Study, res: Results) -> str:
     I_e, R_e = q["branches"]["high"]
     I_0, R_0 = q["branches"]["low"]
     poles = ", ".join(f"${_num(p.real)}{'+' if p.imag >= 0 else '-'}{_num(abs(p.imag))}i$"
-                      for p in q["poles"] if p.imag >= 0)  # fmt: skip
+                      for p in q["poles"] if p.imag > 0)  # fmt: skip
     fig = st.tex_path("quasi_linear.png")
     err = {k: _num(100 * v, 3) for k, v in q["errors"].items()}
     return rf"""\subsection{{Quasi-linear model: track and floating decoupler as one branch}}
@@ -1640,7 +1640,8 @@ $(I_e, R_e)$, e.g.\ $\omega_2^2=(C_1+C_2)/(I_eC_1C_2)$ and $\sigma=R_e/(2I_e)$.
 
 With Table~\ref{{tab:mount-params}}: $I_e={_num(I_e)}$\,kg/m$^4$ (${_num(I_e / m.I_d)}I_d$),
 $R_e={_num(R_e)}$\,N\,s/m$^5$ (${_num(R_e / m.R_d)}R_d$); $I_0={_num(I_0)}$, $R_0={_num(R_0)}$.
-The full model's poles are {poles} and $-{_num(q["slow"])}$\,s$^{{-1}}$; the quasi-linear model
+The full model's poles are {poles} (and conjugate) and $-{_num(q["slow"])}$\,s$^{{-1}}$; the
+quasi-linear model
 has $-\sigma\pm i\omega_d = -{_num(q["sigma_e"])}\pm{_num(q["omega_d_e"])}i$
 ($\zeta={_num(q["zeta_e"])}$), and drops the real pole, which sits at
 $(R_i+R_d)/(I_i+I_d)={_num(q["slow_predicted"])}$\,s$^{{-1}}$ (the pole of $Z_e$: flow
