@@ -24,6 +24,16 @@ What this script checks (the seed's equations are partly lost; docs/references.m
    ``(x, x')``) does not take, so it runs on ``solve_ivp`` with terminal events and restarts
    written here.  The two agree where both apply.
 
+4. *Quasi-linear model* (the paper's eqs. 14-16, lost from the seed and reconstructed): with
+   the decoupler floating, the track and the plate are two inertance/resistance branches in
+   parallel; SymPy shows the mount is K_1(s) with the track impedance replaced by
+   Z_e = Z_i Z_d/(Z_i + Z_d), and the one-branch model with the large-s asymptote
+   I_e s + R_e of Z_e is compared with the full four-state model (``solve_ivp``,
+   ``scipy.signal``) and with the small-s asymptote.
+5. *The three step-response components* (static, decaying cosine, decaying sine): peak and
+   energy shares of the sine term, the one the paper neglects, and what dropping it does to
+   the extrema.
+
 Parameter values are representative (the paper gives none); see :class:`Mount`.
 
 Run ``python derivations/hydraulic_mount.py [--fast] [--out DIR]``; outputs go to ``DIR``

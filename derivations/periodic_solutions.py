@@ -41,6 +41,16 @@ script puts numbers on them.
    located as events), measured on its steady oscillation (period from upward zero crossings,
    first-harmonic amplitude by FFT over the last period).
 
+4. *Dry friction, an event map, continuation at a fold.*  Stick-slip limit cycles of a mass on
+   a moving belt: Coulomb friction with a static coefficient above the kinetic one (which
+   perturb's Filippov sticking cannot hold; event-located ``solve_ivp`` written here, against
+   the closed-form cycle) and Stribeck friction (perturb's event-driven integrator); the
+   return map of van der Pol on x' = 0, x > 0, whose fixed point is the limit-cycle amplitude
+   and whose slope is the Floquet multiplier (the determinant of perturb's monodromy matrix);
+   sequential (natural-parameter) continuation of the one-harmonic forced Duffing response,
+   which loses its branch one step past each fold, against perturb's pseudo-arclength core
+   (:func:`perturb.numeric.continuation.continue_curve`), which passes both.
+
 All parameter values are representative choices (the seed gives no numbers), except the nsd
 parameters k = -2, mu = 0.05, F = 2, Omega = 0.6, which are the Zou-Nagarajaiah Fig. 5 values
 reconstructed in docs/references.md section 1.
