@@ -30,11 +30,13 @@ DOCUMENT = "derivations.tex"
 
 PREAMBLE = r"""\documentclass[11pt]{article}
 \usepackage[T1]{fontenc}
+\usepackage{lmodern}
 \usepackage{amsmath,amssymb}
 \usepackage{graphicx}
 \usepackage{booktabs}
 \usepackage[margin=2.2cm]{geometry}
 \allowdisplaybreaks
+\setlength{\emergencystretch}{2em}
 \numberwithin{figure}{section}
 \numberwithin{table}{section}
 \title{perturb: derivations checked against the literature}

@@ -2788,7 +2788,13 @@ def section_tex(st: Study, res: Results, seconds: float) -> str:
     else:
         v5_outcome = "fails"
     sad_outcome = "fails" if not sad_ss.ok else "converges"
-    rejection = escape(res.rejection[:110])
+    # the refusal in words, not perturb's message quoted (SymPy text in the body of a paper)
+    rejection = (
+        r"refuses it with a \texttt{ModelError}: the switch depends on $\dot x$, so the "
+        r"term has no closed-form Fourier coefficients in $x$ alone"
+        if res.rejection
+        else r"does not refuse it"
+    )
     fd_orders = {
         p: ", ".join(f"{q:.2f}" for _, _, q in observed_orders(res.nsd_fd, p)) for p in (2, 8)
     }
@@ -2921,7 +2927,7 @@ N(a) = {dz_sym}.
 \]
 perturb has no describing function for nonlinearities with memory: its Fourier engine takes
 static $g(x)$, and \texttt{{equivalent\_linearisation}} of the hysteretic relay
-$M\operatorname{{sign}}(x - h\operatorname{{sign}}\dot x)$ raises ``{rejection}\dots''.
+$M\operatorname{{sign}}(x - h\operatorname{{sign}}\dot x)$ {rejection}.
 The hysteretic relay and the backlash (half-gap $b$) are therefore derived in the script with
 SymPy by integrating the steady output waveform piece by piece:
 \begin{{align*}}

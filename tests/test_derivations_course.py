@@ -285,19 +285,25 @@ def test_superharmonic_against_the_course_formula(course):
     # on the rising flank first order is within 5 % of the exact 3-Omega harmonic (0.5 %)
     assert abs(s["ms_at_check"][0] / s["exact_at_check"] - 1) < 0.05
     # the peak: located within 0.01 in Omega, overestimated by first order
-    assert abs(s["ms_peak"][0] - s["exact_peak_up_sweep"][0]) < 0.01
-    assert s["ms_peak"][1] > s["exact_peak_up_sweep"][1]
+    assert abs(s["ms_peak"][0] - s["exact_peak"][0]) < 0.01
+    assert s["ms_peak"][1] > s["exact_peak"][1]
+    # the refined peaks: no sampled point above them, and the first-order one is a maximum of
+    # the course formula (typed here) between its neighbours
+    assert s["exact_peak"][1] >= s["exact_peak_up_sweep"][1] - 1e-9
+    W0 = s["ms_peak"][0]
+    top = max(_course_superharmonic_amplitude(W0, p["mu"], p["alpha"], p["F"]))
+    assert s["ms_peak"][1] == pytest.approx(top, rel=1e-7)
+    for dW in (-2e-3, 2e-3):
+        near = _course_superharmonic_amplitude(W0 + dW, p["mu"], p["alpha"], p["F"])
+        assert max(near, default=0.0) <= top + 1e-9
     rows = _rows(out / "duffing_superharmonic_ms.csv")
     for row in rows[:: max(1, len(rows) // 6)]:
         roots = _course_superharmonic_amplitude(float(row["omega"]), p["mu"], p["alpha"], p["F"])
         assert min(abs(float(row["a_superharmonic"]) - r) for r in roots) < 1e-6
 
 
-@pytest.mark.slow
-def test_superharmonic_exact_amplitude_by_plain_integration(course):
-    _, summary = course
-    s = summary["superharmonic"]
-    p, W = s["params"], s["check_omega"]
+def _superharmonic_by_plain_integration(p: dict, W: float) -> float:
+    """The 3-Omega harmonic of the forced Duffing orbit after 250 periods of plain DOP853."""
     T = 2 * np.pi / W
     periods = 250
     sol = solve_ivp(
@@ -313,7 +319,25 @@ def test_superharmonic_exact_amplitude_by_plain_integration(course):
         dense_output=True,
     )
     t = (periods - 1) * T + T * np.arange(512) / 512
-    a3 = abs(np.fft.rfft(sol.sol(t)[0])[3]) / 256
+    return abs(np.fft.rfft(sol.sol(t)[0])[3]) / 256
+
+
+@pytest.mark.slow
+def test_superharmonic_exact_peak_by_plain_integration(course):
+    # the refined exact peak of the 3-Omega harmonic: the orbit's value there, lower +-1e-3
+    _, summary = course
+    s = summary["superharmonic"]
+    p, (W0, a0) = s["params"], s["exact_peak"]
+    assert _superharmonic_by_plain_integration(p, W0) == pytest.approx(a0, rel=1e-5)
+    for W in (W0 - 1e-3, W0 + 1e-3):
+        assert _superharmonic_by_plain_integration(p, W) < a0
+
+
+@pytest.mark.slow
+def test_superharmonic_exact_amplitude_by_plain_integration(course):
+    _, summary = course
+    s = summary["superharmonic"]
+    a3 = _superharmonic_by_plain_integration(s["params"], s["check_omega"])
     assert a3 == pytest.approx(s["exact_at_check"], rel=1e-5)
 
 
