@@ -64,7 +64,7 @@ from perturb.numeric.harmonic_balance import (
     harmonic_balance_orbit,
 )
 from perturb.report.figures import plot_time_history
-from perturb.report.latex import step_latex
+from perturb.report.latex import derivation_body
 from perturb.response import Branch, Response
 from perturb.simulate.continuation import continue_orbits
 from perturb.simulate.exact_flow import ExactPWLFlow
@@ -3443,7 +3443,9 @@ def derivation(run: Run) -> Part:
     files = []
     for order in (1, 2):
         ap = _mlp(order).approx
-        body = "\n\n".join(step_latex(s) for s in ap.steps)
+        # one printer for the whole derivation: the closed forms of a_n, a^R_n, a^H_n and the
+        # identities linking them first, then the steps with the coefficients written short
+        body = derivation_body(ap.steps)
         body = body.replace("\\subsection*", "\\paragraph*")
         name = f"mlp_order{order}.tex"
         run.path(name).write_text(body + "\n")
