@@ -54,7 +54,7 @@ from perturb.methods.harmonic_balance import backbone_series, solve_residuals  #
 from perturb.methods.multiple_scales import modulation_equations, transition_curves  # noqa: E402
 from perturb.numeric.floquet import expm2  # noqa: E402
 from perturb.numeric.frequency_response import (  # noqa: E402
-    frequency_response as traced_response,
+    approximation_response as traced_response,
 )
 from perturb.parsing import real_symbol  # noqa: E402
 from perturb.simulate.flow import ODEFlow  # noqa: E402

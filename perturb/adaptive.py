@@ -726,7 +726,7 @@ def _full_response(
         return frequency_response(oscillator, "exact", window)
     approx = _derive(c, oscillator)
     if _is_polynomial(approx):
-        from .numeric.frequency_response import frequency_response as traced
+        from .numeric.frequency_response import approximation_response as traced
 
         return traced(approx, window, points=points)
     from .numeric.residual_response import residual_response

@@ -234,7 +234,7 @@ def frequency_response(
         if frequencies is not None:
             return _hb_solutions_at(oscillator, frequencies, H, options)
         return harmonic_balance_response(oscillator, Omega, harmonics=H, **options)
-    from .numeric.frequency_response import frequency_response as traced
+    from .numeric.frequency_response import approximation_response as traced
     from .numeric.frequency_response import solutions_at
     from .numeric.residual_response import residual_response
 

@@ -569,7 +569,7 @@ def _trace(
         resp = frequency_response(osc, method, scene.omega, **extra)
     else:
         from .cache import cached_derivation
-        from .numeric.frequency_response import frequency_response
+        from .numeric.frequency_response import approximation_response
         from .numeric.residual_response import residual_response
 
         say(f"[perturb] deriving {method} ...")
@@ -580,7 +580,7 @@ def _trace(
         if poly is None or len(poly) > 3 or approx.slow_flow is None:
             resp = residual_response(approx, scene.omega)
         else:
-            resp = frequency_response(approx, scene.omega, points=scene.points)
+            resp = approximation_response(approx, scene.omega, points=scene.points)
     info["response"] = resp.method
     info["branches"] = len(resp.branches)
     info["points"] = int(sum(len(b) for b in resp.branches))

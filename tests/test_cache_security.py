@@ -22,7 +22,7 @@ import perturb.cache as pc
 from perturb import builtin_model
 from perturb.errors import ParseError, PerturbError
 from perturb.methods import METHODS
-from perturb.numeric.frequency_response import frequency_response
+from perturb.numeric.frequency_response import approximation_response
 from perturb.serialize import (
     Vocabulary,
     approximation_from_dict,
@@ -65,7 +65,7 @@ def _entry(cache_folder):
 
 
 def _peak(approx) -> float:
-    resp = frequency_response(approx, (0.3, 1.8), points=300)
+    resp = approximation_response(approx, (0.3, 1.8), points=300)
     return max(float(np.nanmax(b.amplitude)) for b in resp.branches)
 
 

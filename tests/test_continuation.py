@@ -331,11 +331,11 @@ def test_km05_every_hb_point_has_an_exact_branch_nearby():
     point lies within 4 % (in first-harmonic amplitude and in window-scaled frequency) of an
     exact point, so no branch HB knows of is missed."""
     from perturb.methods.harmonic_balance import single_harmonic_balance
-    from perturb.numeric.frequency_response import frequency_response
+    from perturb.numeric.frequency_response import approximation_response
 
     osc = builtin_model("nsd", k=-0.5, mu=0.05, F=2.0)
     res = exact_branches(osc, (0.2, 2.0), progress=False)
-    hb = frequency_response(single_harmonic_balance(osc), (0.2, 2.0), stability="slow_flow")
+    hb = approximation_response(single_harmonic_balance(osc), (0.2, 2.0), stability="slow_flow")
     P = np.concatenate([b.parameters for b in res.branches])
     A = np.concatenate([[q.first_harmonic_amplitude for q in b.points] for b in res.branches])
     worst = 0.0

@@ -10,7 +10,7 @@ from scipy.optimize import brentq
 
 from perturb import ModelError, ParameterError, builtin_model
 from perturb.methods.harmonic_balance import single_harmonic_balance
-from perturb.numeric.frequency_response import frequency_response
+from perturb.numeric.frequency_response import approximation_response
 
 
 def nsd_amplitude_equation(A, W, k, mu, F):
@@ -27,7 +27,7 @@ def nsd_amplitude_equation(A, W, k, mu, F):
 @pytest.fixture(scope="module")
 def nsd_response():
     osc = builtin_model("nsd", k=-2.0, mu=0.05, F=2.0)
-    return frequency_response(single_harmonic_balance(osc), (0.2, 2.0), points=1500)
+    return approximation_response(single_harmonic_balance(osc), (0.2, 2.0), points=1500)
 
 
 def test_every_point_satisfies_the_papers_first_order_equations(nsd_response):
@@ -75,7 +75,7 @@ def test_branch_inside_the_negative_stiffness_well_is_unstable(nsd_response):
 def test_linear_oscillator_multipliers_are_exact():
     # k = 1 makes nsd linear: x'' + mu x' + x = F cos(Omega t)
     osc = builtin_model("nsd", k=1.0, mu=0.1, F=0.5)
-    resp = frequency_response(single_harmonic_balance(osc), (0.3, 3.0), points=200)
+    resp = approximation_response(single_harmonic_balance(osc), (0.3, 3.0), points=200)
     assert len(resp.branches) == 1
     br = resp.branches[0]
     W = br.omega
@@ -89,7 +89,7 @@ def test_linear_oscillator_multipliers_are_exact():
 
 def test_duffing_backbone_form_and_jump():
     osc = builtin_model("duffing", mu=0.1, omega0=1.0, alpha=1.0, F=0.5)
-    resp = frequency_response(single_harmonic_balance(osc), (0.5, 2.5), points=1500)
+    resp = approximation_response(single_harmonic_balance(osc), (0.5, 2.5), points=1500)
     for br in resp.branches:
         A, W = br.first_harmonic_amplitude, br.omega
         res = ((W**2 - 1 - 0.75 * A**2) * A) ** 2 + (0.1 * W * A) ** 2 - 0.25
@@ -113,11 +113,11 @@ def test_bad_requests_are_clear_errors():
     osc = builtin_model("nsd")
     approx = single_harmonic_balance(osc)
     with pytest.raises(ParameterError, match="omega_range"):
-        frequency_response(approx, (2.0, 0.2))
+        approximation_response(approx, (2.0, 0.2))
     with pytest.raises(ParameterError, match="omega_range"):
-        frequency_response(approx, (0.0, float("nan")))
+        approximation_response(approx, (0.0, float("nan")))
     with pytest.raises(ParameterError, match="needs values for mu"):
-        frequency_response(single_harmonic_balance(osc.with_params(mu=None)), (0.2, 2))
+        approximation_response(single_harmonic_balance(osc.with_params(mu=None)), (0.2, 2))
     with pytest.raises(ModelError, match="not odd"):
         single_harmonic_balance(builtin_model("clearance"))
     with pytest.raises(ModelError, match="covers"):
@@ -130,7 +130,7 @@ def test_hill_stability_changes_exactly_at_the_folds():
     with all harmonics, which on this strongly nonlinear Duffing case turns far from it."""
     osc = builtin_model("duffing", mu=0.1, omega0=1.0, alpha=1.0, F=0.5)
     approx = single_harmonic_balance(osc)
-    resp = frequency_response(approx, (0.5, 2.5), points=3000)
+    resp = approximation_response(approx, (0.5, 2.5), points=3000)
     (br,) = resp.branches
     flips = np.nonzero(np.diff(br.stable.astype(int)))[0]
     assert len(flips) == 2 == len(resp.folds)
@@ -139,7 +139,7 @@ def test_hill_stability_changes_exactly_at_the_folds():
     ):
         assert abs(br.omega[j] - w_fold) < 1e-3
         assert abs(br.first_harmonic_amplitude[j] - a_fold) / a_fold < 1e-2
-    floquet = frequency_response(approx, (0.5, 2.5), points=3000, stability="floquet")
+    floquet = approximation_response(approx, (0.5, 2.5), points=3000, stability="floquet")
     assert not np.array_equal(floquet.branches[0].stable, br.stable)
 
 
@@ -249,7 +249,7 @@ def test_exact_pwl_hill_matches_sampled_hill_exponents(k):
     approx = modified_lindstedt(osc, 1)
     cp = compile_response(approx)
     assert cp.hill is not None
-    resp = frequency_response(cp, (0.3, 2.0), points=200)
+    resp = approximation_response(cp, (0.3, 2.0), points=200)
     w = np.concatenate([br.omega for br in resp.branches])[::7]
     A = np.concatenate([br.first_harmonic_amplitude for br in resp.branches])[::7]
     pc, ps = cp.phase_u(cp.atoms.evaluate(A, cp.phase_u.rows), A, w)
@@ -282,10 +282,10 @@ def test_unchecked_fourier_path_gives_the_checked_response_bitwise(stability):
     osc = builtin_model("nsd", k=-3.0, mu=0.05, F=2.0)
     solver = compile_response(modified_lindstedt(osc, 1))
     assert solver.atoms.unchecked
-    fast = frequency_response(solver, (0.2, 2.0), points=600, stability=stability)
+    fast = approximation_response(solver, (0.2, 2.0), points=600, stability=stability)
     solver.atoms.unchecked = False
     solver.atoms._plans.clear()
-    slow = frequency_response(solver, (0.2, 2.0), points=600, stability=stability)
+    slow = approximation_response(solver, (0.2, 2.0), points=600, stability=stability)
     assert fast.folds == slow.folds
     for x, y in zip(_response_arrays(fast), _response_arrays(slow), strict=True):
         np.testing.assert_array_equal(x, y)
@@ -413,7 +413,7 @@ def _nsd_orbits(k, F, grazing=(1e-2, 1e-4, 1e-6)):
 
     osc = builtin_model("nsd", k=k, mu=0.05, F=F)
     cp = compile_response(modified_lindstedt(osc, 1))
-    resp = frequency_response(cp, (0.2, 2.0), points=2000)
+    resp = approximation_response(cp, (0.2, 2.0), points=2000)
     w = np.concatenate([br.omega for br in resp.branches])
     A = np.concatenate([br.first_harmonic_amplitude for br in resp.branches])
     amp = np.concatenate([br.amplitude for br in resp.branches])
@@ -488,3 +488,17 @@ def test_breakpoint_crossings_match_brentq_including_grazing(k, F):
         assert mine.size == len(ref), i
         np.testing.assert_allclose(tau[rows == i][mine], [r[0] for r in ref], rtol=0, atol=1e-12)
         np.testing.assert_array_equal(jump[rows == i][mine], [r[1] for r in ref])
+
+
+def test_old_name_warns_and_answers_the_same():
+    # perturb.frequency_response takes an oscillator; the approximation tracer has its own name
+    import perturb.numeric.frequency_response as fr
+
+    approx = single_harmonic_balance(builtin_model("nsd", k=-2.0))
+    with pytest.warns(DeprecationWarning, match="approximation_response"):
+        old = fr.frequency_response(approx, (0.5, 1.5), points=200)
+    new = approximation_response(approx, (0.5, 1.5), points=200)
+    assert [b.amplitude.tolist() for b in old.branches] == [
+        b.amplitude.tolist() for b in new.branches
+    ]
+    assert "frequency_response" not in fr.__all__

@@ -50,7 +50,7 @@ from perturb.fourier import (
 )
 from perturb.methods import METHODS
 from perturb.model import Oscillator
-from perturb.numeric.frequency_response import frequency_response as traced_response
+from perturb.numeric.frequency_response import approximation_response as traced_response
 from perturb.numeric.frequency_response import solutions_at
 from perturb.simulate.event_driven import EventFlow, simulate
 from perturb.simulate.exact_flow import ExactPWLFlow

@@ -242,12 +242,12 @@ def test_single_harmonic_matches_single_harmonic_balance(model):
 
 
 def test_single_harmonic_frequency_response_is_the_lead_one():
-    from perturb.numeric.frequency_response import frequency_response
+    from perturb.numeric.frequency_response import approximation_response
 
     osc = builtin_model("nsd")
     kw = {"points": 300, "stability": "slow_flow"}
-    r_new = frequency_response(harmonic_balance(osc), (0.3, 2.0), **kw)
-    r_old = frequency_response(single_harmonic_balance(osc), (0.3, 2.0), **kw)
+    r_new = approximation_response(harmonic_balance(osc), (0.3, 2.0), **kw)
+    r_old = approximation_response(single_harmonic_balance(osc), (0.3, 2.0), **kw)
     assert len(r_new.branches) == len(r_old.branches)
     for b1, b2 in zip(r_new.branches, r_old.branches, strict=True):
         assert np.allclose(b1.omega, b2.omega) and np.allclose(b1.amplitude, b2.amplitude)

@@ -31,7 +31,7 @@ from perturb.methods.averaging import (
 from perturb.methods.harmonic_balance import solve_residuals
 from perturb.methods.lindstedt import lindstedt_poincare
 from perturb.methods.multiple_scales import modulation_equations
-from perturb.numeric.frequency_response import frequency_response as traced
+from perturb.numeric.frequency_response import approximation_response as traced
 from perturb.parsing import real_symbol
 
 # the user's equation of issue 18 item 1: numeric coefficients, no named parameter

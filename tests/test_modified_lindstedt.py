@@ -21,7 +21,7 @@ from perturb.methods.lindstedt import lindstedt_poincare
 from perturb.methods.modified_lindstedt import modified_lindstedt
 from perturb.model import Oscillator, builtin_model
 from perturb.numeric.compile import bind_parameters, lambdify
-from perturb.numeric.frequency_response import frequency_response
+from perturb.numeric.frequency_response import approximation_response
 from perturb.parsing import real_symbol
 from perturb.report.latex import latex_document
 from perturb.simulate.exact_flow import ExactPWLFlow
@@ -177,8 +177,8 @@ def test_nsd_first_order_is_single_harmonic_balance():
     ch = lambdify((A,), bind_parameters(hb, list(hb.frequency_polynomial), (A,)))(a)
     np.testing.assert_allclose(cm, ch, rtol=1e-13, atol=1e-12)
     # and the traced curves coincide (first harmonic vs Omega, slow-flow stability)
-    rm = frequency_response(mlp, (0.2, 2.0), points=300, stability="slow_flow")
-    rh = frequency_response(hb, (0.2, 2.0), points=300, stability="slow_flow")
+    rm = approximation_response(mlp, (0.2, 2.0), points=300, stability="slow_flow")
+    rh = approximation_response(hb, (0.2, 2.0), points=300, stability="slow_flow")
     assert len(rm.branches) == len(rh.branches) >= 1
     for bm, bh in zip(rm.branches, rh.branches, strict=True):
         np.testing.assert_allclose(bm.omega, bh.omega, rtol=1e-12)

@@ -36,7 +36,7 @@ from perturb.methods.multiple_scales import (
     transition_curves,
 )
 from perturb.model import Oscillator
-from perturb.numeric.frequency_response import frequency_response, solutions_at
+from perturb.numeric.frequency_response import approximation_response, solutions_at
 from perturb.report.latex import latex_document
 from perturb.simulate.flow import ODEFlow
 from perturb.simulate.shooting import limit_cycle, periodic_orbit
@@ -517,7 +517,7 @@ def test_stiffness_form_frequency_response_traces_every_branch():
     osc = Oscillator.parse(DUFFING, vals)
     approx = multiple_scales(osc, 1, epsilon="eps", detuning="stiffness")
     assert approx.frequency_polynomial is not None
-    resp = frequency_response(approx, (0.8, 1.5), points=800, stability="slow_flow")
+    resp = approximation_response(approx, (0.8, 1.5), points=800, stability="slow_flow")
     assert resp.folds  # hardening: a hysteresis band
     for br in resp.branches:
         A, W = br.first_harmonic_amplitude, br.omega
@@ -527,7 +527,7 @@ def test_stiffness_form_frequency_response_traces_every_branch():
     # the frequency form has no polynomial in Omega^2 (documented: mirrored spurious roots)
     assert multiple_scales(osc, 1, epsilon="eps").frequency_polynomial is None
     with pytest.raises(PerturbError, match="Omega"):
-        frequency_response(multiple_scales(osc, 1, epsilon="eps"), (0.8, 1.5))
+        approximation_response(multiple_scales(osc, 1, epsilon="eps"), (0.8, 1.5))
 
 
 # -------------------------------------------------------------------------- contract --

@@ -129,12 +129,12 @@ def test_swept_parameter_must_exist_and_not_be_the_frequency():
 # ------------------------------------------------------------------ what a cell computes --
 def test_peak_agrees_with_the_frequency_response_front_door():
     from perturb.methods import METHODS
-    from perturb.numeric.frequency_response import frequency_response
+    from perturb.numeric.frequency_response import approximation_response
 
     ds = ps.sweep(_peak_scene(), {"mu": [0.1], "k": [-2.0, -0.5]}, "serial")
     for k in (-2.0, -0.5):
         osc = perturb.builtin_model("nsd", F=2.0, k=k, mu=0.1)
-        resp = frequency_response(METHODS["hb1"](osc), (0.2, 2.0), stability="slow_flow")
+        resp = approximation_response(METHODS["hb1"](osc), (0.2, 2.0), stability="slow_flow")
         ref = max(float(b.amplitude.max()) for b in resp.branches)
         got = float(ds.peak_amplitude.sel(mu=0.1, k=k))
         assert got == pytest.approx(ref, rel=1e-11)

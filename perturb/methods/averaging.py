@@ -564,7 +564,7 @@ def krylov_bogoliubov(
     Approximation
         Forced: unknowns ``(a, phi)``, residuals, slow flow, ``frequency_polynomial`` when
         the amplitude equation is a polynomial of degree <= 2 in ``Omega**2`` (so
-        :func:`~perturb.numeric.frequency_response.frequency_response` applies), ``phase_from``.
+        :func:`~perturb.numeric.frequency_response.approximation_response` applies), ``phase_from``.
         Free: unknowns ``(a, beta)``, slow flow ``(a', beta')``, residuals
         ``(a', omega - omega_0 - beta')`` and the ``backbone``.
         ``fourier`` holds ``k_eq``, ``c_eq``, ``G_c``, ``G_s``.

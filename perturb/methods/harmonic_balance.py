@@ -289,7 +289,7 @@ def harmonic_balance(
         ``x = b + A cos(Omega t + p - phi)``; residuals in closed form for PWL forces
         (step/ramp coefficients by name), ``phase_from``, ``frequency_polynomial`` (in
         ``Omega**2`` at fixed ``b``), and without bias the averaged slow flow, so
-        :func:`~perturb.numeric.frequency_response.frequency_response` applies; with bias use
+        :func:`~perturb.numeric.frequency_response.approximation_response` applies; with bias use
         :func:`balance_solutions`.
 
         Several harmonics (polynomial forces): unknowns ``c_0`` (bias), ``a_n``, ``b_n``

@@ -200,7 +200,7 @@ def modified_lindstedt(
         :math:`x = A\cos(\tau + \varphi) + \dots`, ``residuals`` (eqs. (54)–(55) of Zou &
         Nagarajaiah at first order); at first order also ``frequency_polynomial`` (quadratic
         in :math:`\Omega^2`), ``phase_from`` and the averaged ``slow_flow``, so
-        :func:`perturb.numeric.frequency_response.frequency_response` traces every branch.
+        :func:`perturb.numeric.frequency_response.approximation_response` traces every branch.
 
     Raises
     ------

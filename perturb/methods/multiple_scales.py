@@ -87,7 +87,7 @@ Frequency responses
 :meth:`ModulationEquations.approximation` returns the method contract. For first-order primary
 resonance with the *stiffness* detuning the phase-eliminated relation is an exact quadratic in
 :math:`\Omega^2` (``frequency_polynomial``), so
-:func:`perturb.numeric.frequency_response.frequency_response` traces every branch. With the
+:func:`perturb.numeric.frequency_response.approximation_response` traces every branch. With the
 *frequency* detuning the relation is a quadratic in :math:`\Omega` (through :math:`\sigma`), not in
 :math:`\Omega^2`; the only polynomial in :math:`\Omega^2` with its roots,
 :math:`r(\Omega)r(-\Omega)`, also carries the mirrored negative roots as spurious branches, so

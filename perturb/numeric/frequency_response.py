@@ -42,7 +42,12 @@ from ..response import Branch, Response
 from .compile import bind_parameters, lambdify
 from .floquet import hill_exponents, monodromy_multipliers
 
-__all__ = ["frequency_response", "solutions_at", "compile_response", "FrequencyResponseSolver"]
+__all__ = [
+    "approximation_response",
+    "solutions_at",
+    "compile_response",
+    "FrequencyResponseSolver",
+]
 
 _SCAN_POINTS = 6000
 _SCAN_RANGE = (1e-8, 1e8)
@@ -326,7 +331,7 @@ def solutions_at(
     logarithmic scan (pairs closer than its spacing, near a double root, by a search for the
     minimum between the scan points) and refined to full precision; solutions at
     consecutive frequencies are linked into branches along the traced curve. Use this when
-    the output must contain given frequencies; :func:`frequency_response` traces smoother
+    the output must contain given frequencies; :func:`approximation_response` traces smoother
     curves.
 
     Raises
@@ -347,7 +352,7 @@ def solutions_at(
     # joins the traced branch passing nearest to it, ordered by position along that branch
     # (nearest-amplitude linking between frequencies fails on coarse grids near folds).
     span = (float(w_all.min()) * 0.95, float(w_all.max()) * 1.05)
-    traced = frequency_response(cp, span, points=2000, stability="slow_flow")
+    traced = approximation_response(cp, span, points=2000, stability="slow_flow")
     branches: list[list[tuple[float, float, float]]] = [[] for _ in traced.branches]
     for w, a in zip(wr, roots, strict=True):
         best = (np.inf, -1, 0)
@@ -488,7 +493,7 @@ class _Grid:
         return wlo, whi, disc, in_lo, in_hi
 
 
-def frequency_response(
+def approximation_response(
     approximation: Approximation | FrequencyResponseSolver,
     omega_range: Sequence[float] = (0.2, 2.0),
     *,
@@ -679,7 +684,7 @@ def response_notes(
     - a conservative (undamped) forced model: stability is marginal and undecided;
     - a force with an even polynomial part under a first-order zero-mean method.
 
-    Used by :func:`frequency_response`, :func:`solutions_at` and
+    Used by :func:`approximation_response`, :func:`solutions_at` and
     :func:`perturb.numeric.residual_response.residual_response`.
     """
     from ..methods.applicability import APPLIES_OFF_CENTRE, even_part
@@ -1356,7 +1361,7 @@ def _hill1_exponents(q0, qc1, qs1, qc2, qs2, w, p) -> np.ndarray:
 
 
 class FrequencyResponseSolver:
-    """An approximation compiled for :func:`frequency_response` and :func:`solutions_at`.
+    """An approximation compiled for :func:`approximation_response` and :func:`solutions_at`.
 
     Compiling (SymPy to numpy, with common subexpressions, and the amplitude polynomial on
     the fixed amplitude scan) costs far more than tracing a response; build one solver with
@@ -1508,3 +1513,22 @@ def _floquet_in_chunks(approx, xf, vf, period, Omega, w, stability) -> np.ndarra
         else:
             out[sl] = monodromy_multipliers(approx.oscillator, xf[sl], vf[sl], period[sl], Omega)
     return out
+
+
+def frequency_response(*args, **kwargs):
+    """Deprecated name of :func:`approximation_response`.
+
+    ``perturb.frequency_response(oscillator, method, ...)`` is the front door that takes an
+    oscillator; this function takes an :class:`~perturb.approximation.Approximation`, so it
+    has a name of its own.
+    """
+    import warnings
+
+    warnings.warn(
+        "perturb.numeric.frequency_response.frequency_response(approximation, ...) is now "
+        "approximation_response(approximation, ...); perturb.frequency_response takes an "
+        "oscillator",
+        DeprecationWarning,
+        stacklevel=2,
+    )
+    return approximation_response(*args, **kwargs)

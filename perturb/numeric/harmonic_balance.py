@@ -2255,14 +2255,14 @@ def _single_harmonic_seeds(
     first-harmonic part ``Z = R_a1 - i R_b1`` of its unforced residual by the same angle,
     and the shift that turns ``Z`` onto the forcing's ``F_a1 - i F_b1`` balances it."""
     from ..methods import single_harmonic_balance
-    from .frequency_response import frequency_response
+    from .frequency_response import approximation_response
 
     basis = system.basis
     pos = basis.index_of(system.m)
     if pos is None:
         return []
     try:
-        resp = frequency_response(
+        resp = approximation_response(
             single_harmonic_balance(system.oscillator), window, points=400, stability="slow_flow"
         )
     except PerturbError:
@@ -2492,7 +2492,7 @@ def harmonic_balance_branches(
     2. Seeds (``origin='seed'``): ``seeds_per_branch`` points along each branch of the
        single-harmonic balance (``perturb.methods.single_harmonic_balance``) response,
        traced by amplitude parametrisation
-       (:func:`perturb.numeric.frequency_response.frequency_response`), which returns every
+       (:func:`perturb.numeric.frequency_response.approximation_response`), which returns every
        one of its branches, detached loops included, without continuation; then, at five
        frequencies across the window (edges included), the closed-form orbits of the linear
        segments of a PWL force that stay in their segment and the linear responses about

@@ -2644,7 +2644,7 @@ def _approximation_seeds(
 
     from ..approximation import Approximation
     from ..numeric.compile import bind_parameters, lambdify
-    from ..numeric.frequency_response import frequency_response
+    from ..numeric.frequency_response import approximation_response
 
     if not isinstance(approximation, Approximation):
         raise ParameterError(
@@ -2657,7 +2657,7 @@ def _approximation_seeds(
             f"{ap.label}: seeds need an amplitude-parametrised approximation with unknowns "
             "(A, phase) and phase_from"
         )
-    resp = frequency_response(ap, window, points=400, stability="slow_flow")
+    resp = approximation_response(ap, window, points=400, stability="slow_flow")
     A, Om, ph, tau = ap.amplitude, ap.frequency, ap.unknowns[1], ap.tau
     keep = (A, Om, ph, tau)
     wave, dwave, pc, ps = bind_parameters(
@@ -3197,7 +3197,9 @@ def _exact_branches(
         raw += _approximation_seeds(approximation, (lo, hi), approximation_seeds)
     closed_seeds = tracer.closed.seeds() if tracer.closed is not None else []
     total = len(closed_seeds) + len(raw) + 2 * sweep_points
-    with Progress(total, "exact frequency response", enabled=progress) as bar:
+    # seeds differ widely in cost (a seed on a known branch costs nothing): no estimate of
+    # the time left, which jumped about (~205 s left, then ~91 s, done at 48 s)
+    with Progress(total, "exact frequency response", enabled=progress, eta=False) as bar:
         # the closed-form seeds' branches all at once (speculative with a pool: a seed on an
         # earlier seed's branch is dropped when its turn comes, as the serial run skips it)
         jobs: list[tuple[_Pt, _Job | None]] = []
