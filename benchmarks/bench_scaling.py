@@ -150,7 +150,7 @@ def _median_time(fn, repeat: int = 3) -> tuple[float, float, object]:
 def points(exact_steps: list[float]) -> None:
     from perturb.methods import METHODS
     from perturb.model import builtin_model
-    from perturb.numeric.frequency_response import compile_response, frequency_response
+    from perturb.numeric.frequency_response import approximation_response, compile_response
     from perturb.simulate.continuation import exact_frequency_response
 
     os.environ["PERTURB_PROGRESS"] = "0"
@@ -162,7 +162,7 @@ def points(exact_steps: list[float]) -> None:
     print(f"{'points':>7} {'output pts':>10} {'wall [s]':>9} {'CPU [s]':>8}")
     ns, cs = [], []
     for n in (250, 1000, 4000, 16000):
-        w, c, r = _median_time(lambda n=n: frequency_response(solver, (0.2, 2.5), points=n))
+        w, c, r = _median_time(lambda n=n: approximation_response(solver, (0.2, 2.5), points=n))
         out = sum(len(b) for b in r.branches)
         ns.append(n)
         cs.append(c)
