@@ -22,6 +22,8 @@ from .notation import (
     coefficient_calls,
     coefficient_definitions,
     document_title,
+    escape,
+    escape_text,
     settings_sentence,
 )
 
@@ -33,49 +35,6 @@ __all__ = [
     "escape_text",
     "math_latex",
 ]
-
-_SPECIAL = {
-    "\\": r"\textbackslash{}",
-    "&": r"\&",
-    "%": r"\%",
-    "$": r"\$",
-    "#": r"\#",
-    "_": r"\_",
-    "{": r"\{",
-    "}": r"\}",
-    "~": r"\textasciitilde{}",
-    "^": r"\textasciicircum{}",
-}
-_DASHES = {
-    "Krylov-Bogoliubov": "Krylov--Bogoliubov",
-    "Lindstedt-Poincare": "Lindstedt--Poincar\\'e",
-}
-_UNICODE = {"–": "--", "—": "---", "é": "\\'e", "µ": "$\\mu$", "ε": "$\\varepsilon$"}
-
-
-def escape(text: str) -> str:
-    """Escape LaTeX's special characters in plain text."""
-    return "".join(_SPECIAL.get(c, c) for c in text)
-
-
-def escape_text(text: str) -> str:
-    """A step's sentence as LaTeX: plain text escaped, mathematics between ``$`` signs kept
-    as it is (so ``"the shift $\\omega_0^2 + \\nu$"`` prints the formula)."""
-    parts = text.split("$")
-    if len(parts) % 2 == 0:  # an unpaired dollar: all plain text
-        parts = [text]
-    out = []
-    for k, part in enumerate(parts):
-        if k % 2:
-            out.append(f"${part}$")
-        else:
-            plain = escape(part)
-            for a, b in _DASHES.items():
-                plain = plain.replace(a, b)
-            for a, b in _UNICODE.items():
-                plain = plain.replace(a, b)
-            out.append(plain)
-    return "".join(out)
 
 
 def _printer_for(items: Iterable[sp.Basic]) -> tuple[DocPrinter, str]:

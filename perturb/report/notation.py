@@ -24,7 +24,59 @@ import sympy as sp
 
 from ..fourier_symbols import DiracCoefficient, RampCoefficient, StepCoefficient
 
-__all__ = ["document_title", "settings_sentence", "coefficient_calls", "coefficient_definitions"]
+# plain text in LaTeX (latex.py re-exports escape and escape_text)
+_SPECIAL = {
+    "\\": r"\textbackslash{}",
+    "&": r"\&",
+    "%": r"\%",
+    "$": r"\$",
+    "#": r"\#",
+    "_": r"\_",
+    "{": r"\{",
+    "}": r"\}",
+    "~": r"\textasciitilde{}",
+    "^": r"\textasciicircum{}",
+}
+_DASHES = {
+    "Krylov-Bogoliubov": "Krylov--Bogoliubov",
+    "Lindstedt-Poincare": "Lindstedt--Poincar\\'e",
+}
+_UNICODE = {"–": "--", "—": "---", "é": "\\'e", "µ": "$\\mu$", "ε": "$\\varepsilon$"}
+
+
+def escape(text: str) -> str:
+    """Escape LaTeX's special characters in plain text."""
+    return "".join(_SPECIAL.get(c, c) for c in text)
+
+
+def escape_text(text: str) -> str:
+    """A step's sentence as LaTeX: plain text escaped, mathematics between ``$`` signs kept
+    as it is (so ``"the shift $\\omega_0^2 + \\nu$"`` prints the formula)."""
+    parts = text.split("$")
+    if len(parts) % 2 == 0:  # an unpaired dollar: all plain text
+        parts = [text]
+    out = []
+    for k, part in enumerate(parts):
+        if k % 2:
+            out.append(f"${part}$")
+        else:
+            plain = escape(part)
+            for a, b in _DASHES.items():
+                plain = plain.replace(a, b)
+            for a, b in _UNICODE.items():
+                plain = plain.replace(a, b)
+            out.append(plain)
+    return "".join(out)
+
+
+__all__ = [
+    "document_title",
+    "settings_sentence",
+    "coefficient_calls",
+    "coefficient_definitions",
+    "escape",
+    "escape_text",
+]
 
 _METHODS = {
     "hb1": "single-harmonic balance",
@@ -110,8 +162,6 @@ def settings_sentence(options: Mapping[str, Any], latex) -> str:
     parts = [p for p in parts if p]
     if not parts:
         return ""
-    from .latex import escape_text
-
     return "Settings: " + "; ".join(escape_text(p) for p in parts) + "."
 
 
