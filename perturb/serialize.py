@@ -97,6 +97,15 @@ def _assoc(cls: type) -> Callable[[list], sp.Basic]:
     return lambda args: cls._from_args(args)
 
 
+_RELATIONS = (
+    sp.Equality,
+    sp.Unequality,
+    sp.StrictLessThan,
+    sp.StrictGreaterThan,
+    sp.LessThan,
+    sp.GreaterThan,
+)
+
 #: Class name -> (class, constructor from the rebuilt arguments): every expression type the
 #: engines produce. Each satisfies ``constructor(e.args) == e``: operators and functions
 #: unevaluated; ``Order`` and the containers as given (``Order`` normalises by expanding and
@@ -107,12 +116,7 @@ CLASSES: Mapping[str, tuple[type, Callable[[list], sp.Basic]]] = MappingProxyTyp
             cls.__name__: (cls, _unevaluated(cls))
             for cls in (
                 sp.Pow,
-                sp.Equality,
-                sp.Unequality,
-                sp.StrictLessThan,
-                sp.StrictGreaterThan,
-                sp.LessThan,
-                sp.GreaterThan,
+                *_RELATIONS,
                 sp.Piecewise,
                 sp.And,
                 sp.Or,
@@ -153,16 +157,6 @@ CLASSES: Mapping[str, tuple[type, Callable[[list], sp.Basic]]] = MappingProxyTyp
     }
 )
 
-_RELATIONS = frozenset(
-    (
-        sp.Equality,
-        sp.Unequality,
-        sp.StrictLessThan,
-        sp.StrictGreaterThan,
-        sp.LessThan,
-        sp.GreaterThan,
-    )
-)
 
 #: Class name -> the constant (SymPy singletons an expression may contain).
 CONSTANTS: Mapping[str, sp.Basic] = MappingProxyType(
