@@ -47,10 +47,10 @@ import time
 import numpy as np
 import scipy
 
-from perturb.model import builtin_model
-from perturb.simulate.continuation import continue_orbits, exact_branches
-from perturb.simulate.flow import FlowFamily
-from perturb.simulate.sweeps import frequency_sweep
+from perturb.model.oscillator import builtin_model
+from perturb.simulate.exact_response import continue_orbits, exact_branches
+from perturb.simulate.flows.base import FlowFamily
+from perturb.simulate.studies import frequency_sweep
 
 PARAMS = {"k": -3.0, "mu": 0.05, "F": 2.0}
 WINDOW = (0.2, 2.0)

@@ -3,7 +3,7 @@
 Every case runs in a fresh ``python`` process, because SymPy's in-process caches would
 otherwise make every run after the first a warm one.  Inside the child the imports of
 ``perturb``, the engines and the cache are timed on their own and excluded; the derivation is
-:func:`perturb.cache.cached_derivation` (what ``perturb derive`` and scenes call) with
+:func:`perturb.io.cache.cached_derivation` (what ``perturb derive`` and scenes call) with
 ``PERTURB_CACHE_DIR`` pointing at a temporary folder:
 
 - *cold*: the folder is empty, so the time is derivation + writing the entry.  Repeated in
@@ -114,10 +114,10 @@ _CHILD = textwrap.dedent(
     t0 = time.perf_counter()
     import sympy as sp
     from perturb import builtin_model
-    from perturb.model import Oscillator
+    from perturb.model.oscillator import Oscillator
     from perturb.methods import METHODS
-    from perturb.cache import cached_derivation
-    from perturb.serialize import approximation_to_dict
+    from perturb.io.cache import cached_derivation
+    from perturb.io.serialize import approximation_to_dict
     t1 = time.perf_counter()
     case = json.loads(sys.argv[1])
     kind, *spec = case["model"]

@@ -4,7 +4,8 @@ Computes a_0 ... a_N of the Zou-Nagarajaiah force
 
     f(x) = k x + (1 - k)[(x - 1)H(x - 1) + (x + 1)H(-x - 1)],   x = A cos(psi)
 
-for many amplitudes A in [1, 10] with :func:`perturb.fourier.pwl_coefficients` (one vectorised
+for many amplitudes A in [1, 10] with :func:`perturb.fourier.coefficients.pwl_coefficients` (one
+vectorised
 call, median of several runs) and with ``scipy.integrate.quad`` (QUADPACK's QAWO,
 ``weight='cos'``, on each smooth piece between the switching angles).  quad is timed on a
 random subset of (A, n) pairs and scaled to the full grid.  Both are checked against an
@@ -32,7 +33,7 @@ from scipy import integrate
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), os.pardir))
 
-from perturb.fourier import pwl_coefficients  # noqa: E402
+from perturb.fourier.coefficients import pwl_coefficients  # noqa: E402
 
 
 def zn_spec(k: float) -> dict[str, object]:
@@ -100,7 +101,8 @@ def mp_reference(n: int, A: float, k: float) -> mp.mpf:
 def trig_accuracy(n_max: int = 10_000) -> None:
     """Why a baby/giant-step table and not a Chebyshev recurrence: sin(n phi) errors vs mpmath.
 
-    ``table`` is exp(i(n0 + qB)phi) * exp(i r phi) as in perturb.fourier; ``Chebyshev`` is
+    ``table`` is exp(i(n0 + qB)phi) * exp(i r phi) as in perturb.fourier.coefficients;
+    ``Chebyshev`` is
     s_{k+1} = 2 cos(phi) s_k - s_{k-1}.  The direct/table errors at phi = 0.3 are the rounding
     of the argument n*phi itself (~n phi eps), common to every double-precision method.
     """
@@ -206,7 +208,8 @@ def main(argv: list[str] | None = None) -> None:
     print(f"{'method':<{w}} {'time/coef':>12} {'full grid':>14}   max |error| vs mpmath")
     print(f"{'-' * w} {'-' * 12} {'-' * 14}   {'-' * 24}")
     print(
-        f"{'perturb.fourier.pwl_coefficients':<{w}} {per_vec * 1e9:>9.1f} ns {t_vec:>12.3f} s"
+        f"{'perturb.fourier.coefficients.pwl_coefficients':<{w}} "
+        f"{per_vec * 1e9:>9.1f} ns {t_vec:>12.3f} s"
         f"   {err_vec:.1e} ({len(check)} pairs)"
     )
     print(

@@ -6,11 +6,12 @@ Reproduce with::
 
 Model: Zou-Nagarajaiah nsd, k = -3, mu = 0.05, F = 2, Omega in [0.2, 2] (Fig. 17d: the response
 has a detached loop). ``modified_lindstedt(osc, 1)`` is derived once; the response is traced
-by amplitude parametrisation (``perturb.numeric.frequency_response``) from a solver compiled
+by amplitude parametrisation (``perturb.numeric.amplitude``) from a solver compiled
 once (``compile_response``), with each stability option. Each is compared with its baseline
 in the same process, interleaved call by call so that both see the same load: the previous
 path, i.e. the amplitude's Fourier atoms through the validating public kernels of
-``perturb.fourier`` (``solver.atoms.unchecked = False``) and Hill's exponents from LAPACK's
+``perturb.fourier.coefficients`` (``solver.atoms.unchecked = False``) and Hill's exponents from
+LAPACK's
 ``eigvals`` of the 6x6 matrices (``_hill1_matrix``) instead of the closed-form cubic; and
 the critical points and breakpoint crossings of the waveforms as they were before the last
 step of issue 5 (frozen copies ``_previous_extrema`` / ``_previous_crossings`` below: derivative
@@ -37,9 +38,9 @@ import time
 import numpy as np
 
 from perturb.methods import modified_lindstedt
-from perturb.model import builtin_model
+from perturb.model.oscillator import builtin_model
 from perturb.numeric import frequency_response as fr
-from perturb.numeric.frequency_response import approximation_response, compile_response
+from perturb.numeric.amplitude import approximation_response, compile_response
 
 TARGET_S = 0.020
 

@@ -25,8 +25,8 @@ import time
 import numpy as np
 import scipy
 
-from perturb.simulate.lcp import simulate_lcp
-from perturb.simulate.piecewise_exact import PWLSystem, propagate
+from perturb.simulate.flows.lcp import simulate_lcp
+from perturb.simulate.flows.piecewise_exact import PWLSystem, propagate
 
 COMMAND = "cd /work/main && PYTHONPATH=. python benchmarks/bench_lcp.py"
 

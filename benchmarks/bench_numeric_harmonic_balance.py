@@ -25,7 +25,8 @@ CPU time does not. BLAS runs single-threaded (set below before numpy is imported
 matrices are 31 x 31, where threads only add contention.
 
 Then the error table at W = 0.6: relative error of max|x| against the exact orbit
-(:func:`perturb.simulate.orbits.periodic_orbits`), for exact Galerkin, AFT with 4H + 1 samples
+(:func:`perturb.simulate.orbits.search.periodic_orbits`), for exact Galerkin, AFT with 4H + 1
+samples
 and the floor (the exact orbit's own Fourier series truncated at H; coefficients from 2**16
 samples of the exact dense output).
 """
@@ -47,13 +48,13 @@ import numpy as np  # noqa: E402
 import scipy  # noqa: E402
 from scipy.optimize import minimize_scalar  # noqa: E402
 
-from perturb.model import builtin_model  # noqa: E402
+from perturb.model.oscillator import builtin_model  # noqa: E402
 from perturb.numeric import harmonic_balance as hb  # noqa: E402
 from perturb.numeric.harmonic_balance import (  # noqa: E402
     harmonic_balance_orbit,
     harmonic_balance_response,
 )
-from perturb.simulate.orbits import periodic_orbits  # noqa: E402
+from perturb.simulate.orbits.search import periodic_orbits  # noqa: E402
 
 PARAMS = {"k": -0.5, "mu": 0.05, "F": 2.0}
 WINDOW = (0.3, 2.0)

@@ -30,7 +30,7 @@ import numpy as np
 import scipy
 from scipy.integrate import solve_ivp
 
-from perturb.simulate.piecewise_exact import PWLSystem, propagate
+from perturb.simulate.flows.piecewise_exact import PWLSystem, propagate
 
 COMMAND = "cd /work/main && PYTHONPATH=. python benchmarks/bench_piecewise_exact.py"
 

@@ -31,10 +31,10 @@ import time
 import numpy as np
 import scipy
 
-from perturb.model import builtin_model
-from perturb.simulate.exact_flow import ExactPWLFlow
-from perturb.simulate.flow import ODEFlow
-from perturb.simulate.shooting import N_STATS, periodic_orbit
+from perturb.model.oscillator import builtin_model
+from perturb.simulate.flows.base import ODEFlow
+from perturb.simulate.flows.exact import ExactPWLFlow
+from perturb.simulate.orbits.shooting import N_STATS, periodic_orbit
 
 CPU: dict[str, tuple[float, float]] = {}
 

@@ -32,7 +32,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), os.pardir))
 os.environ.setdefault("PERTURB_PROGRESS", "0")
 
-import perturb.sweep as ps  # noqa: E402
+import perturb.apps.grid as ps  # noqa: E402
 
 SCENE = os.path.join(
     os.path.dirname(os.path.abspath(__file__)), os.pardir, "scenes", "peak_map.toml"

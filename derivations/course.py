@@ -52,13 +52,13 @@ from perturb.methods import (  # noqa: E402
 )
 from perturb.methods.harmonic_balance import backbone_series, solve_residuals  # noqa: E402
 from perturb.methods.multiple_scales import modulation_equations, transition_curves  # noqa: E402
-from perturb.numeric.floquet import expm2  # noqa: E402
-from perturb.numeric.frequency_response import (  # noqa: E402
+from perturb.model.parsing import real_symbol  # noqa: E402
+from perturb.numeric.amplitude import (  # noqa: E402
     approximation_response as traced_response,
 )
-from perturb.parsing import real_symbol  # noqa: E402
-from perturb.simulate.flow import ODEFlow  # noqa: E402
-from perturb.simulate.shooting import limit_cycle, periodic_orbit  # noqa: E402
+from perturb.numeric.stability import expm2  # noqa: E402
+from perturb.simulate.flows.base import ODEFlow  # noqa: E402
+from perturb.simulate.orbits.shooting import limit_cycle, periodic_orbit  # noqa: E402
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "out" / "course"
 
@@ -1040,7 +1040,7 @@ detuning; a periodic expansion for $n = 0$) gives
 {listed}.
 The stability map (Fig.~\ref{{fig:course-mathieu_ince_strutt}}) is the trace of $M$ on a
 ${nd}\times{ne}$ grid, as products of the exact $2\times2$ propagators of
-\texttt{{perturb.numeric.floquet.expm2}} with the stiffness frozen on {steps} and {2 * steps}
+\texttt{{perturb.numeric.stability.expm2}} with the stiffness frozen on {steps} and {2 * steps}
 sub-steps, Richardson-extrapolated. The exact boundaries below are roots of
 $\mathrm{{tr}}\,M = \pm 2$ with $M$ from a DOP853 integration (tolerance $10^{{-12}}$); the table
 gives $|\delta_{{\mathrm{{Floquet}}}} - \delta_{{\mathrm{{perturbation}}}}|$, which falls like the

@@ -19,7 +19,7 @@ What this script checks (the seed's equations are partly lost; docs/references.m
    a pressure -p_v) and a free decoupler (a plate in a gap, with inertance I_d and resistance
    R_d while it floats and no flow while it rests on a stop).  The fixed-decoupler vacuum model
    is one degree of freedom and runs on perturb's event-driven integrator
-   (:func:`perturb.simulate.event_driven.simulate`); the free-decoupler model has four states
+   (:func:`perturb.simulate.flows.event_driven.simulate`); the free-decoupler model has four states
    (two flows and two volumes), which that integrator (``x'' + g(x, x', t) = f(t)``, state
    ``(x, x')``) does not take, so it runs on ``solve_ivp`` with terminal events and restarts
    written here.  The two agree where both apply.
@@ -62,10 +62,10 @@ if str(HERE) not in sys.path:  # imported by path (tests) rather than run as a s
 
 from _common import Study, study  # noqa: E402
 
-from perturb.model import Oscillator  # noqa: E402
+from perturb.model.oscillator import Oscillator  # noqa: E402
 from perturb.printing import latex  # noqa: E402
 from perturb.report.latex import escape  # noqa: E402
-from perturb.simulate.event_driven import simulate as event_driven_simulate  # noqa: E402
+from perturb.simulate.flows.event_driven import simulate as event_driven_simulate  # noqa: E402
 
 NAME = "hydraulic_mount"
 EPSILONS = (0.01, 0.02, 0.05)

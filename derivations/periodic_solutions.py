@@ -12,12 +12,13 @@ script puts numbers on them.
 
 1. *Periodic-orbit solvers on the same orbits.*  perturb's single shooting (``periodic_orbit``,
    ``limit_cycle``), multiple shooting (``multiple_shooting``, all in
-   :mod:`perturb.simulate.shooting`) and periodic finite differences
-   (:func:`~perturb.simulate.collocation.collocation_orbit`) on the forced Duffing
+   :mod:`perturb.simulate.orbits.shooting`) and periodic finite differences
+   (:func:`~perturb.simulate.orbits.collocation.collocation_orbit`) on the forced Duffing
    oscillator, the van der Pol limit cycle at eps = 1 and 5, and the Zou-Nagarajaiah (nsd)
    orbits (exact PWL flow, event-driven flow, plain ODE flow).  Cost: wall time, Newton
    iterations, right-hand-side and Jacobian evaluations (counted by wrapping the
-   :class:`~perturb.simulate.system.NumericRHS` that :class:`~perturb.simulate.flow.ODEFlow`
+   :class:`~perturb.simulate.flows.system.NumericRHS` that
+   :class:`~perturb.simulate.flows.base.ODEFlow`
    integrates) or flow calls and linear pieces (PWL flows).  Accuracy: against references
    computed here with ``solve_ivp`` (DOP853, rtol 1e-13) -- a long run to the attracting cycle
    for van der Pol, Newton shooting on the variational equations for Duffing, the same with
@@ -27,7 +28,7 @@ script puts numbers on them.
 2. *Describing functions* of the dead zone, saturation, ideal relay, relay with hysteresis and
    backlash.  The single-valued ones come from perturb's Fourier engine
    (``deadzone_coefficients``, ``saturation_coefficients``, ``sign_coefficients`` of
-   :mod:`perturb.fourier`, and symbolically
+   :mod:`perturb.fourier.coefficients`, and symbolically
    :func:`~perturb.methods.averaging.equivalent_linearisation`); perturb has none for
    nonlinearities with memory (its Fourier engine takes static g(x), and averaging rejects
    ``M*sign(x - h*sign(x'))``), so the hysteretic relay and the backlash are derived here with
@@ -81,34 +82,34 @@ if str(HERE) not in sys.path:  # imported by path (tests) rather than run as a s
 from _common import Study, study  # noqa: E402
 
 from perturb.errors import ModelError, PerturbError  # noqa: E402
-from perturb.fourier import (  # noqa: E402
+from perturb.fourier.coefficients import (  # noqa: E402
     deadzone_coefficients,
     saturation_coefficients,
     sign_coefficients,
 )
 from perturb.methods.averaging import equivalent_linearisation  # noqa: E402
-from perturb.model import Oscillator, builtin_model  # noqa: E402
+from perturb.model.oscillator import Oscillator, builtin_model  # noqa: E402
+from perturb.model.parsing import real_symbol  # noqa: E402
 from perturb.numeric.continuation import (  # noqa: E402
     ContinuationError,
     continue_curve,
     newton_fixed,
 )
-from perturb.parsing import real_symbol  # noqa: E402
 from perturb.printing import latex  # noqa: E402
 from perturb.report.latex import escape  # noqa: E402
-from perturb.simulate.collocation import collocation_orbit  # noqa: E402
-from perturb.simulate.event_driven import EventFlow  # noqa: E402
-from perturb.simulate.event_driven import simulate as event_driven_simulate  # noqa: E402
-from perturb.simulate.exact_flow import ExactPWLFlow  # noqa: E402
-from perturb.simulate.flow import ODEFlow  # noqa: E402
-from perturb.simulate.shooting import (  # noqa: E402
+from perturb.simulate.flows.base import ODEFlow  # noqa: E402
+from perturb.simulate.flows.event_driven import EventFlow  # noqa: E402
+from perturb.simulate.flows.event_driven import simulate as event_driven_simulate  # noqa: E402
+from perturb.simulate.flows.exact import ExactPWLFlow  # noqa: E402
+from perturb.simulate.flows.system import NumericRHS, first_order_rhs  # noqa: E402
+from perturb.simulate.orbits.collocation import collocation_orbit  # noqa: E402
+from perturb.simulate.orbits.shooting import (  # noqa: E402
     PeriodicOrbit,
     ShootingError,
     limit_cycle,
     multiple_shooting,
     periodic_orbit,
 )
-from perturb.simulate.system import NumericRHS, first_order_rhs  # noqa: E402
 
 NAME = "periodic_solutions"
 TWO_PI = 2.0 * math.pi

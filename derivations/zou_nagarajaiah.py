@@ -51,32 +51,32 @@ import mpmath as mp
 import numpy as np
 import sympy as sp
 
-from perturb.api import frequency_response
+from perturb.comparison import compare, relative_errors
 from perturb.errors import PerturbError
 from perturb.methods import lindstedt_poincare, modified_lindstedt
-from perturb.model import Oscillator, builtin_model
-from perturb.numeric.compare import compare, relative_errors
+from perturb.model.oscillator import Oscillator, builtin_model
 from perturb.numeric.compile import bind_parameters, lambdify
-from perturb.numeric.floquet import monodromy_multipliers
 from perturb.numeric.harmonic_balance import (
     HarmonicBalanceBranch,
     harmonic_balance_branch,
     harmonic_balance_orbit,
 )
+from perturb.numeric.stability import monodromy_multipliers
 from perturb.report.figures import plot_time_history
 from perturb.report.latex import derivation_body
 from perturb.response import Branch, Response
-from perturb.simulate.continuation import continue_orbits
-from perturb.simulate.exact_flow import ExactPWLFlow
-from perturb.simulate.orbits import periodic_orbits
-from perturb.simulate.shooting import PeriodicOrbit, limit_cycle, periodic_orbit
-from perturb.simulate.sweeps import (
+from perturb.simulate.exact_response import continue_orbits
+from perturb.simulate.flows.exact import ExactPWLFlow
+from perturb.simulate.orbits.search import periodic_orbits
+from perturb.simulate.orbits.shooting import PeriodicOrbit, limit_cycle, periodic_orbit
+from perturb.simulate.studies import (
     basins,
     bifurcation_diagram,
     lyapunov_exponent,
     poincare_section,
 )
 from perturb.simulate.time_history import time_history
+from perturb.solve import frequency_response
 
 plt.switch_backend("Agg")  # files only, never a window
 
@@ -2097,7 +2097,7 @@ in the negative-stiffness segment.{lost_txt}
 class MLP:
     """Steady states of modified L-P of ``order`` for the nsd model at given frequencies.
 
-    ``perturb.api.frequency_response`` traces first order only: it builds the method with its
+    ``perturb.solve.frequency_response`` traces first order only: it builds the method with its
     defaults and the numeric tracer needs the quadratic amplitude equation that only first
     order has. Here the residuals of any order are solved directly: the phase equation
     (mu Omega A + F sin phi = 0 and its higher-order corrections) by Newton from its two
@@ -2637,7 +2637,7 @@ def frequency_response_study(
 ) -> tuple[str, dict, list[str]]:
     """Exact response and every approximation of :data:`APPROXIMATIONS` for each case
     (k, mu, F): one row of panels each (one per method), errors by
-    :func:`perturb.numeric.compare.compare`. With ``confirm`` the stability disagreements it
+    :func:`perturb.comparison.compare`. With ``confirm`` the stability disagreements it
     flags are checked at exact orbits (:func:`confirm_disagreements`), otherwise taken as
     flagged."""
     ncol = len(APPROXIMATIONS)
@@ -2996,7 +2996,7 @@ $\delta_2$, step-coefficient products and odd harmonics with sine terms, and its
 are solved on a frequency grid here (stability from the Floquet multipliers of the equation of
 motion linearised about the approximate orbit). Errors: relative error of $\max|x|$ against the
 exact branch at the same frequency, over approximation branches matched to an exact branch
-(\texttt{{perturb.numeric.compare}}, tolerance $0.2$); ``off folds'' leaves out the points
+(\texttt{{perturb.comparison}}, tolerance $0.2$); ``off folds'' leaves out the points
 within {100 * FOLD_DISTANCE:.0f}\,\% (in $\Omega$) of an exact fold, where a slightly displaced
 approximate fold puts the nearest exact solution on the other side of the jump, an error in
 frequency rather than in amplitude:

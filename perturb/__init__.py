@@ -12,8 +12,7 @@ from __future__ import annotations
 
 from importlib.metadata import PackageNotFoundError, version
 
-from .api import frequency_response
-from .errors import (
+from perturb.errors import (
     FourierError,
     ModelError,
     NonsmoothError,
@@ -21,32 +20,33 @@ from .errors import (
     ParseError,
     PerturbError,
 )
-from .model import BUILTIN_MODELS, Forcing, Harmonic, Oscillator, builtin_model
-from .nonsmooth import PiecewiseLinear, to_pwl
-from .parsing import parse_expression
-from .response import Branch, Response
+from perturb.model.oscillator import BUILTIN_MODELS, Forcing, Harmonic, Oscillator, builtin_model
+from perturb.model.parsing import parse_expression
+from perturb.model.pwl import PiecewiseLinear, to_pwl
+from perturb.response import Branch, Response
+from perturb.solve import frequency_response
 
 
 def __getattr__(name: str):
     # the reference solvers pull in scipy.integrate; load them on first use
     if name == "periodic_orbits":
-        from .simulate.orbits import periodic_orbits
+        from perturb.simulate.orbits.search import periodic_orbits
 
         return periodic_orbits
     if name in ("compare", "relative_errors"):
-        from .numeric import compare as _compare
+        from perturb import comparison as _compare
 
         return getattr(_compare, name)
     if name == "sweep":
-        from .sweep import sweep
+        from perturb.apps.grid import sweep
 
         return sweep
     if name == "time_history":
-        from .simulate.time_history import time_history
+        from perturb.simulate.time_history import time_history
 
         return time_history
     if name == "plot":  # matplotlib only when a figure is asked for
-        from .report.figures import plot
+        from perturb.report.figures import plot
 
         return plot
     raise AttributeError(f"module 'perturb' has no attribute {name!r}")

@@ -1,6 +1,7 @@
 """The :class:`Approximation`: what every symbolic method returns.
 
-A method (``perturb/methods/<name>.py``) turns an :class:`~perturb.model.Oscillator` into an
+A method (``perturb/methods/<name>.py``) turns an :class:`~perturb.model.oscillator.Oscillator`
+into an
 Approximation; the numeric layer compiles it without knowing which method made it. The
 contract (docs/architecture.md, "the method contract"):
 
@@ -31,8 +32,8 @@ from typing import Any
 
 import sympy as sp
 
-from .model import Oscillator
-from .printing import latex
+from perturb.model.oscillator import Oscillator
+from perturb.printing import latex
 
 __all__ = ["Approximation", "Step"]
 

@@ -15,7 +15,7 @@ import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-from .errors import ParameterError
+from perturb.errors import ParameterError
 
 __all__ = ["atomic_path", "write_text", "write_bytes", "check_distinct"]
 

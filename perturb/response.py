@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import PerturbError
+from perturb.errors import PerturbError
 
 __all__ = ["Branch", "Response", "CSV_COLUMNS", "responses_to_csv"]
 
@@ -148,7 +148,7 @@ class Response:
         responses on one Axes: :func:`perturb.report.figures.plot` or call ``plot(ax=ax)`` on
         each. matplotlib is imported here, not by ``import perturb``.
         """
-        from .report.figures import plot
+        from perturb.report.figures import plot
 
         return plot(self, ax=ax, **options)
 
@@ -184,7 +184,7 @@ def responses_to_csv(
         offset += len(resp.branches)
     text = buf.getvalue()
     if path is not None:
-        from .atomic import write_text
+        from perturb.atomic import write_text
 
         write_text(path, text)
     return text

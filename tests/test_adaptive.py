@@ -1,7 +1,7 @@
 """method = "auto": the cheapest method that meets rtol, checked against exact periodic orbits.
 
 The oracle is the exact solver (closed-form propagation of the piecewise-linear flow plus
-shooting, :func:`perturb.simulate.orbits.periodic_orbits`) at frequencies that were *not*
+shooting, :func:`perturb.simulate.orbits.search.periodic_orbits`) at frequencies that were *not*
 used for the choice, and, for the exact orbits themselves, a DOP853 integration at tight
 tolerance that must close the period.
 """
@@ -18,7 +18,9 @@ from scipy.integrate import solve_ivp
 
 import perturb
 from perturb import ParameterError, PerturbError
-from perturb.adaptive import (
+from perturb.apps.cli import main
+from perturb.apps.scene import load_scene, parse_scene
+from perturb.auto import (
     LADDER,
     Candidate,
     candidate_spot_errors,
@@ -26,8 +28,6 @@ from perturb.adaptive import (
     choose_method,
     exact_spot_orbits,
 )
-from perturb.cli import main
-from perturb.scene import load_scene, parse_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -19,7 +19,7 @@ import pytest
 import sympy as sp
 
 from perturb import ModelError, Oscillator, builtin_model
-from perturb.fourier_symbols import NUMERIC_IMPLEMENTATIONS
+from perturb.fourier.symbols import NUMERIC_IMPLEMENTATIONS
 from perturb.methods.averaging import (
     equivalent_linearisation,
     fourier_components,
@@ -27,7 +27,7 @@ from perturb.methods.averaging import (
     van_der_pol_averaging,
 )
 from perturb.methods.harmonic_balance import single_harmonic_balance
-from perturb.parsing import real_symbol
+from perturb.model.parsing import real_symbol
 from perturb.report.latex import latex_document
 
 
@@ -137,8 +137,8 @@ def test_van_der_pol_limit_cycle_against_shooting():
     # Measured: for eps = 0.1 the exact limit cycle (shooting) has max|x| = 2.000104, first
     # harmonic 2.000156 and frequency 0.999376; first-order averaging says 2 and 1, errors
     # O(eps^2).
-    from perturb.simulate.flow import ODEFlow
-    from perturb.simulate.shooting import limit_cycle
+    from perturb.simulate.flows.base import ODEFlow
+    from perturb.simulate.orbits.shooting import limit_cycle
 
     osc = builtin_model("vanderpol", eps=0.1)
     orbit = limit_cycle(ODEFlow(osc), [2.0, 0.0], 2 * np.pi)
@@ -304,9 +304,9 @@ def test_forced_krylov_bogoliubov_duffing_against_shooting():
     # F = 0.1, Omega = 1.1): three steady states. Each is corrected by single shooting from the
     # averaged orbit; measured first-harmonic errors 0.30 %, 0.45 % (unstable), 0.007 %, and
     # the slow-flow stability agrees with the Floquet multipliers.
-    from perturb.numeric.frequency_response import solutions_at
-    from perturb.simulate.flow import ODEFlow
-    from perturb.simulate.shooting import periodic_orbit
+    from perturb.numeric.amplitude import solutions_at
+    from perturb.simulate.flows.base import ODEFlow
+    from perturb.simulate.orbits.shooting import periodic_orbit
 
     W = 1.1
     osc = builtin_model("duffing", mu=0.05, alpha=0.1, F=0.1, Omega=W)
@@ -349,7 +349,7 @@ def test_results_are_immutable():
 def test_approximations_serialise_and_read_back():
     import json
 
-    from perturb.serialize import approximation_from_dict, approximation_to_dict
+    from perturb.io.serialize import approximation_from_dict, approximation_to_dict
 
     for approx in (
         krylov_bogoliubov(builtin_model("nsd")),

@@ -1,7 +1,7 @@
 """Hostile derivation-cache entries and derivation files: nothing in them runs or is trusted.
 
 The cache authenticates each entry with an HMAC under a per-user key and reads it, like the
-``perturb derive --json`` codec, only through one closed vocabulary (perturb.serialize). Each
+``perturb derive --json`` codec, only through one closed vocabulary (perturb.io.serialize). Each
 payload below would create a marker file if any part of it were executed — when read, or
 later, when the approximation is compiled by ``lambdify``.
 """
@@ -18,18 +18,18 @@ import numpy as np
 import pytest
 import sympy as sp
 
-import perturb.cache as pc
+import perturb.io.cache as pc
 from perturb import builtin_model
 from perturb.errors import ParseError, PerturbError
-from perturb.methods import METHODS
-from perturb.numeric.frequency_response import approximation_response
-from perturb.serialize import (
+from perturb.io.serialize import (
     Vocabulary,
     approximation_from_dict,
     approximation_to_dict,
     expr_from_text,
     expr_to_text,
 )
+from perturb.methods import METHODS
+from perturb.numeric.amplitude import approximation_response
 
 
 @pytest.fixture
@@ -411,8 +411,8 @@ def test_every_engine_is_cached_and_read_back_exactly(cache, model, method, opti
 
 
 def test_derive_json_file_reads_back_through_load(tmp_path, cache):
-    from perturb.cli import main
-    from perturb.serialize import load, loads
+    from perturb.apps.cli import main
+    from perturb.io.serialize import load, loads
 
     path = tmp_path / "ms.json"
     assert main(["derive", "ms", "nsd", "--json", str(path)]) == 0

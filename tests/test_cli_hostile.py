@@ -2,7 +2,7 @@
 
 Every case must be answered within 20 s by exactly one line ``perturb: error: ...`` on standard
 error, exit status 2 and no traceback. Cases that cannot hang run in-process
-(``perturb.cli.main``, fast); the few that could (hostile expressions, the requests that once
+(``perturb.apps.cli.main``, fast); the few that could (hostile expressions, the requests that once
 grew to 20 GB, signals) run in a subprocess with ``timeout=20``.
 """
 
@@ -18,9 +18,9 @@ from pathlib import Path
 
 import pytest
 
-from perturb.api import MAX_HARMONICS, MAX_ORDER
-from perturb.cli import MAX_PERIODS, main
+from perturb.apps.cli import MAX_PERIODS, main
 from perturb.methods.applicability import ORDER_LIMITS
+from perturb.solve import MAX_HARMONICS, MAX_ORDER
 
 ROOT = Path(__file__).resolve().parents[1]
 TIMEOUT = 20.0
@@ -52,7 +52,7 @@ def _run_subprocess(argv, cwd: Path, name: str | None = None, **kw) -> str:
     env.pop("PERTURB_DEBUG", None)
     t0 = time.perf_counter()
     proc = subprocess.run(
-        [sys.executable, "-m", "perturb.cli", *map(str, argv)],
+        [sys.executable, "-m", "perturb.apps.cli", *map(str, argv)],
         capture_output=True,
         text=True,
         timeout=TIMEOUT,
@@ -329,12 +329,12 @@ def test_read_only_folder(tmp_path, capsys):
 
 
 def test_unexpected_error_names_it_and_the_debug_switch(monkeypatch, capsys):
-    import perturb.cli
+    import perturb.apps.cli
 
     def broken(*args, **kwargs):
         raise ZeroDivisionError("complex division by zero")
 
-    monkeypatch.setattr(perturb.cli, "_model_from_arg", broken)
+    monkeypatch.setattr(perturb.apps.cli, "_model_from_arg", broken)
     monkeypatch.delenv("PERTURB_DEBUG", raising=False)
     line = _run_inprocess([*FRC, "--omega", "0.6"], capsys, "internal error")
     assert "ZeroDivisionError" in line and "PERTURB_DEBUG=1" in line
@@ -344,12 +344,12 @@ def test_unexpected_error_names_it_and_the_debug_switch(monkeypatch, capsys):
 
 
 def test_ctrl_c_is_one_line_and_status_130(monkeypatch, capsys, tmp_path):
-    import perturb.cli
+    import perturb.apps.cli
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(perturb.cli, "_model_from_arg", interrupted)
+    monkeypatch.setattr(perturb.apps.cli, "_model_from_arg", interrupted)
     assert main([*FRC, "--out", str(tmp_path / "x.csv")]) == 130
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("perturb: error: interrupted")
@@ -403,7 +403,7 @@ def test_signal_exits_promptly_and_leaves_no_partial_output(sig, status, word, t
     out = tmp_path / "frc.csv"
     env = dict(os.environ)  # the exact continuation's default: a pool of 2 forked workers
     proc = subprocess.Popen(
-        [sys.executable, "-m", "perturb.cli", *FRC, "--method", "exact", "--out", str(out)],
+        [sys.executable, "-m", "perturb.apps.cli", *FRC, "--method", "exact", "--out", str(out)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

@@ -9,8 +9,8 @@ import dataclasses
 import numpy as np
 import pytest
 
+from perturb.comparison import Comparison, compare, relative_errors
 from perturb.errors import ParameterError
-from perturb.numeric.compare import Comparison, compare, relative_errors
 from perturb.response import Branch, Response
 
 

@@ -16,8 +16,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from perturb.errors import ParameterError
-from perturb.model import Oscillator, builtin_model
-from perturb.simulate.continuation import (
+from perturb.model.oscillator import Oscillator, builtin_model
+from perturb.simulate.exact_response import (
     ContinuationBranch,
     ExactBranches,
     SpecialPoint,
@@ -27,7 +27,7 @@ from perturb.simulate.continuation import (
     exact_solutions_at,
     switch_branch,
 )
-from perturb.simulate.flow import FlowFamily
+from perturb.simulate.flows.base import FlowFamily
 
 NSD_K3 = {"k": -3.0, "mu": 0.05, "F": 2.0}
 
@@ -101,7 +101,7 @@ def test_linear_oscillator_by_shooting_matches_closed_form():
 
 def test_parameter_derivative_is_exact():
     """d G / d Omega in closed form (no extra propagation) against central differences."""
-    from perturb.simulate.continuation import _settings, _Tracer
+    from perturb.simulate.exact_response import _settings, _Tracer
 
     osc = builtin_model("nsd", **NSD_K3)
     st = _settings(0.005, 1e-7, 1e-10, 100, 1e6)
@@ -331,7 +331,7 @@ def test_km05_every_hb_point_has_an_exact_branch_nearby():
     point lies within 4 % (in first-harmonic amplitude and in window-scaled frequency) of an
     exact point, so no branch HB knows of is missed."""
     from perturb.methods.harmonic_balance import single_harmonic_balance
-    from perturb.numeric.frequency_response import approximation_response
+    from perturb.numeric.amplitude import approximation_response
 
     osc = builtin_model("nsd", k=-0.5, mu=0.05, F=2.0)
     res = exact_branches(osc, (0.2, 2.0), progress=False)

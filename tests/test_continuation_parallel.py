@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from perturb.errors import ParameterError
-from perturb.model import builtin_model
-from perturb.simulate.continuation import exact_branches
+from perturb.model.oscillator import builtin_model
+from perturb.simulate.exact_response import exact_branches
 
 NSD_K3 = {"k": -3.0, "mu": 0.05, "F": 2.0}
 WINDOW = (0.45, 0.75)  # the cross-well branch with its pitchfork, a fold and the saddle branch

@@ -21,10 +21,10 @@ from scipy.optimize import minimize_scalar
 
 import perturb
 from perturb import builtin_model, frequency_response
+from perturb.comparison import compare, relative_errors
 from perturb.methods import METHODS
-from perturb.numeric.compare import compare, relative_errors
 from perturb.response import Branch, Response
-from perturb.simulate.continuation import continue_orbits
+from perturb.simulate.exact_response import continue_orbits
 
 
 # =============================================================================================

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 import perturb
+from perturb.apps.scene import default_scene, run_scene
 from perturb.response import CSV_COLUMNS
-from perturb.scene import default_scene, run_scene
 
 EXACT = "exact"
 HB15 = "numeric HB H=15 exact"

@@ -175,7 +175,7 @@ def test_quadratic_cubic_symbolically():
     from perturb import builtin_model
     from perturb.methods import harmonic_balance, lindstedt_poincare
     from perturb.methods.harmonic_balance import backbone_series
-    from perturb.parsing import real_symbol
+    from perturb.model.parsing import real_symbol
 
     w0, a2, a3 = (real_symbol(n) for n in ("omega0", "alpha2", "alpha3"))
     qc = builtin_model("quadratic_cubic", omega0=None, alpha2=None, alpha3=None)

@@ -29,8 +29,8 @@ from scipy.integrate import quad, solve_ivp
 from scipy.linalg import expm
 from scipy.optimize import brentq, minimize_scalar
 
-from perturb.model import Oscillator
-from perturb.simulate.event_driven import simulate
+from perturb.model.oscillator import Oscillator
+from perturb.simulate.flows.event_driven import simulate
 
 
 @pytest.fixture(scope="module")

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from perturb.api import frequency_response
 from perturb.numeric.harmonic_balance import harmonic_balance_branch
-from perturb.simulate.orbits import periodic_orbits
+from perturb.simulate.orbits.search import periodic_orbits
 from perturb.simulate.time_history import time_history
+from perturb.solve import frequency_response
 
 
 @pytest.fixture(scope="module")

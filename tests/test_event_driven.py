@@ -1,8 +1,9 @@
-"""Tests of :mod:`perturb.simulate.event_driven` (event-driven integration, Filippov sliding).
+"""Tests of :mod:`perturb.simulate.flows.event_driven` (event-driven integration, Filippov sliding).
 
 Oracles, never the event-driven integrator itself:
 
-* the exact piecewise-analytic propagator :func:`perturb.simulate.piecewise_exact.propagate` on
+* the exact piecewise-analytic propagator :func:`perturb.simulate.flows.piecewise_exact.propagate`
+on
   the PWL builtins (closed form per segment, its own switching logic);
 * ``split_reference`` below: plain ``solve_ivp`` (DOP853, rtol = atol = 1e-13) on hand-written
   fields of each region, with terminal events at the single surface, restarted on it;
@@ -35,8 +36,9 @@ from scipy.linalg import expm
 from scipy.optimize import brentq
 
 from perturb.errors import ModelError, ParameterError, PerturbError
-from perturb.model import Oscillator, builtin_model
-from perturb.simulate.event_driven import (
+from perturb.model.oscillator import Oscillator, builtin_model
+from perturb.simulate.flows.base import Flow
+from perturb.simulate.flows.event_driven import (
     EventFlow,
     EventRecord,
     EventTrajectory,
@@ -44,9 +46,8 @@ from perturb.simulate.event_driven import (
     simulate,
     switching_surfaces,
 )
-from perturb.simulate.flow import Flow
-from perturb.simulate.piecewise_exact import propagate
-from perturb.simulate.system import to_pwl_system
+from perturb.simulate.flows.piecewise_exact import propagate
+from perturb.simulate.flows.system import to_pwl_system
 
 TWO_PI = 2.0 * math.pi
 

@@ -22,10 +22,10 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from perturb.errors import ParameterError
-from perturb.model import Oscillator
-from perturb.simulate.continuation import exact_branches, exact_frequency_response
-from perturb.simulate.flow import FlowFamily
-from perturb.simulate.shooting import periodic_orbit
+from perturb.model.oscillator import Oscillator
+from perturb.simulate.exact_response import exact_branches, exact_frequency_response
+from perturb.simulate.flows.base import FlowFamily
+from perturb.simulate.orbits.shooting import periodic_orbit
 
 _RTOL = _ATOL = 1e-12
 _MAX_SEGMENTS = 2000
@@ -354,8 +354,8 @@ def test_friction_response_is_traced_with_saltation_multipliers():
 _CHILD = textwrap.dedent(
     """
     import multiprocessing as mp, sys, threading, time
-    from perturb.model import builtin_model
-    from perturb.simulate.continuation import exact_branches
+    from perturb.model.oscillator import builtin_model
+    from perturb.simulate.exact_response import exact_branches
 
     def report():
         for _ in range(600):  # capped: 60 s
@@ -415,8 +415,8 @@ def test_solutions_at_one_frequency_include_the_one_well_orbits():
     """nsd, k = -2, Omega = 1.5: the one-well orbits are the linear responses of the outer
     segments, x = +-3 + A cos(Omega t - phi) with A = F / |1 - Omega^2 + i mu Omega|
     (closed form; x stays beyond +-1), stable; the saddle-type in-well orbit as well."""
-    from perturb.model import builtin_model
-    from perturb.simulate.continuation import exact_solutions_at
+    from perturb.model.oscillator import builtin_model
+    from perturb.simulate.exact_response import exact_solutions_at
 
     k, mu, F_, W = -2.0, 0.05, 2.0, 1.5
     osc = builtin_model("nsd", k=k, mu=mu, F=F_)
@@ -440,9 +440,9 @@ def test_solutions_at_one_frequency_include_the_one_well_orbits():
 def test_solutions_at_one_frequency_from_the_traced_branches_alone(monkeypatch):
     """With the brute-force search returning nothing, the crossings of the traced branches
     still give the three orbits of nsd (k = -2) at Omega = 1.5 (closed forms as above)."""
-    import perturb.simulate.orbits as orbits_module
-    from perturb.model import builtin_model
-    from perturb.simulate.continuation import exact_solutions_at
+    import perturb.simulate.orbits.search as orbits_module
+    from perturb.model.oscillator import builtin_model
+    from perturb.simulate.exact_response import exact_solutions_at
 
     monkeypatch.setattr(orbits_module, "periodic_orbits", lambda *a, **k: ())
     k, mu, F_, W = -2.0, 0.05, 2.0, 1.5

@@ -7,7 +7,7 @@ import pytest
 from scipy.linalg import expm
 
 from perturb import PerturbError, builtin_model
-from perturb.numeric.floquet import expm2, monodromy_multipliers
+from perturb.numeric.stability import expm2, monodromy_multipliers
 
 
 def M(p, q):
@@ -82,7 +82,7 @@ def test_refuses_time_dependent_linearisation_and_coarse_sampling():
 def test_hill_exponents_of_a_constant_coefficient_system_are_exact():
     # x'' + mu x' + q x = 0: multipliers exp(lambda T), lambda = -mu/2 +- sqrt(mu^2/4 - q),
     # whatever harmonic truncation (exponents are defined modulo i*w)
-    from perturb.numeric.floquet import hill_exponents
+    from perturb.numeric.stability import hill_exponents
 
     for mu, q, W in ((0.1, 1.69, 0.8), (0.05, -2.0, 0.6), (0.3, 0.2, 2.0)):
         osc = builtin_model("duffing", alpha=0.0, mu=mu, omega0=np.sqrt(q) if q > 0 else 1.0)
@@ -103,7 +103,7 @@ def test_hill_exponents_of_a_constant_coefficient_system_are_exact():
 
 
 def test_hill_converges_to_the_monodromy_of_the_same_linearisation():
-    from perturb.numeric.floquet import hill_exponents
+    from perturb.numeric.stability import hill_exponents
 
     osc = builtin_model("nsd", k=-0.5, mu=0.05)
     A, W = 2.0, 0.9

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from perturb import ModelError, ParameterError, builtin_model
-from perturb.simulate.exact_flow import ExactPWLFlow
-from perturb.simulate.flow import Flow, FlowFamily, ODEFlow
+from perturb.simulate.flows.base import Flow, FlowFamily, ODEFlow
+from perturb.simulate.flows.exact import ExactPWLFlow
 
 
 def test_ode_flow_sensitivity_obeys_liouville_and_finite_differences():

@@ -1,4 +1,4 @@
-"""Tests of :mod:`perturb.fourier` against independent mpmath oracles.
+"""Tests of :mod:`perturb.fourier.coefficients` against independent mpmath oracles.
 
 The oracle is never the code under test:
 
@@ -34,8 +34,8 @@ import sympy as sp
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from perturb import fourier as F
 from perturb.errors import FourierError, PerturbError
+from perturb.fourier import coefficients as F
 
 EPS = np.finfo(float).eps
 QUAD_DPS = 30

@@ -8,14 +8,14 @@ import pytest
 import sympy as sp
 
 from perturb.errors import FourierError
-from perturb.fourier_symbols import (
+from perturb.fourier.symbols import (
     RampCoefficient,
     StepCoefficient,
     closed_form,
     series_coefficient,
     series_coefficients,
 )
-from perturb.parsing import real_symbol
+from perturb.model.parsing import real_symbol
 
 x = real_symbol("x")
 A = sp.Symbol("A", positive=True)

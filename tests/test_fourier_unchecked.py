@@ -1,4 +1,4 @@
-"""The unchecked kernels of :mod:`perturb.fourier` used by the compiled numeric layer.
+"""The unchecked kernels of :mod:`perturb.fourier.coefficients` used by the compiled numeric layer.
 
 They skip input validation only: on valid input they must give exactly the bits of the public,
 validating functions, including at grazing (``A -> |d - b|+``), where the kernels switch
@@ -12,8 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from perturb import fourier as F
 from perturb.errors import FourierError
+from perturb.fourier import coefficients as F
 
 PAIRS = [
     (F.step_coefficients, F._step_coefficients_unchecked),

@@ -10,7 +10,7 @@ from scipy.optimize import brentq
 
 from perturb import ModelError, ParameterError, builtin_model
 from perturb.methods.harmonic_balance import single_harmonic_balance
-from perturb.numeric.frequency_response import approximation_response
+from perturb.numeric.amplitude import approximation_response
 
 
 def nsd_amplitude_equation(A, W, k, mu, F):
@@ -147,7 +147,7 @@ def test_vectorised_bracketed_roots_match_scalar_brentq():
     """The all-brackets-at-once root refinement (regula falsi / Illinois with bisection
     safeguard) against scipy's scalar brentq, one bracket at a time, on functions with
     simple, steep, flat (cubic) and exactly representable roots."""
-    from perturb.numeric.frequency_response import _bracketed_roots
+    from perturb.numeric.amplitude import _bracketed_roots
 
     shifts = np.array([0.3, 1.7, 2.5, 1e-3, 4.0])
     funcs = [
@@ -171,7 +171,7 @@ def test_vectorised_bracketed_roots_match_scalar_brentq():
 
 
 def test_safeguarded_newton_matches_brentq():
-    from perturb.numeric.frequency_response import _safe_newton
+    from perturb.numeric.amplitude import _safe_newton
 
     # exp(x) + 0.2 sin(4 (x - s)) is increasing for x > log(0.8): one root per bracket
     s = np.array([0.9, 1.4, 2.2, 3.0])
@@ -201,7 +201,7 @@ def test_critical_points_give_max_abs_of_trigonometric_polynomials():
     bounded minimiser; rows include a pure cosine, strong higher harmonics and a mean."""
     from scipy.optimize import minimize_scalar
 
-    from perturb.numeric.frequency_response import _extrema, _max_abs_at
+    from perturb.numeric.amplitude import _extrema, _max_abs_at
 
     rng = np.random.default_rng(5)
     n_rows, K = 40, 16
@@ -242,8 +242,8 @@ def test_exact_pwl_hill_matches_sampled_hill_exponents(k):
     them over the orbit sampled at N instants with a cubic crossing estimate; the latter
     converges to the former as N grows."""
     from perturb.methods import modified_lindstedt
-    from perturb.numeric.floquet import hill_exponents
-    from perturb.numeric.frequency_response import _Waveform, compile_response
+    from perturb.numeric.amplitude import _Waveform, compile_response
+    from perturb.numeric.stability import hill_exponents
 
     osc = builtin_model("nsd", k=k, mu=0.05, F=2.0)
     approx = modified_lindstedt(osc, 1)
@@ -256,7 +256,7 @@ def test_exact_pwl_hill_matches_sampled_hill_exponents(k):
     phi = np.arctan2(ps, pc)
     wave = _Waveform(approx, cp.A, cp.phase, cp.Omega)
     coefs = wave.coefficients(A, phi, w)
-    from perturb.numeric.frequency_response import _extrema
+    from perturb.numeric.amplitude import _extrema
 
     fast = cp.hill.max_multiplier(coefs, _extrema(*coefs), w)
     xf, dxf = wave.samples(A, phi, w, 8192, coefs)
@@ -277,7 +277,7 @@ def test_unchecked_fourier_path_gives_the_checked_response_bitwise(stability):
     # the compiled solver evaluates the amplitude's Fourier atoms with fourier's unchecked
     # kernels; the validating public ones must give the very same response
     from perturb.methods import modified_lindstedt
-    from perturb.numeric.frequency_response import compile_response
+    from perturb.numeric.amplitude import compile_response
 
     osc = builtin_model("nsd", k=-3.0, mu=0.05, F=2.0)
     solver = compile_response(modified_lindstedt(osc, 1))
@@ -292,7 +292,7 @@ def test_unchecked_fourier_path_gives_the_checked_response_bitwise(stability):
 
 
 def test_closed_form_hill_exponents_match_lapack():
-    from perturb.numeric.frequency_response import _hill1_exponents, _hill1_matrix
+    from perturb.numeric.amplitude import _hill1_exponents, _hill1_matrix
 
     rng = np.random.default_rng(5)
     n = 2000
@@ -386,7 +386,7 @@ def test_max_abs_of_half_wave_symmetric_rows_matches_dense_oracle(count):
     """max |x| from :func:`_extrema` (which refines the critical points in [0, pi) of a
     half-wave symmetric row and mirrors the rest, and orders them by one argsort) against
     brute force; an odd sample count takes the path without mirroring of sampled rows."""
-    from perturb.numeric.frequency_response import _extrema, _max_abs_at
+    from perturb.numeric.amplitude import _extrema, _max_abs_at
 
     C, S = _symmetric_rows()
     rows, tau, xe = _extrema(C, S, count)
@@ -409,7 +409,7 @@ def _nsd_orbits(k, F, grazing=(1e-2, 1e-4, 1e-6)):
     the solver, ``C, S``, the response's amplitudes of the unscaled rows and the number of
     rescaled rows (last)."""
     from perturb.methods import modified_lindstedt
-    from perturb.numeric.frequency_response import compile_response
+    from perturb.numeric.amplitude import compile_response
 
     osc = builtin_model("nsd", k=k, mu=0.05, F=F)
     cp = compile_response(modified_lindstedt(osc, 1))
@@ -442,7 +442,7 @@ def test_response_amplitudes_match_dense_oracle_including_grazing(k, F):
     against brute force on the waveform, including the orbits of the response closest above
     the breakpoints (max |x| = 1.0024 for k = -0.5) and rescaled orbits with
     max |x| = 1 + 1e-2 .. 1e-6."""
-    from perturb.numeric.frequency_response import _extrema, _max_abs_at
+    from perturb.numeric.amplitude import _extrema, _max_abs_at
 
     cp, C, S, amp, _ = _nsd_orbits(k, F)
     rows, _, xe = _extrema(C, S)
@@ -462,7 +462,7 @@ def test_breakpoint_crossings_match_brentq_including_grazing(k, F):
     (max |x| = 1 + 1e-6: crossings 1e-3 apart)."""
     from scipy.optimize import brentq
 
-    from perturb.numeric.frequency_response import _extrema
+    from perturb.numeric.amplitude import _extrema
 
     cp, C, S, _, n_grazing = _nsd_orbits(k, F)
     rows, tau, jump = cp.hill.crossings(C, S, *_extrema(C, S))
@@ -492,7 +492,7 @@ def test_breakpoint_crossings_match_brentq_including_grazing(k, F):
 
 def test_old_name_warns_and_answers_the_same():
     # perturb.frequency_response takes an oscillator; the approximation tracer has its own name
-    import perturb.numeric.frequency_response as fr
+    import perturb.numeric.amplitude as fr
 
     approx = single_harmonic_balance(builtin_model("nsd", k=-2.0))
     with pytest.warns(DeprecationWarning, match="approximation_response"):

@@ -38,7 +38,7 @@ from scipy.optimize import brentq
 
 import perturb
 from perturb import FourierError, PerturbError, builtin_model
-from perturb.fourier import (
+from perturb.fourier.coefficients import (
     crossing_angle,
     dirac_coefficients,
     dirac_series,
@@ -49,16 +49,16 @@ from perturb.fourier import (
     step_series,
 )
 from perturb.methods import METHODS
-from perturb.model import Oscillator
-from perturb.numeric.frequency_response import approximation_response as traced_response
-from perturb.numeric.frequency_response import solutions_at
-from perturb.simulate.event_driven import EventFlow, simulate
-from perturb.simulate.exact_flow import ExactPWLFlow
-from perturb.simulate.lcp import simulate_lcp
-from perturb.simulate.orbits import periodic_orbits
-from perturb.simulate.piecewise_exact import PWLSystem, propagate
-from perturb.simulate.shooting import periodic_orbit
-from perturb.simulate.sweeps import (
+from perturb.model.oscillator import Oscillator
+from perturb.numeric.amplitude import approximation_response as traced_response
+from perturb.numeric.amplitude import solutions_at
+from perturb.simulate.flows.event_driven import EventFlow, simulate
+from perturb.simulate.flows.exact import ExactPWLFlow
+from perturb.simulate.flows.lcp import simulate_lcp
+from perturb.simulate.flows.piecewise_exact import PWLSystem, propagate
+from perturb.simulate.orbits.search import periodic_orbits
+from perturb.simulate.orbits.shooting import periodic_orbit
+from perturb.simulate.studies import (
     bifurcation_diagram,
     frequency_sweep,
     lyapunov_exponent,

@@ -22,7 +22,8 @@ import pytest
 import sympy as sp
 
 from perturb import ModelError, Oscillator, ParameterError, PerturbError, builtin_model
-from perturb.fourier_symbols import NUMERIC_IMPLEMENTATIONS
+from perturb.fourier.symbols import NUMERIC_IMPLEMENTATIONS
+from perturb.fourier.trig import harmonics
 from perturb.methods.harmonic_balance import (
     backbone_series,
     balance_solutions,
@@ -30,8 +31,7 @@ from perturb.methods.harmonic_balance import (
     single_harmonic_balance,
     solve_residuals,
 )
-from perturb.methods.trig import harmonics
-from perturb.parsing import real_symbol
+from perturb.model.parsing import real_symbol
 from perturb.report.latex import latex_document
 
 omega0, alpha2, alpha3 = (real_symbol(n) for n in ("omega0", "alpha2", "alpha3"))
@@ -175,8 +175,8 @@ def test_odd_harmonics_on_duffing_converge_to_the_elliptic_frequency():
 def test_van_der_pol_by_harmonic_balance():
     # one harmonic: a = 2, omega = 1 for every eps; (1, 3, 5) at eps = 1 against the exact
     # limit cycle (shooting): omega 0.942942 vs 0.942956, first harmonic 2.01485 vs 2.01491
-    from perturb.simulate.flow import ODEFlow
-    from perturb.simulate.shooting import limit_cycle
+    from perturb.simulate.flows.base import ODEFlow
+    from perturb.simulate.orbits.shooting import limit_cycle
 
     hb1 = harmonic_balance(builtin_model("vanderpol"))
     A, w = hb1.amplitude, hb1.frequency
@@ -196,8 +196,8 @@ def test_one_third_subharmonic_of_duffing_against_shooting():
     # x'' + 0.02 x' + x + x^3 = 10 cos(4.5 t): a stable period-3 orbit. Harmonics 1/3 and 1
     # of the forcing; measured: HB peak 1.37282 vs exact 1.37722 (0.3 %), forced component
     # 0.57571 vs 0.57581.
-    from perturb.simulate.flow import ODEFlow
-    from perturb.simulate.shooting import periodic_orbit
+    from perturb.simulate.flows.base import ODEFlow
+    from perturb.simulate.orbits.shooting import periodic_orbit
 
     W = 4.5
     osc = builtin_model("duffing", mu=0.02, alpha=1.0, F=10.0, Omega=W)
@@ -242,7 +242,7 @@ def test_single_harmonic_matches_single_harmonic_balance(model):
 
 
 def test_single_harmonic_frequency_response_is_the_lead_one():
-    from perturb.numeric.frequency_response import approximation_response
+    from perturb.numeric.amplitude import approximation_response
 
     osc = builtin_model("nsd")
     kw = {"points": 300, "stability": "slow_flow"}
@@ -286,7 +286,7 @@ def test_nsd_bias_at_the_brief_parameters():
     #   large orbit               6.906613 vs 6.716416 (2.8 %; HB calls it stable, the exact
     #                             symmetric orbit is unstable and its stable neighbours are
     #                             the asymmetric pair, 11 % lower in first harmonic)
-    from perturb.simulate.orbits import periodic_orbits
+    from perturb.simulate.orbits.search import periodic_orbits
 
     osc = builtin_model("nsd", F=2.0, **NSD)
     sols = balance_solutions(harmonic_balance(osc, bias=True), 0.4)
@@ -314,7 +314,7 @@ def test_nsd_in_well_orbits_with_bias():
     # reach x = 1, so the outer linear segment makes them exact), stable; and a pair of
     # unstable in-well orbits crossing into the negative-stiffness segment (b = +-2.776,
     # A = 2.294) near the separatrix, where one harmonic is a poor description.
-    from perturb.simulate.orbits import periodic_orbits
+    from perturb.simulate.orbits.search import periodic_orbits
 
     F, W = 1.5, 0.4
     osc = builtin_model("nsd", F=F, **NSD)
@@ -342,8 +342,8 @@ def test_static_load_bias_on_a_polynomial_oscillator():
     # x'' + 0.1 x' + x + x^3 = 0.5 + 0.3 cos(1.4 t). Exact orbit (shooting): first harmonic
     # 1.18308, mean 0.13659. One harmonic + bias: 1.20696, 0.15579 (2.0 %, 0.019);
     # (1, 2, 3) + bias: 1.18349, 0.13682 (0.03 %, 2.3e-4).
-    from perturb.simulate.flow import ODEFlow
-    from perturb.simulate.shooting import periodic_orbit
+    from perturb.simulate.flows.base import ODEFlow
+    from perturb.simulate.orbits.shooting import periodic_orbit
 
     W = 1.4
     osc = Oscillator.parse(
@@ -404,7 +404,7 @@ def test_results_are_immutable():
 def test_approximations_serialise_and_read_back():
     import json
 
-    from perturb.serialize import approximation_from_dict, approximation_to_dict
+    from perturb.io.serialize import approximation_from_dict, approximation_to_dict
 
     for hb in (
         harmonic_balance(builtin_model("nsd"), bias=True),

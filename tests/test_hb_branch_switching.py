@@ -5,17 +5,17 @@ Oracles (never the code under test):
 * closed-form curves for the continuation core: the pitchfork ``lam u - u^3 = 0`` (branches
   ``u = 0`` and ``u^2 = lam``, branch point at 0), the transcritical ``u (lam - u) = 0``
   (branches ``u = 0`` and ``u = lam``) and a cubic with two folds and no branch point;
-* the exact frequency response of nsd at k = -3 (:func:`perturb.simulate.continuation.
+* the exact frequency response of nsd at k = -3 (:func:`perturb.simulate.exact_response.
   exact_branches`, exact piecewise-linear propagation), compared with
-  :func:`perturb.numeric.compare.compare`, plus the mean and the fold of the branches that
+  :func:`perturb.comparison.compare`, plus the mean and the fold of the branches that
   the amplitude comparison cannot tell apart (mirror pairs have equal amplitudes);
 * the symmetry-breaking branch point of a symmetric orbit located independently of HB:
   the symmetric orbit solves ``phi_{T/2}(y) = -y`` (half-period map of the exact flow, or of
   DOP853 at rtol 1e-12 for the smooth system), regular at the branch point, and the branch
   point is the zero of ``det(I - P)``, ``P`` the half-period sensitivity (the full-period
   multiplier through +1 along the antisymmetric direction), found by bisection in Omega;
-* tight shooting (:func:`perturb.simulate.shooting.periodic_orbit` on
-  :class:`~perturb.simulate.flow.ODEFlow`, rtol = atol = 1e-12) for the double-well Duffing
+* tight shooting (:func:`perturb.simulate.orbits.shooting.periodic_orbit` on
+  :class:`~perturb.simulate.flows.base.ODEFlow`, rtol = atol = 1e-12) for the double-well Duffing
   oscillator ``x'' + 0.1 x' - x + x^3 = 0.6 cos(Omega t)``.
 
 Measured (development machine, recorded here so a change shows up): nsd k = -3, H = 15:
@@ -37,9 +37,9 @@ import os
 import numpy as np
 import pytest
 
+from perturb.comparison import compare
 from perturb.errors import ParameterError
-from perturb.model import Oscillator, builtin_model
-from perturb.numeric.compare import compare
+from perturb.model.oscillator import Oscillator, builtin_model
 from perturb.numeric.continuation import BranchPoint, branch_off, continue_curve
 from perturb.numeric.harmonic_balance import (
     HarmonicBalanceSystem,
@@ -48,10 +48,10 @@ from perturb.numeric.harmonic_balance import (
     harmonic_balance_branches,
     harmonic_balance_response,
 )
-from perturb.simulate.continuation import exact_branches
-from perturb.simulate.exact_flow import ExactPWLFlow
-from perturb.simulate.flow import ODEFlow
-from perturb.simulate.shooting import periodic_orbit
+from perturb.simulate.exact_response import exact_branches
+from perturb.simulate.flows.base import ODEFlow
+from perturb.simulate.flows.exact import ExactPWLFlow
+from perturb.simulate.orbits.shooting import periodic_orbit
 
 os.environ.setdefault("PERTURB_PROGRESS", "0")
 

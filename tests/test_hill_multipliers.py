@@ -18,10 +18,10 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import perturb
-from perturb.numeric.floquet import hill_exponents
 from perturb.numeric.harmonic_balance import HarmonicBalanceSystem, harmonic_balance_orbit
-from perturb.simulate.flow import FlowFamily
-from perturb.simulate.shooting import periodic_orbit
+from perturb.numeric.stability import hill_exponents
+from perturb.simulate.flows.base import FlowFamily
+from perturb.simulate.orbits.shooting import periodic_orbit
 
 MU, K, D, F = 0.1, 50.0, 0.5, 4.0
 EQ = f"x'' + {MU}*x' + x + {K}*(x-{D})*Heaviside(x-{D}) = {F}*cos(Omega*t)"

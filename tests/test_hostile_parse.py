@@ -18,21 +18,20 @@ import pytest
 import sympy as sp
 
 from perturb.errors import FourierError, ModelError, ParameterError, ParseError, PerturbError
-from perturb.fourier import step_series
-from perturb.fourier_symbols import (
+from perturb.fourier.coefficients import step_series
+from perturb.fourier.symbols import (
     MAX_SERIES_ORDER,
     power_coefficient,
     series_coefficient,
     series_coefficients,
 )
-from perturb.model import (
+from perturb.model.oscillator import (
     MAX_FORCING_TERMS,
     Oscillator,
     builtin_model,
     validate_parameter_value,
 )
-from perturb.nonsmooth import MAX_BREAKPOINTS, NonsmoothError, to_pwl
-from perturb.parsing import (
+from perturb.model.parsing import (
     MAX_DEGREE,
     MAX_DEPTH,
     MAX_EXPANDED_TERMS,
@@ -46,6 +45,7 @@ from perturb.parsing import (
     parse_number,
     real_symbol,
 )
+from perturb.model.pwl import MAX_BREAKPOINTS, NonsmoothError, to_pwl
 
 #: Every hostile input is answered within this many seconds (issue 18).
 BUDGET = 20.0
@@ -494,7 +494,7 @@ CLI_CASES = [
 
 @pytest.mark.parametrize("argv, fragment", CLI_CASES, ids=lambda v: str(v)[:40])
 def test_cli_answers_former_hangs_within_budget(argv, fragment, tmp_path):
-    code = "import sys; from perturb.cli import main; sys.exit(main(sys.argv[1:]))"
+    code = "import sys; from perturb.apps.cli import main; sys.exit(main(sys.argv[1:]))"
     start = time.perf_counter()
     try:
         proc = subprocess.run(

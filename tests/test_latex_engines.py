@@ -3,7 +3,8 @@ compiles with pdflatex without an overfull box wider than 5 pt, without an undef
 sequence and without Python reprs or raw SymPy names in its text (issue 17).
 
 The closed forms the documents print for the Fourier coefficients (``a^H_n``, ``a^R_n`` and
-the identity linking them) are checked against the numeric forms of :mod:`perturb.fourier`,
+the identity linking them) are checked against the numeric forms of
+:mod:`perturb.fourier.coefficients`,
 and the simplified first-order frequency-amplitude equation of mLP against the engine's own
 residuals. The default run compiles first orders, methods without orders and the two worst
 cases of the issue; the other orders are marked slow.
@@ -20,9 +21,9 @@ import sympy as sp
 
 import perturb
 from perturb import builtin_model
-from perturb.cache import cached_derivation
-from perturb.cli import main
+from perturb.apps.cli import main
 from perturb.errors import PerturbError
+from perturb.io.cache import cached_derivation
 from perturb.methods import METHODS
 from perturb.report.latex import latex_document
 
@@ -126,7 +127,7 @@ def test_the_checks_can_fail():
 # ------------------------------------------------------------------------------------------
 @pytest.mark.parametrize(("A", "b", "d"), [(1.7, 0.0, 1.0), (3.2, 0.4, 1.0), (2.5, -0.3, -1.1)])
 def test_printed_closed_forms_match_the_numeric_coefficients(A, b, d):
-    from perturb import fourier
+    from perturb.fourier import coefficients as fourier
 
     s = d - b
     theta = np.arccos(s / A)
@@ -227,7 +228,8 @@ def test_second_order_mlp_sums_over_the_coefficient_index():
 )
 def test_folded_closed_forms_equal_the_coefficient_functions(method, model):
     """The closed forms printed with one crossing angle (theta_1 = pi - theta_2 folded in)
-    equal the first harmonic the engine uses, evaluated by perturb.fourier; the dead-zone
+    equal the first harmonic the engine uses, evaluated by perturb.fourier.coefficients; the
+    dead-zone
     describing function is the textbook
     k_1 + k_2 (1 - 2/pi (arcsin(d/a) + d/a sqrt(1 - d^2/a^2)))."""
     approx = METHODS[method](builtin_model(model))
@@ -247,7 +249,7 @@ def test_folded_closed_forms_equal_the_coefficient_functions(method, model):
         values[a] = amp
         th = float(theta.rhs.xreplace(values))
         printed = float(closed.rhs.xreplace({theta.lhs: th, **values}))
-        # the coefficient functions of the step before, evaluated by perturb.fourier
+        # the coefficient functions of the step before, evaluated by perturb.fourier.coefficients
         reference = float(named[closed.lhs].xreplace(values).evalf())
         assert printed == pytest.approx(reference, rel=1e-12)
         if model == "deadzone":

@@ -1,10 +1,10 @@
-"""Tests of :mod:`perturb.simulate.lcp` (LCP time-stepping and Lemke's method).
+"""Tests of :mod:`perturb.simulate.flows.lcp` (LCP time-stepping and Lemke's method).
 
 Oracles, never the LCP code itself:
 
 * :func:`enumerate_lcp` below: brute force over all 2^m complementary bases (a direct solve on
   each), for :func:`lcp_solve`;
-* the exact piecewise-analytic propagator :func:`perturb.simulate.piecewise_exact.propagate`,
+* the exact piecewise-analytic propagator :func:`perturb.simulate.flows.piecewise_exact.propagate`,
   for the time-stepping (convergence order and agreement);
 * the energy ½v² + V(x) of the free undamped oscillator, with V written down by hand, and the
   exact per-step energy error of the trapezoidal rule on a kink (derived in the module
@@ -42,16 +42,16 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from perturb.errors import ModelError, ParameterError, PerturbError
-from perturb.model import Oscillator, builtin_model
-from perturb.simulate.lcp import (
+from perturb.model.oscillator import Oscillator, builtin_model
+from perturb.simulate.flows.lcp import (
     LCPTrajectory,
     is_p_matrix,
     lcp_solve,
     simulate_lcp,
     step_lcp,
 )
-from perturb.simulate.piecewise_exact import PWLSystem, propagate
-from perturb.simulate.system import to_pwl_system
+from perturb.simulate.flows.piecewise_exact import PWLSystem, propagate
+from perturb.simulate.flows.system import to_pwl_system
 
 TWO_PI = 2.0 * math.pi
 

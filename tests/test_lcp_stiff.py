@@ -18,9 +18,9 @@ from scipy.integrate import solve_ivp
 
 from perturb import Oscillator
 from perturb.errors import PerturbError
-from perturb.simulate.lcp import MAX_STEP_PHASE, simulate_lcp
-from perturb.simulate.piecewise_exact import propagate
-from perturb.simulate.system import to_pwl_system
+from perturb.simulate.flows.lcp import MAX_STEP_PHASE, simulate_lcp
+from perturb.simulate.flows.piecewise_exact import propagate
+from perturb.simulate.flows.system import to_pwl_system
 from perturb.simulate.time_history import time_history
 
 EQ = "x'' + 0.1*x' + x + 1e6*(x-0.5)*Heaviside(x-0.5) = cos(Omega*t)"

@@ -16,13 +16,13 @@ import sympy as sp
 
 from perturb.errors import ModelError, ParameterError
 from perturb.methods.lindstedt import AMPLITUDES, lindstedt_poincare
-from perturb.model import Oscillator, builtin_model
+from perturb.model.oscillator import Oscillator, builtin_model
+from perturb.model.parsing import real_symbol
 from perturb.numeric.compile import bind_parameters, lambdify
-from perturb.parsing import real_symbol
 from perturb.report.latex import latex_document
-from perturb.simulate.exact_flow import ExactPWLFlow
-from perturb.simulate.flow import ODEFlow
-from perturb.simulate.shooting import limit_cycle
+from perturb.simulate.flows.base import ODEFlow
+from perturb.simulate.flows.exact import ExactPWLFlow
+from perturb.simulate.orbits.shooting import limit_cycle
 
 A = sp.Symbol("A", positive=True)
 eps, w0 = real_symbol("eps"), real_symbol("omega0")
@@ -225,7 +225,7 @@ def test_nsd_free_backbone_outer_regime(nsd_exact):
 def test_nsd_first_order_is_the_describing_function_mean():
     """First order: omega = (omega0^2 + a_1(A)/A)/(2 omega0) with a_1 the first harmonic of
     the whole restoring force (closed form from the Fourier engine)."""
-    from perturb.fourier_symbols import series_coefficient
+    from perturb.fourier.symbols import series_coefficient
 
     osc = builtin_model("nsd", mu=0, F=0).with_params(k=None)
     ap = lindstedt_poincare(osc, 1)
@@ -237,7 +237,7 @@ def test_nsd_first_order_is_the_describing_function_mean():
 
 
 def _numeric_modules():
-    from perturb.fourier_symbols import NUMERIC_IMPLEMENTATIONS
+    from perturb.fourier.symbols import NUMERIC_IMPLEMENTATIONS
 
     return NUMERIC_IMPLEMENTATIONS
 

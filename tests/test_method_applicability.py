@@ -19,7 +19,6 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import fsolve
 
 from perturb import ModelError, Oscillator, ParameterError
-from perturb.api import frequency_response
 from perturb.errors import ParseError
 from perturb.methods import METHODS, harmonic_balance, single_harmonic_balance
 from perturb.methods.applicability import ORDER_LIMITS, even_part, is_odd
@@ -31,8 +30,9 @@ from perturb.methods.averaging import (
 from perturb.methods.harmonic_balance import solve_residuals
 from perturb.methods.lindstedt import lindstedt_poincare
 from perturb.methods.multiple_scales import modulation_equations
-from perturb.numeric.frequency_response import approximation_response as traced
-from perturb.parsing import real_symbol
+from perturb.model.parsing import real_symbol
+from perturb.numeric.amplitude import approximation_response as traced
+from perturb.solve import frequency_response
 
 # the user's equation of issue 18 item 1: numeric coefficients, no named parameter
 ONE_SIDED = "x'' + 0.1*x' + x + 4*(x-0.5)*Heaviside(x-0.5) = 0.8*cos(Omega*t)"
@@ -334,7 +334,7 @@ def test_solve_residuals_extra_equations_go_through_the_parser():
 
 
 def test_trig_harmonics_parses_strings_safely():
-    from perturb.methods.trig import harmonics
+    from perturb.fourier.trig import harmonics
 
     psi = real_symbol("psi")
     assert harmonics("3*cos(2*psi) + 1", psi) == {0: (1, 0), 2: (3, 0)}

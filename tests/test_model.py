@@ -10,7 +10,7 @@ import pytest
 import sympy as sp
 
 from perturb import BUILTIN_MODELS, ModelError, Oscillator, ParameterError, builtin_model
-from perturb.parsing import real_symbol
+from perturb.model.parsing import real_symbol
 
 x, v, t = real_symbol("x"), real_symbol("x'"), real_symbol("t")
 k, mu, F, W = (real_symbol(n) for n in ("k", "mu", "F", "Omega"))

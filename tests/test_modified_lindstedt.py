@@ -15,19 +15,19 @@ import pytest
 import sympy as sp
 
 from perturb.errors import ModelError, ParameterError
-from perturb.fourier_symbols import NUMERIC_IMPLEMENTATIONS, RampCoefficient, StepCoefficient
+from perturb.fourier.symbols import NUMERIC_IMPLEMENTATIONS, RampCoefficient, StepCoefficient
 from perturb.methods.harmonic_balance import single_harmonic_balance
 from perturb.methods.lindstedt import lindstedt_poincare
 from perturb.methods.modified_lindstedt import modified_lindstedt
-from perturb.model import Oscillator, builtin_model
+from perturb.model.oscillator import Oscillator, builtin_model
+from perturb.model.parsing import real_symbol
+from perturb.numeric.amplitude import approximation_response
 from perturb.numeric.compile import bind_parameters, lambdify
-from perturb.numeric.frequency_response import approximation_response
-from perturb.parsing import real_symbol
 from perturb.report.latex import latex_document
-from perturb.simulate.exact_flow import ExactPWLFlow
-from perturb.simulate.flow import ODEFlow
-from perturb.simulate.orbits import periodic_orbits
-from perturb.simulate.shooting import limit_cycle, periodic_orbit
+from perturb.simulate.flows.base import ODEFlow
+from perturb.simulate.flows.exact import ExactPWLFlow
+from perturb.simulate.orbits.search import periodic_orbits
+from perturb.simulate.orbits.shooting import limit_cycle, periodic_orbit
 
 A = sp.Symbol("A", positive=True)
 eps, w0 = real_symbol("eps"), real_symbol("omega0")
@@ -337,7 +337,7 @@ def test_second_order_pwl_uses_step_products_and_no_dirac_terms():
     the continuous nsd force; the second order brings delta_2, step-coefficient products
     (g'(x0) x1) and sine terms from the damping."""
     ap = modified_lindstedt(builtin_model("nsd"), 2)
-    from perturb.fourier_symbols import DiracCoefficient
+    from perturb.fourier.symbols import DiracCoefficient
 
     assert ap.waveform.has(StepCoefficient) and not ap.waveform.has(DiracCoefficient)
     assert ap.waveform.has(sp.sin(3 * tau + 3 * phi))
@@ -347,7 +347,7 @@ def test_second_order_pwl_uses_step_products_and_no_dirac_terms():
 def test_force_with_a_jump_uses_dirac_coefficients_at_second_order():
     """x'' + x + c sign(x) = 0: the second order needs g'(x0) = 2c delta(x0), i.e. Dirac
     coefficients; both methods converge with the order against the exact period."""
-    from perturb.fourier_symbols import DiracCoefficient
+    from perturb.fourier.symbols import DiracCoefficient
 
     osc = Oscillator.parse("x'' + x + c*sign(x) = 0", {"c": 0.2})
     flow = ExactPWLFlow(osc)

@@ -27,7 +27,7 @@ from scipy.optimize import brentq
 from perturb import ModelError, ParameterError, builtin_model
 from perturb.approximation import Approximation
 from perturb.errors import PerturbError
-from perturb.fourier_symbols import NUMERIC_IMPLEMENTATIONS, closed_form
+from perturb.fourier.symbols import NUMERIC_IMPLEMENTATIONS, closed_form
 from perturb.methods.harmonic_balance import single_harmonic_balance
 from perturb.methods.multiple_scales import (
     ModulationEquations,
@@ -35,11 +35,11 @@ from perturb.methods.multiple_scales import (
     multiple_scales,
     transition_curves,
 )
-from perturb.model import Oscillator
-from perturb.numeric.frequency_response import approximation_response, solutions_at
+from perturb.model.oscillator import Oscillator
+from perturb.numeric.amplitude import approximation_response, solutions_at
 from perturb.report.latex import latex_document
-from perturb.simulate.flow import ODEFlow
-from perturb.simulate.shooting import limit_cycle, periodic_orbit
+from perturb.simulate.flows.base import ODEFlow
+from perturb.simulate.orbits.shooting import limit_cycle, periodic_orbit
 
 
 def real(*names: str):
@@ -635,7 +635,7 @@ def test_cold_timings_in_a_fresh_process():
         """
         import time
         from perturb import builtin_model
-        from perturb.model import Oscillator
+        from perturb.model.oscillator import Oscillator
         from perturb.methods.multiple_scales import multiple_scales, modulation_equations
         osc = Oscillator.parse(
             "x'' + 2*eps*mu*x' + omega0**2*x + eps*alpha*x**3 = eps*k*cos(Omega*t)")

@@ -1,4 +1,4 @@
-"""Tests of :mod:`perturb.nonsmooth` (canonical piecewise-linear form).
+"""Tests of :mod:`perturb.model.pwl` (canonical piecewise-linear form).
 
 The oracle throughout is the *original* SymPy expression, evaluated exactly at rational points
 (``expr.subs(x, Rational(p))``) — never the canonical form itself. Points within 1e-9 of a
@@ -18,7 +18,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from perturb.errors import NonsmoothError, ParameterError
-from perturb.nonsmooth import (
+from perturb.model.pwl import (
     NumericPWL,
     PiecewiseLinear,
     RampStepForm,

@@ -6,7 +6,8 @@ Oracles (never the code under test):
   are found independently, as roots of the degree-2K polynomial in ``z = exp(i theta)``
   (numpy companion matrix) — so neither the crossings nor the integrals come from the module;
 * analytic Jacobians against central finite differences;
-* exact periodic orbits of the nsd oscillator (:func:`perturb.simulate.orbits.periodic_orbits`,
+* exact periodic orbits of the nsd oscillator
+(:func:`perturb.simulate.orbits.search.periodic_orbits`,
   exact piecewise-analytic flow) and their Fourier coefficients from 2**16 samples of the
   exact dense output (aliasing ~1e-19 for coefficients decaying like k**-4); the *floor* at
   ``H`` is the amplitude error of the exact orbit's own series truncated at ``H`` (its maximum
@@ -32,8 +33,8 @@ from scipy.integrate import quad_vec
 from scipy.optimize import minimize_scalar
 
 from perturb.errors import ModelError, ParameterError
-from perturb.model import Oscillator, builtin_model
-from perturb.nonsmooth import NumericPWL
+from perturb.model.oscillator import Oscillator, builtin_model
+from perturb.model.pwl import NumericPWL
 from perturb.numeric.continuation import ContinuationError, continue_curve, newton_fixed
 from perturb.numeric.harmonic_balance import (
     HarmonicBalanceSolution,
@@ -48,10 +49,10 @@ from perturb.numeric.harmonic_balance import (
     switching_angles,
 )
 from perturb.response import CSV_COLUMNS
-from perturb.simulate.exact_flow import ExactPWLFlow
-from perturb.simulate.flow import ODEFlow
-from perturb.simulate.orbits import periodic_orbits
-from perturb.simulate.shooting import periodic_orbit
+from perturb.simulate.flows.base import ODEFlow
+from perturb.simulate.flows.exact import ExactPWLFlow
+from perturb.simulate.orbits.search import periodic_orbits
+from perturb.simulate.orbits.shooting import periodic_orbit
 
 TWO_PI = 2.0 * math.pi
 NSD = {"k": -0.5, "mu": 0.05, "F": 2.0}

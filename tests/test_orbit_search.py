@@ -1,7 +1,7 @@
 """``periodic_orbits`` finds every orbit that exact continuation finds at one frequency
 (issue 18, item 3d).
 
-Oracle: :func:`perturb.simulate.continuation.exact_branches` traced over a window (its own
+Oracle: :func:`perturb.simulate.exact_response.exact_branches` traced over a window (its own
 sweeps and closed-form seeds, no input from ``periodic_orbits``), each crossing of a branch
 with the frequency polished by shooting at exactly that frequency. Every orbit found must be a
 true periodic orbit: checked independently by solve_ivp (DOP853, rtol 1e-11) from each of 32
@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from perturb.model import builtin_model
-from perturb.simulate.continuation import _polish_at, exact_branches
-from perturb.simulate.orbits import periodic_orbits
+from perturb.model.oscillator import builtin_model
+from perturb.simulate.exact_response import _polish_at, exact_branches
+from perturb.simulate.orbits.search import periodic_orbits
 
 MU, F = 0.05, 2.0
 

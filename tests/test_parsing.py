@@ -8,7 +8,7 @@ import pytest
 import sympy as sp
 
 from perturb.errors import ParseError, PerturbError
-from perturb.parsing import MAX_LENGTH, parse_equation, parse_expression, real_symbol
+from perturb.model.parsing import MAX_LENGTH, parse_equation, parse_expression, real_symbol
 
 x, k, mu, F, W, t = (real_symbol(n) for n in ("x", "k", "mu", "F", "Omega", "t"))
 v, a = real_symbol("x'"), real_symbol("x''")

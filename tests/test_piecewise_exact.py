@@ -1,4 +1,4 @@
-"""Tests of :mod:`perturb.simulate.piecewise_exact` (exact piecewise-analytic propagation).
+"""Tests of :mod:`perturb.simulate.flows.piecewise_exact` (exact piecewise-analytic propagation).
 
 Oracles, never the propagator itself:
 
@@ -34,7 +34,7 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 from perturb.errors import ParameterError, PerturbError
-from perturb.simulate.piecewise_exact import (
+from perturb.simulate.flows.piecewise_exact import (
     PWLSystem,
     SwitchEvent,
     Trajectory,
@@ -777,7 +777,7 @@ def test_acceleration_bound_holds_on_dense_samples(s, mu, W, x0, v0, t0):
     # The scan jumps over stretches where g + g' h - A h^2/2 stays above 2 tol: A must bound
     # |x''| there.  Oracle: x'' = load - mu v - s x sampled densely on the closed form (itself
     # checked against DOP853 above), for real, repeated and complex roots and near resonance.
-    from perturb.simulate.piecewise_exact import _accel_bound, _model_of, _Piece
+    from perturb.simulate.flows.piecewise_exact import _accel_bound, _model_of, _Piece
 
     system = PWLSystem([], [s], [0.3], damping=mu, forcing=((1.5, W, 0.4),), static_force=0.2)
     seg = _model_of(system).segments[0]

@@ -16,10 +16,10 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 import perturb  # noqa: E402
+from perturb.apps.scene import parse_scene, run_scene  # noqa: E402
 from perturb.errors import ParameterError  # noqa: E402
 from perturb.report import figures  # noqa: E402
 from perturb.response import Branch, Response, responses_to_csv  # noqa: E402
-from perturb.scene import parse_scene, run_scene  # noqa: E402
 
 
 def _response(method: str, first_stable: bool, scale: float = 1.0) -> Response:
@@ -173,10 +173,10 @@ def test_two_outputs_of_one_scene_with_one_name_are_refused():
 def test_an_empty_answer_is_a_note_printed_and_in_the_report(tmp_path, monkeypatch):
     import json
 
-    import perturb.api
+    import perturb.solve
 
     empty = Response((), "numeric HB H=5 exact", "duffing", {})
-    monkeypatch.setattr(perturb.api, "frequency_response", lambda *a, **k: empty)
+    monkeypatch.setattr(perturb.solve, "frequency_response", lambda *a, **k: empty)
     scene = parse_scene(
         '[model]\nname = "duffing"\n[ask]\nomega = [0.5, 1.5]\n[method]\nname = "hb"\n'
         "harmonics = 5\n",

@@ -10,14 +10,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from perturb.api import frequency_response
+from perturb.comparison import compare, relative_errors
 from perturb.errors import ParameterError
 from perturb.methods import modified_lindstedt
-from perturb.model import builtin_model
-from perturb.numeric.compare import compare, relative_errors
-from perturb.numeric.frequency_response import solutions_at
-from perturb.numeric.residual_response import residual_response
-from perturb.simulate.orbits import periodic_orbits
+from perturb.model.oscillator import builtin_model
+from perturb.numeric.amplitude import solutions_at
+from perturb.numeric.residual import residual_response
+from perturb.simulate.orbits.search import periodic_orbits
+from perturb.solve import frequency_response
 
 NSD = {"k": -0.5, "mu": 0.05, "F": 2.0}
 

@@ -9,11 +9,11 @@ import mpmath as mp
 import pytest
 
 from perturb import PerturbError, __version__
-from perturb.cli import main, parse_param
+from perturb.apps.cli import main, parse_param
+from perturb.apps.scene import default_scene, parse_scene, run_scene
 from perturb.errors import ParameterError
-from perturb.model import BUILTIN_MODELS, builtin_model
+from perturb.model.oscillator import BUILTIN_MODELS, builtin_model
 from perturb.response import CSV_COLUMNS
-from perturb.scene import default_scene, parse_scene, run_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -144,7 +144,7 @@ def test_equation_scene_is_parsed_safely():
 
 
 def test_parse_omega_forms():
-    from perturb.cli import parse_omega
+    from perturb.apps.cli import parse_omega
 
     assert parse_omega("0.2:2") == ("range", [0.2, 2.0])
     kind, values = parse_omega("0.2:2.0:5")
@@ -247,7 +247,7 @@ def test_frc_compare_exact_adds_rel_error_against_exact_orbits(tmp_path):
     with open(out) as fh:
         rows = list(csv.DictReader(fh))
     assert tuple(rows[0].keys()) == (*CSV_COLUMNS, "rel_error")
-    from perturb.simulate.orbits import periodic_orbits
+    from perturb.simulate.orbits.search import periodic_orbits
 
     osc = builtin_model("nsd", k=-0.5, mu=0.05, F=2.0)
     for r in rows:
@@ -277,7 +277,7 @@ def test_run_on_a_sweep_scene_writes_the_map(tmp_path):
         'solver = "approximation"\n[sweep.params]\nmu = "0.05:0.1:2"\nk = "-2:-1:2"\n'
     )
     assert main(["run", str(scene), "--out", str(tmp_path / "out")]) == 0
-    from perturb.sweep import load_dataset
+    from perturb.apps.grid import load_dataset
 
     ds = load_dataset(tmp_path / "out" / "map.nc")
     assert dict(ds.sizes)["mu"] == 2 and dict(ds.sizes)["k"] == 2
@@ -320,11 +320,11 @@ def test_bad_ask_kinds(text, fragment):
 
 
 def test_every_shipped_scene_parses():
-    from perturb.scene import load_scene
+    from perturb.apps.scene import load_scene
 
     for path in sorted((ROOT / "scenes").glob("*.toml")):
         if path.name == "peak_map.toml":
-            continue  # a [sweep] scene, read by perturb.sweep_cli
+            continue  # a [sweep] scene, read by perturb.apps.grid_cli
         scene = load_scene(path)
         scene.oscillator()
         assert "docs/references.md" in path.read_text() or "course" in path.name, path
@@ -333,7 +333,7 @@ def test_every_shipped_scene_parses():
 def test_backbone_scene_duffing_against_the_elliptic_integral(tmp_path):
     import dataclasses
 
-    from perturb.scene import load_scene
+    from perturb.apps.scene import load_scene
 
     scene = load_scene(ROOT / "scenes" / "course_duffing_backbone.toml")
     scene = dataclasses.replace(scene, points=12)
@@ -351,7 +351,7 @@ def test_backbone_scene_duffing_against_the_elliptic_integral(tmp_path):
 def test_backbone_of_the_nsd_oscillator_against_closed_forms():
     import math
 
-    from perturb.scene import backbone
+    from perturb.apps.scene import backbone
 
     osc = builtin_model("nsd", k=-2.0, mu=0.05, F=2.0)
     # outer-segment orbits, 1 <= x <= x_c = 1 - 2k = 5: harmonic about x_b = 3, period 2 pi
@@ -377,7 +377,7 @@ def test_backbone_of_the_nsd_oscillator_against_closed_forms():
 def test_step_response_scene_of_a_linear_oscillator_against_its_closed_form(tmp_path):
     import numpy as np
 
-    from perturb.scene import load_scene
+    from perturb.apps.scene import load_scene
 
     scene = load_scene(ROOT / "scenes" / "course_linear_step_response.toml")
     paths = run_scene(scene, tmp_path, log=open(tmp_path / "log.txt", "w"))
@@ -398,7 +398,7 @@ def test_time_history_scene_against_dop853(tmp_path):
     import numpy as np
     from scipy.integrate import solve_ivp
 
-    from perturb.scene import load_scene
+    from perturb.apps.scene import load_scene
 
     scene = load_scene(ROOT / "scenes" / "zou_fig5_time_history.toml")
     scene = dataclasses.replace(scene, t=(0.0, 40.0), samples=401)
@@ -428,8 +428,8 @@ def test_bifurcation_scene_period_one_points_are_periodic_orbits(tmp_path):
 
     import numpy as np
 
-    from perturb.scene import load_scene
-    from perturb.simulate.orbits import periodic_orbits
+    from perturb.apps.scene import load_scene
+    from perturb.simulate.orbits.search import periodic_orbits
 
     scene = load_scene(ROOT / "scenes" / "zou_fig6_bifurcation.toml")
     scene = dataclasses.replace(
@@ -553,7 +553,7 @@ def test_frc_without_plot_or_out_still_prints_the_csv(capsys):
 
 
 def test_frc_method_auto_is_dispatched(monkeypatch, tmp_path, capsys):
-    import perturb.api
+    import perturb.solve
     from perturb.response import Branch, Response
 
     calls = []
@@ -564,7 +564,7 @@ def test_frc_method_auto_is_dispatched(monkeypatch, tmp_path, capsys):
             (Branch([1.0, 1.1], [1.0, 1.2], [1.0, 1.2], [0, 0], [1, 1], [0.5, 0.5]),), "auto"
         )
 
-    monkeypatch.setattr(perturb.api, "frequency_response", fake)
+    monkeypatch.setattr(perturb.solve, "frequency_response", fake)
     assert (
         main(
             ["frc", "nsd", "--method", "auto", "--omega", "0.5:2", "--out", str(tmp_path / "a.csv")]
@@ -602,7 +602,7 @@ def test_help_lists_methods_and_defaults(capsys):
 
 
 def test_compare_names_branch_numbers_not_a_bare_count():
-    from perturb.numeric.compare import compare
+    from perturb.comparison import compare
     from perturb.response import Branch, Response
 
     w = [1.0, 1.5, 2.0]

@@ -8,15 +8,15 @@ import pytest
 import sympy as sp
 
 from perturb import PerturbError, builtin_model
-from perturb.cache import cached_derivation, derivation_key
-from perturb.cli import main
-from perturb.methods.harmonic_balance import single_harmonic_balance
-from perturb.serialize import (
+from perturb.apps.cli import main
+from perturb.io.cache import cached_derivation, derivation_key
+from perturb.io.serialize import (
     approximation_from_dict,
     approximation_to_dict,
     expr_from_text,
     expr_to_text,
 )
+from perturb.methods.harmonic_balance import single_harmonic_balance
 
 
 @pytest.mark.parametrize("model", ["nsd", "duffing", "saturation"])

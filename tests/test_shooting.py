@@ -30,12 +30,12 @@ from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
 from perturb.errors import ModelError, ParameterError, PerturbError
-from perturb.model import Oscillator, builtin_model
-from perturb.simulate.collocation import collocation_orbit, difference_weights
-from perturb.simulate.exact_flow import ExactPWLFlow, common_period
-from perturb.simulate.flow import ODEFlow
-from perturb.simulate.piecewise_exact import PWLSystem, propagate
-from perturb.simulate.shooting import (
+from perturb.model.oscillator import Oscillator, builtin_model
+from perturb.simulate.flows.base import ODEFlow
+from perturb.simulate.flows.exact import ExactPWLFlow, common_period
+from perturb.simulate.flows.piecewise_exact import PWLSystem, propagate
+from perturb.simulate.orbits.collocation import collocation_orbit, difference_weights
+from perturb.simulate.orbits.shooting import (
     PeriodicOrbit,
     ShootingError,
     classify_multipliers,
@@ -612,7 +612,7 @@ def test_shooting_never_returns_nan(nsd_flow, x, v):
 def test_two_by_two_newton_direction_matches_lapack():
     # single shooting solves 2x2 systems by Cramer's rule with the exact condition number;
     # oracle: LAPACK (np.linalg.solve), and lstsq for an exactly singular matrix
-    from perturb.simulate.shooting import _solve
+    from perturb.simulate.orbits.shooting import _solve
 
     rng = np.random.default_rng(7)
     for _ in range(200):

@@ -18,9 +18,9 @@ import pytest
 xr = pytest.importorskip("xarray")
 
 import perturb  # noqa: E402
-import perturb.sweep as ps  # noqa: E402
+import perturb.apps.grid as ps  # noqa: E402
+from perturb.apps.scene import parse_scene  # noqa: E402
 from perturb.errors import ParameterError, PerturbError  # noqa: E402
-from perturb.scene import parse_scene  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 NSD = '[model]\nname = "nsd"\n[params]\nF = 2.0\nk = -2.0\nmu = 0.05\n[ask]\nomega = [0.2, 2.0]\n'
@@ -129,7 +129,7 @@ def test_swept_parameter_must_exist_and_not_be_the_frequency():
 # ------------------------------------------------------------------ what a cell computes --
 def test_peak_agrees_with_the_frequency_response_front_door():
     from perturb.methods import METHODS
-    from perturb.numeric.frequency_response import approximation_response
+    from perturb.numeric.amplitude import approximation_response
 
     ds = ps.sweep(_peak_scene(), {"mu": [0.1], "k": [-2.0, -0.5]}, "serial")
     for k in (-2.0, -0.5):
@@ -179,7 +179,7 @@ def test_hb1_peak_verified_against_simulation():
 
 def test_frequency_response_cells_match_solutions_at():
     from perturb.methods import METHODS
-    from perturb.numeric.frequency_response import solutions_at
+    from perturb.numeric.amplitude import solutions_at
 
     scene = ps.SweepScene(
         parse_scene(NSD), "frequency_response", "approximation", options={"omega_points": 10}
@@ -326,7 +326,7 @@ def test_dask_local_cluster_identical_to_serial(dask_client):
 
 
 def test_cli_scheduler_option_uses_the_cluster(dask_client, tmp_path):
-    from perturb.sweep_cli import main
+    from perturb.apps.grid_cli import main
 
     out = tmp_path / "m.nc"
     argv = [str(ROOT / "scenes" / "peak_map.toml"), "--param", "mu=0.1,0.3", "--param", "k=1"]
@@ -407,7 +407,7 @@ def test_checkpoint_of_another_sweep_is_refused(tmp_path):
 _KILL_SCRIPT = textwrap.dedent(
     """
     import sys, time
-    import perturb.sweep as ps
+    import perturb.apps.grid as ps
 
     def cell(a, b):
         time.sleep(0.04)
@@ -465,7 +465,7 @@ def test_killed_sweep_resumes_with_the_same_result(tmp_path, executor):
 
 # -------------------------------------------------------------------------------- CLI --
 def test_cli_sweep_writes_map_and_png(tmp_path, capsys):
-    from perturb.sweep_cli import main
+    from perturb.apps.grid_cli import main
 
     out = tmp_path / "map.nc"
     code = main(
@@ -506,7 +506,7 @@ def test_cli_sweep_writes_map_and_png(tmp_path, capsys):
     ],
 )
 def test_cli_errors(tmp_path, capsys, argv, fragment):
-    from perturb.sweep_cli import main
+    from perturb.apps.grid_cli import main
 
     code = main([str(ROOT / "scenes" / "peak_map.toml"), "--out", str(tmp_path / "m.nc"), *argv])
     assert code == 2
@@ -522,7 +522,7 @@ def test_module_is_callable():
 @pytest.fixture
 def private_key(tmp_path, monkeypatch):
     """This test's own cache key (checkpoint parts are authenticated with it)."""
-    import perturb.cache as pc
+    import perturb.io.cache as pc
 
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
     monkeypatch.delenv("PERTURB_CACHE_KEY", raising=False)
@@ -546,7 +546,7 @@ def _edit(path, change):
 
 
 def _resign(path):
-    from perturb.cache import authenticate
+    from perturb.io.cache import authenticate
 
     data = json.loads(path.read_text())
     data.pop("hmac", None)
@@ -672,7 +672,7 @@ def test_outputs_are_complete_or_absent(tmp_path, monkeypatch):
 _ORPHAN_SCRIPT = textwrap.dedent(
     """
     import os, sys, time
-    import perturb.sweep as ps
+    import perturb.apps.grid as ps
 
     def cell(a):
         with open(sys.argv[1], "a") as log:

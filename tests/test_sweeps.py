@@ -1,4 +1,4 @@
-"""Tests of :mod:`perturb.simulate.sweeps` (sweeps, sections, diagrams, basins, Lyapunov).
+"""Tests of :mod:`perturb.simulate.studies` (sweeps, sections, diagrams, basins, Lyapunov).
 
 Oracles, never the module itself:
 
@@ -24,10 +24,10 @@ import pytest
 from scipy.linalg import expm
 
 from perturb.errors import ModelError, ParameterError, PerturbError
-from perturb.model import Oscillator, builtin_model
+from perturb.model.oscillator import Oscillator, builtin_model
 from perturb.response import CSV_COLUMNS
-from perturb.simulate.flow import ODEFlow
-from perturb.simulate.sweeps import (
+from perturb.simulate.flows.base import ODEFlow
+from perturb.simulate.studies import (
     BasinResult,
     BifurcationDiagram,
     LyapunovResult,
@@ -83,7 +83,7 @@ def fd_monodromy(flow, y, t0: float, t1: float, h: float = 1e-4) -> np.ndarray:
 def test_make_flow_picks_exact_for_pwl_and_ode_otherwise():
     pwl = make_flow(builtin_model("nsd", k=-2, mu=0.05, F=2, Omega=0.6))
     try:
-        from perturb.simulate.exact_flow import ExactPWLFlow
+        from perturb.simulate.flows.exact import ExactPWLFlow
     except ImportError:  # before the exact flow lands the factory falls back
         assert isinstance(pwl, ODEFlow)
     else:

@@ -8,7 +8,7 @@ import sympy as sp
 from scipy.integrate import quad
 
 from perturb.errors import PerturbError
-from perturb.methods.trig import from_harmonics, harmonics, solve_harmonic_oscillator
+from perturb.fourier.trig import from_harmonics, harmonics, solve_harmonic_oscillator
 
 psi, a, b, phi = sp.symbols("psi a b phi", real=True)
 EXPRS = [

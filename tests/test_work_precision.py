@@ -1,4 +1,4 @@
-"""The work-precision benchmark (``perturb bench``, :mod:`perturb.bench`).
+"""The work-precision benchmark (``perturb bench``, :mod:`perturb.apps.bench`).
 
 Oracles: the closed-form response of the linear oscillator (injected as the "exact"
 reference and as the methods' answers, so the bench's plumbing is checked against known
@@ -16,9 +16,10 @@ import time
 import numpy as np
 import pytest
 
-from perturb import api, bench
+from perturb import solve as api
+from perturb.apps import bench
 from perturb.response import Branch, Response
-from perturb.simulate import sweeps
+from perturb.simulate import studies as sweeps
 
 MU, F = 0.05, 0.5
 

@@ -7,12 +7,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from types import MappingProxyType
 
-from ..approximation import Approximation
-from .averaging import krylov_bogoliubov, van_der_pol_averaging
-from .harmonic_balance import harmonic_balance, single_harmonic_balance
-from .lindstedt import lindstedt_poincare
-from .modified_lindstedt import modified_lindstedt
-from .multiple_scales import multiple_scales
+from perturb.approximation import Approximation
+from perturb.methods.averaging import krylov_bogoliubov, van_der_pol_averaging
+from perturb.methods.harmonic_balance import harmonic_balance, single_harmonic_balance
+from perturb.methods.lindstedt import lindstedt_poincare
+from perturb.methods.modified_lindstedt import modified_lindstedt
+from perturb.methods.multiple_scales import multiple_scales
 
 __all__ = [
     "METHODS",

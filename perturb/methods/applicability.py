@@ -20,7 +20,7 @@ Bounded work
 
 Caller strings
     :func:`expression_argument` turns a caller's value into a SymPy expression: strings only
-    through the safe parser :func:`perturb.parsing.parse_expression` (never ``sympify``).
+    through the safe parser :func:`perturb.model.parsing.parse_expression` (never ``sympify``).
 """
 
 from __future__ import annotations
@@ -33,9 +33,9 @@ from typing import Any
 import numpy as np
 import sympy as sp
 
-from ..errors import ModelError, ParameterError
-from ..model import Oscillator
-from ..nonsmooth import is_nonsmooth
+from perturb.errors import ModelError, ParameterError
+from perturb.model.oscillator import Oscillator
+from perturb.model.pwl import is_nonsmooth
 
 __all__ = [
     "APPLIES_OFF_CENTRE",
@@ -116,7 +116,7 @@ def expression_argument(value: Any, what: str, *, allow_derivatives: bool = Fals
     ----------
     value
         A SymPy expression, a number (int, float, Fraction) or a string; strings go through
-        :func:`perturb.parsing.parse_expression`.
+        :func:`perturb.model.parsing.parse_expression`.
     what
         The argument's name, for the message.
     allow_derivatives
@@ -129,7 +129,7 @@ def expression_argument(value: Any, what: str, *, allow_derivatives: bool = Fals
     ParameterError
         For any other type.
     """
-    from ..parsing import parse_expression
+    from perturb.model.parsing import parse_expression
 
     if isinstance(value, str):
         return parse_expression(value, allow_derivatives=allow_derivatives)
@@ -145,7 +145,7 @@ def expression_argument(value: Any, what: str, *, allow_derivatives: bool = Fals
         return sp.Float(float(value))
     raise ParameterError(
         f"{what} = {value!r} (type {type(value).__name__}): expected a SymPy expression, a "
-        "number or a string (parsed by perturb.parsing.parse_expression)"
+        "number or a string (parsed by perturb.model.parsing.parse_expression)"
     )
 
 

@@ -31,9 +31,9 @@ equivalent linearisation; :math:`N = k_{eq} + i\omega c_{eq}` is the describing 
 Lur'e loop), returned by :func:`equivalent_linearisation`. :func:`fourier_components`
 computes such coefficients for any force the Fourier engine handles:
 
-* polynomials in :math:`x, x'` exactly, through :func:`~perturb.methods.trig.harmonics`;
+* polynomials in :math:`x, x'` exactly, through :func:`~perturb.fourier.trig.harmonics`;
 * piecewise-linear functions of :math:`x` through the closed-form step/ramp coefficients
-  (:func:`~perturb.fourier_symbols.series_coefficient`), never a Taylor series;
+  (:func:`~perturb.fourier.symbols.series_coefficient`), never a Taylor series;
 * piecewise-linear functions of :math:`x'` (Coulomb friction ``sign(x')``, saturating
   dampers) by the same coefficients with a phase shift: :math:`x' = -a\omega\sin\psi =
   a\omega\cos(\psi + \pi/2)`, so a coefficient :math:`\alpha_n(a\omega)` of
@@ -63,21 +63,21 @@ from types import MappingProxyType
 
 import sympy as sp
 
-from ..approximation import Approximation, Step
-from ..errors import FourierError, ModelError, NonsmoothError, PerturbError
-from ..fourier_symbols import (
+from perturb.approximation import Approximation, Step
+from perturb.errors import FourierError, ModelError, NonsmoothError, PerturbError
+from perturb.fourier.symbols import (
     DiracCoefficient,
     RampCoefficient,
     StepCoefficient,
     closed_form,
     series_coefficient,
 )
-from ..model import Oscillator
-from ..nonsmooth import is_nonsmooth, to_pwl
-from ..parsing import real_symbol
-from ..printing import latex
-from .applicability import expression_argument, require_centred
-from .trig import fold_mirror_angles, harmonics
+from perturb.fourier.trig import fold_mirror_angles, harmonics
+from perturb.methods.applicability import expression_argument, require_centred
+from perturb.model.oscillator import Oscillator
+from perturb.model.parsing import real_symbol
+from perturb.model.pwl import is_nonsmooth, to_pwl
+from perturb.printing import latex
 
 __all__ = [
     "fourier_components",
@@ -347,7 +347,7 @@ class EquivalentLinearisation:
 
     def closed(self) -> tuple[sp.Expr, sp.Expr, tuple[tuple[sp.Symbol, sp.Expr], ...]]:
         """``(k_eq, c_eq, definitions)`` in the textbook theta-form of
-        :func:`~perturb.fourier_symbols.closed_form` (valid where every switching point is
+        :func:`~perturb.fourier.symbols.closed_form` (valid where every switching point is
         crossed)."""
         k, dk, _ = closed_form(self.stiffness)
         c, dc, _ = closed_form(self.damping, theta="vartheta")
@@ -368,7 +368,7 @@ def equivalent_linearisation(
     Parameters
     ----------
     model
-        An :class:`~perturb.model.Oscillator` (its whole left-hand side ``g(x, x')``:
+        An :class:`~perturb.model.oscillator.Oscillator` (its whole left-hand side ``g(x, x')``:
         linear stiffness and viscous damping included, so :math:`k_{eq}` and
         :math:`c_{eq}` are totals) or a SymPy expression of ``x`` and ``v``.
     x, v
@@ -564,7 +564,7 @@ def krylov_bogoliubov(
     Approximation
         Forced: unknowns ``(a, phi)``, residuals, slow flow, ``frequency_polynomial`` when
         the amplitude equation is a polynomial of degree <= 2 in ``Omega**2`` (so
-        :func:`~perturb.numeric.frequency_response.approximation_response` applies), ``phase_from``.
+        :func:`~perturb.numeric.amplitude.approximation_response` applies), ``phase_from``.
         Free: unknowns ``(a, beta)``, slow flow ``(a', beta')``, residuals
         ``(a', omega - omega_0 - beta')`` and the ``backbone``.
         ``fourier`` holds ``k_eq``, ``c_eq``, ``G_c``, ``G_s``.

@@ -36,7 +36,7 @@ Single harmonic, zero bias (:func:`single_harmonic_balance`)
     Several harmonics (odd sets ``(1, 3, 5)``, a bias plus ``(1, 2)``, subharmonics
     ``(Fraction(1, 3), 1)``) are balanced exactly for forces polynomial in ``x`` and ``x'``:
     the ansatz is substituted, the residual's components are read off with
-    :func:`~perturb.methods.trig.harmonics` and every component outside the set is dropped.
+    :func:`~perturb.fourier.trig.harmonics` and every component outside the set is dropped.
     PWL forces with several harmonics need switching instants found numerically (the
     Galerkin projection of docs/architecture.md's Fourier layer) and are refused here.
 
@@ -58,17 +58,17 @@ from types import MappingProxyType
 import numpy as np
 import sympy as sp
 
-from ..approximation import Approximation, Step
-from ..errors import ModelError, ParameterError, PerturbError
-from ..fourier_symbols import closed_form, series_coefficient
-from ..model import Oscillator
-from ..nonsmooth import is_nonsmooth
-from ..parsing import real_symbol
-from ..printing import latex
-from .applicability import check_order, expression_argument, require_centred
-from .averaging import _frequency_polynomial, _response_frequency, fourier_components
-from .trig import fold_mirror_angles
-from .trig import harmonics as trig_harmonics
+from perturb.approximation import Approximation, Step
+from perturb.errors import ModelError, ParameterError, PerturbError
+from perturb.fourier.symbols import closed_form, series_coefficient
+from perturb.fourier.trig import fold_mirror_angles
+from perturb.fourier.trig import harmonics as trig_harmonics
+from perturb.methods.applicability import check_order, expression_argument, require_centred
+from perturb.methods.averaging import _frequency_polynomial, _response_frequency, fourier_components
+from perturb.model.oscillator import Oscillator
+from perturb.model.parsing import real_symbol
+from perturb.model.pwl import is_nonsmooth
+from perturb.printing import latex
 
 __all__ = [
     "single_harmonic_balance",
@@ -289,7 +289,7 @@ def harmonic_balance(
         ``x = b + A cos(Omega t + p - phi)``; residuals in closed form for PWL forces
         (step/ramp coefficients by name), ``phase_from``, ``frequency_polynomial`` (in
         ``Omega**2`` at fixed ``b``), and without bias the averaged slow flow, so
-        :func:`~perturb.numeric.frequency_response.approximation_response` applies; with bias use
+        :func:`~perturb.numeric.amplitude.approximation_response` applies; with bias use
         :func:`balance_solutions`.
 
         Several harmonics (polynomial forces): unknowns ``c_0`` (bias), ``a_n``, ``b_n``
@@ -574,7 +574,7 @@ def _polynomial_components(
     The ansatz is held as a real trigonometric polynomial with coefficients in a sparse
     polynomial ring (unknowns and parameters as generators), and ``g`` is evaluated monomial
     by monomial with the product-to-sum rules. This is the same bookkeeping as
-    :func:`~perturb.methods.trig.harmonics` but never builds the expanded SymPy expression of
+    :func:`~perturb.fourier.trig.harmonics` but never builds the expanded SymPy expression of
     ``g(ansatz)`` (which for a cubic of eight coefficients has thousands of terms and made the
     derivation take tens of seconds).
     """
@@ -921,7 +921,7 @@ def solve_residuals(
     """
     from scipy.optimize import root
 
-    from ..numeric.compile import bind_parameters, lambdify
+    from perturb.numeric.compile import bind_parameters, lambdify
 
     approx = approximation
     unknowns = [_resolve(approx, k) for k in guess]
@@ -1034,8 +1034,8 @@ def balance_solutions(
     """
     from scipy.optimize import root
 
-    from ..numeric.compile import bind_parameters, lambdify
-    from ..numeric.floquet import hill_exponents
+    from perturb.numeric.compile import bind_parameters, lambdify
+    from perturb.numeric.stability import hill_exponents
 
     approx = approximation
     osc = approx.oscillator

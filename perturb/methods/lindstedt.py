@@ -33,7 +33,7 @@ fixes :math:`\omega_n` (it enters as :math:`2\omega_0\omega_n A\cos\tau`). The b
 Taylor expansion :math:`\sum_k g^{(k)}(x_0)/k!\,[\varepsilon^{m}](x-x_0)^k`. For a polynomial
 ``g`` every factor is a finite trigonometric polynomial; for a piecewise-linear ``g`` the
 factors :math:`g^{(k)}(A\cos\tau)` are distributions with closed-form Fourier series from
-:mod:`perturb.fourier_symbols` — ramps for ``k = 0``; steps, and Dirac deltas where the force
+:mod:`perturb.fourier.symbols` — ramps for ``k = 0``; steps, and Dirac deltas where the force
 jumps, for ``k = 1`` — never a Taylor series in ``x``, truncated at ``harmonics`` (orders up to
 :data:`PWL_MAX_ORDER`).
 
@@ -62,15 +62,15 @@ from typing import Any
 
 import sympy as sp
 
-from ..approximation import Approximation, Step
-from ..errors import FourierError, ModelError, NonsmoothError, ParameterError
-from ..fourier_symbols import DiracCoefficient, RampCoefficient, StepCoefficient, closed_form
-from ..model import Oscillator
-from ..nonsmooth import to_pwl
-from ..parsing import parse_expression, real_symbol
-from ..printing import latex
-from .applicability import check_order, expression_argument, require_centred
-from .trig import fold_mirror_angles, from_harmonics
+from perturb.approximation import Approximation, Step
+from perturb.errors import FourierError, ModelError, NonsmoothError, ParameterError
+from perturb.fourier.symbols import DiracCoefficient, RampCoefficient, StepCoefficient, closed_form
+from perturb.fourier.trig import fold_mirror_angles, from_harmonics
+from perturb.methods.applicability import check_order, expression_argument, require_centred
+from perturb.model.oscillator import Oscillator
+from perturb.model.parsing import parse_expression, real_symbol
+from perturb.model.pwl import to_pwl
+from perturb.printing import latex
 
 __all__ = ["lindstedt_poincare", "AMPLITUDES", "SCALINGS", "PWL_MAX_ORDER"]
 
@@ -380,7 +380,7 @@ def _step(title: str, math: Iterable[sp.Basic] = (), text: str = "") -> Step:
 
 # ---------------------------------------------------------------------------------------------
 # trigonometric series: {n: (cos coefficient, sin coefficient)}, n >= 0, coefficients _Lp;
-# the n = 0 entry is the mean (the convention of perturb.methods.trig.harmonics)
+# the n = 0 entry is the mean (the convention of perturb.fourier.trig.harmonics)
 # ---------------------------------------------------------------------------------------------
 Series = dict[int, tuple[_Lp, _Lp]]
 Coeff = _Lp | int | sp.Expr

@@ -63,7 +63,7 @@ with :math:`\nu(A, \varphi) = (\hat g_1 - F\cos\varphi)/A` and
 :math:`\nu = 0`.
 
 Piecewise-linear ``g`` enter through the closed-form ramp/step/Dirac Fourier coefficients of
-:mod:`perturb.fourier_symbols` (the Taylor terms :math:`g^{(k)}(x_0)` are distributions along
+:mod:`perturb.fourier.symbols` (the Taylor terms :math:`g^{(k)}(x_0)` are distributions along
 :math:`x_0 = A\cos\psi`: steps at order 2, Dirac deltas at order 3 — eq. (48) of the paper,
 whose Dirac terms :math:`(x_0 \mp 1)\,\delta(x_0 \mp 1)` vanish identically for the
 continuous ``nsd`` force), truncated at ``harmonics``.
@@ -76,13 +76,11 @@ from typing import Any
 
 import sympy as sp
 
-from ..approximation import Approximation, Step
-from ..errors import ModelError, ParameterError
-from ..fourier_symbols import DiracCoefficient, RampCoefficient, StepCoefficient
-from ..model import Oscillator
-from ..parsing import real_symbol
-from .applicability import check_order, require_centred
-from .lindstedt import (
+from perturb.approximation import Approximation, Step
+from perturb.errors import ModelError, ParameterError
+from perturb.fourier.symbols import DiracCoefficient, RampCoefficient, StepCoefficient
+from perturb.methods.applicability import check_order, require_centred
+from perturb.methods.lindstedt import (
     _ONE,
     _ZERO,
     PWL_MAX_ORDER,
@@ -107,6 +105,8 @@ from .lindstedt import (
     _vanishes,
     _w0_lp,
 )
+from perturb.model.oscillator import Oscillator
+from perturb.model.parsing import real_symbol
 
 __all__ = ["modified_lindstedt"]
 
@@ -200,7 +200,7 @@ def modified_lindstedt(
         :math:`x = A\cos(\tau + \varphi) + \dots`, ``residuals`` (eqs. (54)–(55) of Zou &
         Nagarajaiah at first order); at first order also ``frequency_polynomial`` (quadratic
         in :math:`\Omega^2`), ``phase_from`` and the averaged ``slow_flow``, so
-        :func:`perturb.numeric.frequency_response.approximation_response` traces every branch.
+        :func:`perturb.numeric.amplitude.approximation_response` traces every branch.
 
     Raises
     ------

@@ -87,7 +87,7 @@ Frequency responses
 :meth:`ModulationEquations.approximation` returns the method contract. For first-order primary
 resonance with the *stiffness* detuning the phase-eliminated relation is an exact quadratic in
 :math:`\Omega^2` (``frequency_polynomial``), so
-:func:`perturb.numeric.frequency_response.approximation_response` traces every branch. With the
+:func:`perturb.numeric.amplitude.approximation_response` traces every branch. With the
 *frequency* detuning the relation is a quadratic in :math:`\Omega` (through :math:`\sigma`), not in
 :math:`\Omega^2`; the only polynomial in :math:`\Omega^2` with its roots,
 :math:`r(\Omega)r(-\Omega)`, also carries the mirrored negative roots as spurious branches, so
@@ -96,7 +96,7 @@ none is provided (use :meth:`ModulationEquations.steady_states`, or ``detuning="
 Piecewise-linear terms
 ----------------------
 A nonsmooth restoring term :math:`f(x)` enters at first order only through the first Fourier
-coefficient :math:`a_1(a)` of :math:`f(a\cos\psi)` (``perturb.fourier_symbols``: closed form in
+coefficient :math:`a_1(a)` of :math:`f(a\cos\psi)` (``perturb.fourier.symbols``: closed form in
 :math:`\theta = \arccos(d/a)`, never a Taylor series); its secular part is
 :math:`a_1(a)\,B/a`. Higher orders with nonsmooth terms need Dirac terms and are not provided.
 """
@@ -116,15 +116,15 @@ import sympy as sp
 from sympy import QQ_I
 from sympy.polys.rings import PolyElement, PolyRing
 
-from ..approximation import Approximation, Step
-from ..errors import ModelError, ParameterError, PerturbError
-from ..fourier_symbols import NUMERIC_IMPLEMENTATIONS, closed_form, series_coefficient
-from ..model import Oscillator
-from ..nonsmooth import is_nonsmooth
-from ..parsing import real_symbol
-from ..printing import latex
-from .applicability import check_order, expression_argument, require_centred
-from .trig import fold_mirror_angles
+from perturb.approximation import Approximation, Step
+from perturb.errors import ModelError, ParameterError, PerturbError
+from perturb.fourier.symbols import NUMERIC_IMPLEMENTATIONS, closed_form, series_coefficient
+from perturb.fourier.trig import fold_mirror_angles
+from perturb.methods.applicability import check_order, expression_argument, require_centred
+from perturb.model.oscillator import Oscillator
+from perturb.model.parsing import real_symbol
+from perturb.model.pwl import is_nonsmooth
+from perturb.printing import latex
 
 __all__ = [
     "ModulationEquations",
@@ -2110,7 +2110,7 @@ def _transition_n0(
     osc: Oscillator, delta: sp.Symbol, named: sp.Symbol | None, order: int
 ) -> tuple[sp.Expr, ...]:
     """``n = 0``: periodic expansion about the constant solution (see transition_curves)."""
-    from .trig import harmonics
+    from perturb.fourier.trig import harmonics
 
     x, t = osc.x, osc.t
     eps = named if named is not None else sp.Symbol("epsilon", positive=True)

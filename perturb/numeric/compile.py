@@ -1,7 +1,7 @@
 """Compile SymPy expressions of an :class:`~perturb.approximation.Approximation` to numpy.
 
-The Fourier-coefficient functions of :mod:`perturb.fourier_symbols` are evaluated with the
-stable vectorised forms of :mod:`perturb.fourier`; common subexpressions are shared.
+The Fourier-coefficient functions of :mod:`perturb.fourier.symbols` are evaluated with the
+stable vectorised forms of :mod:`perturb.fourier.coefficients`; common subexpressions are shared.
 """
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 import sympy as sp
 
-from ..approximation import Approximation
-from ..errors import ParameterError
-from ..fourier_symbols import NUMERIC_IMPLEMENTATIONS
+from perturb.approximation import Approximation
+from perturb.errors import ParameterError
+from perturb.fourier.symbols import NUMERIC_IMPLEMENTATIONS
 
 __all__ = ["lambdify", "bind_parameters"]
 

@@ -86,7 +86,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import ParameterError, PerturbError
+from perturb.errors import ParameterError, PerturbError
 
 __all__ = [
     "ContinuationError",

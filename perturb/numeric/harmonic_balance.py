@@ -174,11 +174,10 @@ import numpy as np
 import sympy as sp
 from numpy.typing import ArrayLike
 
-from ..errors import ModelError, ParameterError, PerturbError
-from ..model import Oscillator
-from ..nonsmooth import NumericPWL
-from ..response import Branch, Response
-from .continuation import (
+from perturb.errors import ModelError, ParameterError, PerturbError
+from perturb.model.oscillator import Oscillator
+from perturb.model.pwl import NumericPWL
+from perturb.numeric.continuation import (
     BranchPoint,
     ContinuationCurve,
     ContinuationError,
@@ -187,6 +186,7 @@ from .continuation import (
     continue_curve,
     newton_fixed,
 )
+from perturb.response import Branch, Response
 
 __all__ = [
     "HarmonicBasis",
@@ -1307,7 +1307,7 @@ class HarmonicBalanceSystem:
 
 def _expm2(p: float, q: float, h: float) -> tuple[float, float, float, float]:
     """``exp(h [[0, 1], [-q, -p]])`` as ``(m00, m01, m10, m11)``: the closed form of
-    :func:`perturb.numeric.floquet.expm2` in scalar arithmetic (a monodromy has a handful of
+    :func:`perturb.numeric.stability.expm2` in scalar arithmetic (a monodromy has a handful of
     pieces, where array overhead would dominate)."""
     b2 = 0.25 * p * p - q
     root = math.sqrt(abs(b2))
@@ -2254,8 +2254,8 @@ def _single_harmonic_seeds(
     motion is time-invariant, so shifting ``x = a0 + A cos theta`` in time turns the
     first-harmonic part ``Z = R_a1 - i R_b1`` of its unforced residual by the same angle,
     and the shift that turns ``Z`` onto the forcing's ``F_a1 - i F_b1`` balances it."""
-    from ..methods import single_harmonic_balance
-    from .frequency_response import approximation_response
+    from perturb.methods import single_harmonic_balance
+    from perturb.numeric.amplitude import approximation_response
 
     basis = system.basis
     pos = basis.index_of(system.m)
@@ -2492,7 +2492,7 @@ def harmonic_balance_branches(
     2. Seeds (``origin='seed'``): ``seeds_per_branch`` points along each branch of the
        single-harmonic balance (``perturb.methods.single_harmonic_balance``) response,
        traced by amplitude parametrisation
-       (:func:`perturb.numeric.frequency_response.approximation_response`), which returns every
+       (:func:`perturb.numeric.amplitude.approximation_response`), which returns every
        one of its branches, detached loops included, without continuation; then, at five
        frequencies across the window (edges included), the closed-form orbits of the linear
        segments of a PWL force that stay in their segment and the linear responses about

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..response import Response
+from perturb.response import Response
 
 __all__ = [
     "plot",
@@ -159,7 +159,7 @@ def _equation_tex(oscillator) -> str | None:
     """The equation of motion as mathtext (``\\ddot x``, ``\\mu``, ``H(\\cdot)``), or None."""
     import sympy as sp
 
-    from ..printing import latex
+    from perturb.printing import latex
 
     try:
         eq = oscillator.equation
@@ -252,7 +252,7 @@ def _default_title(items: Sequence[Response]) -> str:
     r = items[0]
     model = r.model or ""
     try:
-        from ..model import BUILTIN_MODELS, builtin_model
+        from perturb.model.oscillator import BUILTIN_MODELS, builtin_model
 
         if model in BUILTIN_MODELS:
             params = {k: v for k, v in r.params.items() if k != "Omega"}
@@ -456,7 +456,7 @@ def frequency_response_figure(
 
 def save_figure(fig, path: str | Path) -> None:
     """``fig.savefig(path)`` through a temporary file renamed onto ``path``."""
-    from ..atomic import atomic_path
+    from perturb.atomic import atomic_path
 
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format=Path(path).suffix.lstrip(".").lower() or "png")

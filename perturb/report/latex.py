@@ -16,9 +16,9 @@ from pathlib import Path
 import sympy as sp
 from sympy.core.function import AppliedUndef
 
-from ..approximation import Approximation, Step
-from .layout import TEXT_WIDTH, DocPrinter, equation_rows, tex_width
-from .notation import (
+from perturb.approximation import Approximation, Step
+from perturb.report.layout import TEXT_WIDTH, DocPrinter, equation_rows, tex_width
+from perturb.report.notation import (
     coefficient_calls,
     coefficient_definitions,
     document_title,
@@ -179,7 +179,7 @@ def latex_document(
         ]
     )
     if path is not None:
-        from ..atomic import write_text
+        from perturb.atomic import write_text
 
         write_text(path, doc)  # complete or absent
     return doc

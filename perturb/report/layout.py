@@ -7,7 +7,7 @@ r"""Typesetting of long derivation formulas: term order, harmonic grouping and l
   (``1 + \epsilon\omega_1 + \epsilon^2\omega_2``), then by harmonic (no trigonometric factor,
   ``\cos\psi``, ``\sin\psi``, ``\cos 2\psi`` ...), otherwise in SymPy's order (a sum
   built unevaluated keeps the order it was built in);
-- the Fourier-coefficient functions of :mod:`perturb.fourier_symbols` as ``a^R_n`` when the
+- the Fourier-coefficient functions of :mod:`perturb.fourier.symbols` as ``a^R_n`` when the
   document defines their common argument once (see :mod:`perturb.report.notation`);
 - derivatives of the engines' unknown functions with primes (``x_2''``) or as
   ``\partial B/\partial T_1``.
@@ -26,8 +26,8 @@ from collections.abc import Iterable, Sequence
 import sympy as sp
 from sympy.core.function import AppliedUndef
 
-from ..fourier_symbols import DiracCoefficient, RampCoefficient, StepCoefficient
-from ..printing import _PerturbLatexPrinter
+from perturb.fourier.symbols import DiracCoefficient, RampCoefficient, StepCoefficient
+from perturb.printing import _PerturbLatexPrinter
 
 __all__ = [
     "DocPrinter",

@@ -1,7 +1,8 @@
 r"""Words and definitions of a derivation document: its title, its settings and the closed
 forms of the Fourier-coefficient functions it uses.
 
-The closed forms are those of :mod:`perturb.fourier` (and :func:`perturb.fourier_symbols.
+The closed forms are those of :mod:`perturb.fourier.coefficients` (and
+:func:`perturb.fourier.symbols.
 closed_form`): along ``x = A cos(psi) + b``, with ``theta = arccos((d - b)/A)`` while the orbit
 crosses the switching point ``d``,
 
@@ -22,7 +23,7 @@ from typing import Any
 
 import sympy as sp
 
-from ..fourier_symbols import DiracCoefficient, RampCoefficient, StepCoefficient
+from perturb.fourier.symbols import DiracCoefficient, RampCoefficient, StepCoefficient
 
 # plain text in LaTeX (latex.py re-exports escape and escape_text)
 _SPECIAL = {

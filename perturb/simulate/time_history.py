@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import ParameterError
-from ..model import Oscillator
+from perturb.errors import ParameterError
+from perturb.model.oscillator import Oscillator
 
 __all__ = ["TimeHistory", "time_history", "METHODS"]
 
@@ -47,7 +47,7 @@ class TimeHistory:
         ]
         text = "\n".join(lines) + "\n"
         if path is not None:
-            from ..atomic import write_text
+            from perturb.atomic import write_text
 
             write_text(path, text)  # complete or absent, also when killed or the disk is full
         return text
@@ -93,19 +93,19 @@ def time_history(
         else:
             method = "ode"
     if method == "exact":
-        from .piecewise_exact import propagate
-        from .system import to_pwl_system
+        from perturb.simulate.flows.piecewise_exact import propagate
+        from perturb.simulate.flows.system import to_pwl_system
 
         traj = propagate(to_pwl_system(osc, Omega), y0, (t0, t1), t_eval=t_eval)
         return TimeHistory(traj.t, traj.x, traj.v, "exact", len(traj.events))
     if method == "event":
-        from .event_driven import simulate
+        from perturb.simulate.flows.event_driven import simulate
 
         traj = simulate(osc, y0, (t0, t1), Omega=Omega, t_eval=t_eval)
         return TimeHistory(traj.t, traj.x, traj.v, "event", len(traj.events))
     if method == "lcp":
-        from .lcp import simulate_lcp
-        from .system import first_order_rhs
+        from perturb.simulate.flows.lcp import simulate_lcp
+        from perturb.simulate.flows.system import first_order_rhs
 
         if h is None:
             period = first_order_rhs(osc, Omega).period or 2 * np.pi
@@ -115,7 +115,7 @@ def time_history(
         v = np.interp(t_eval, traj.t, traj.v)
         # the step actually taken: simulate_lcp shortens it on a stiff contact
         return TimeHistory(t_eval, x, v, f"lcp(h={traj.h:.3g})", 0)
-    from .flow import ODEFlow
+    from perturb.simulate.flows.base import ODEFlow
 
     res = ODEFlow(osc, Omega)(y0, t0, t1, t_eval=t_eval)
     assert res.ys is not None and res.t is not None

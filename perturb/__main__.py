@@ -1,0 +1,5 @@
+"""``python -m perturb``: the ``perturb`` command."""
+
+from perturb.apps.cli import main
+
+raise SystemExit(main())

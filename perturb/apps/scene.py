@@ -1,0 +1,995 @@
+"""Scenes: one question about one system, read from a TOML file.
+
+A scene names the model (a builtin ``name`` or an ``equation`` string, parsed safely), its
+parameter values, what is asked (``[ask] kind``), the method and where to write results::
+
+    [model]
+    name = "nsd"            # or: equation = "x'' + mu*x' + x + x**3 = F*cos(Omega*t)"
+    [params]
+    k = -2.0
+    [ask]
+    kind = "frequency_response"
+    omega = [0.2, 2.0]
+    points = 2000
+    [method]
+    name = "hb"             # numeric harmonic balance; every branch it finds
+    harmonics = 15
+    [compare]
+    reference = "exact"     # also every exact periodic orbit: drawn, and errors measured
+    methods = ["hb1"]       # further methods drawn and measured against the reference
+    [output]
+    csv = "frc.csv"
+    png = "frc.png"
+    latex = "derivation.tex"
+
+``[ask] kind`` is one of
+
+``frequency_response``
+    ``omega = [lo, hi]``, ``points``; any method of :func:`perturb.frequency_response`,
+    including ``name = "auto"`` with ``[accuracy] rtol`` (the cheapest method that meets it at
+    exact spot checks, :mod:`perturb.auto`; the choice goes to ``report.json``).
+    ``name = "hb"`` traces every branch numeric harmonic balance finds (``all_branches =
+    false`` for the connected one only). An optional ``[compare]`` table adds a ``reference``
+    (``"exact"``: continuation of the exact periodic orbits) and further ``methods``; all are
+    drawn in one figure and written to one CSV (branches numbered through, the ``method``
+    column telling them apart, a last column ``rel_error`` against the reference), and each
+    method's measured error against the reference (branches found, max relative error of
+    ``max |x|``) goes into the legend and ``report.json``. An optional ``[plot]`` table:
+    ``zoom = [omega_lo, omega_hi, amplitude_lo, amplitude_hi]`` (a panel enlarging where
+    branches crowd), ``mean = true`` (a panel of the orbits' means, which separates
+    asymmetric orbits from symmetric ones of equal amplitude), ``log_amplitude`` (default:
+    logarithmic when the amplitudes span more than a factor 30).
+``backbone``
+    ``amplitude = [lo, hi]``, ``points``: the frequency of the free undamped oscillation
+    (forcing and damping set to zero) against its amplitude, from the energy integral.
+``time_history``
+    ``y0 = [x0, v0]``, ``t = [t0, t1]``, ``samples``; ``[method] name`` is the integrator
+    (``auto``, ``exact``, ``event``, ``lcp``, ``ode``).
+``step_response``
+    As ``time_history`` from rest by default, with the forcing held at its value at ``t = 0``
+    (``F`` for ``F cos(Omega t)``): the response to a suddenly applied load.
+``bifurcation_diagram``
+    ``parameter``, ``values = [lo, hi]``, ``points``, optional ``y0``, ``transient_periods``,
+    ``record_periods``: stroboscopic ``x`` of the attractors against the parameter.
+
+Each writes a CSV and a PNG into the output directory (``[output] csv`` / ``png``) and a JSON
+``report`` of what was computed, every file complete or absent (:mod:`perturb.atomic`; two
+outputs with the same name are refused). What a run should not pass over in silence — no
+branch found, seeds that did not converge — is printed as a ``note:`` line and listed under
+``notes`` in the report. Peak maps are scenes with a ``[sweep]`` table
+(:mod:`perturb.apps.grid_cli`). Unknown sections or keys, and keys of another kind, are errors (a
+typo must not be silently ignored).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from types import MappingProxyType
+
+from perturb.atomic import check_distinct, write_text
+from perturb.errors import ParameterError, PerturbError
+from perturb.methods import METHODS
+from perturb.model.oscillator import Oscillator, builtin_model, validate_parameter_value
+
+__all__ = [
+    "Scene",
+    "load_scene",
+    "default_scene",
+    "run_scene",
+    "backbone",
+    "step_oscillator",
+    "METHODS",
+]
+
+_KEYS: dict[str, set[str]] = {
+    "model": {"name", "equation"},
+    "params": set(),  # any parameter name
+    "ask": {
+        "kind",
+        "omega",
+        "points",
+        "amplitude",
+        "y0",
+        "t",
+        "samples",
+        "parameter",
+        "values",
+        "transient_periods",
+        "record_periods",
+    },
+    "method": {"name", "order", "harmonics", "all_branches"},
+    "compare": {"reference", "methods"},
+    "plot": {"zoom", "mean", "log_amplitude"},
+    "output": {"csv", "png", "latex", "report"},
+    "accuracy": {"rtol", "spots"},
+}
+#: The ``[ask]`` keys each kind accepts (besides ``kind``).
+_KIND_KEYS: dict[str, set[str]] = {
+    "frequency_response": {"omega", "points"},
+    "backbone": {"amplitude", "points"},
+    "time_history": {"y0", "t", "samples"},
+    "step_response": {"y0", "t", "samples"},
+    "bifurcation_diagram": {
+        "parameter",
+        "values",
+        "points",
+        "y0",
+        "transient_periods",
+        "record_periods",
+    },
+}
+_KINDS = tuple(_KIND_KEYS)
+#: Integrators of the time-history kinds.
+_INTEGRATORS = ("auto", "exact", "event", "lcp", "ode")
+#: File names when ``[output]`` does not give them.
+_DEFAULT_NAMES = {
+    "frequency_response": ("frc.csv", "frc.png"),
+    "backbone": ("backbone.csv", "backbone.png"),
+    "time_history": ("time_history.csv", "time_history.png"),
+    "step_response": ("step_response.csv", "step_response.png"),
+    "bifurcation_diagram": ("bifurcation.csv", "bifurcation.png"),
+}
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A parsed scene; build with :func:`load_scene` or :func:`default_scene`."""
+
+    model: str
+    equation: str | None
+    params: Mapping[str, float]
+    kind: str = "frequency_response"
+    omega: tuple[float, float] = (0.2, 2.0)
+    points: int = 2000
+    method: str = "hb1"
+    rtol: float | None = None
+    order: int | None = None
+    harmonics: int | None = None
+    spots: tuple[float, ...] | None = None
+    amplitude: tuple[float, float] = (0.1, 10.0)
+    y0: tuple[float, float] = (0.0, 0.0)
+    t: tuple[float, float] = (0.0, 100.0)
+    samples: int = 4001
+    parameter: str | None = None
+    values: tuple[float, float] | None = None
+    transient_periods: int = 200
+    record_periods: int = 16
+    all_branches: bool = True
+    reference: str | None = None
+    compare_methods: tuple[str, ...] = ()
+    plot: Mapping[str, object] = field(default_factory=lambda: MappingProxyType({}))
+    outputs: Mapping[str, str] = field(
+        default_factory=lambda: MappingProxyType(
+            {"csv": "frc.csv", "png": "frc.png", "latex": "derivation.tex"}
+        )
+    )
+    source: str = "<scene>"
+
+    def oscillator(self) -> Oscillator:
+        """The model with the scene's parameter values."""
+        if self.equation is not None:
+            return Oscillator.parse(self.equation, dict(self.params), name=self.model)
+        return builtin_model(self.model, **self.params)
+
+
+def _scene_error(source: str, msg: str) -> PerturbError:
+    return PerturbError(f"scene {source}: {msg}")
+
+
+def parse_scene(text: str, source: str = "<scene>") -> Scene:
+    """Read a scene from TOML text (no code is evaluated)."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise _scene_error(source, f"invalid TOML: {exc}") from None
+    for section, body in data.items():
+        if section not in _KEYS:
+            raise _scene_error(
+                source, f"unknown section [{section}]: expected one of {', '.join(_KEYS)}"
+            )
+        if not isinstance(body, dict):
+            raise _scene_error(source, f"[{section}] must be a table")
+        allowed = _KEYS[section]
+        if allowed:
+            for key in body:
+                if key not in allowed:
+                    raise _scene_error(
+                        source,
+                        f"unknown key {key!r} in [{section}]: expected one of "
+                        + ", ".join(sorted(allowed)),
+                    )
+    model = data.get("model", {})
+    name = model.get("name", "custom" if "equation" in model else None)
+    if name is None:
+        raise _scene_error(source, "[model] needs a builtin 'name' or an 'equation'")
+    equation = model.get("equation")
+    if equation is not None and not isinstance(equation, str):
+        raise _scene_error(source, f"[model] equation = {equation!r}: expected a string")
+    params = {}
+    for key, value in data.get("params", {}).items():
+        try:
+            params[key] = validate_parameter_value(key, value)
+        except ParameterError as exc:
+            raise _scene_error(source, str(exc)) from None
+    ask = data.get("ask", {})
+    kind = ask.get("kind", "frequency_response")
+    if kind not in _KINDS:
+        raise _scene_error(source, f"[ask] kind = {kind!r}: expected one of {', '.join(_KINDS)}")
+    for key in ask:
+        if key != "kind" and key not in _KIND_KEYS[kind]:
+            raise _scene_error(
+                source,
+                f"[ask] {key!r} does not apply to kind {kind!r}: expected one of "
+                + ", ".join(sorted(_KIND_KEYS[kind])),
+            )
+    fields: dict = {}
+    if "omega" in ask or kind == "frequency_response":
+        fields["omega"] = _interval(source, "omega", ask.get("omega", [0.2, 2.0]), positive=True)
+    if "amplitude" in ask:
+        fields["amplitude"] = _interval(source, "amplitude", ask["amplitude"], positive=True)
+    if "t" in ask:
+        fields["t"] = _interval(source, "t", ask["t"], positive=False)
+    if "values" in ask:
+        fields["values"] = _interval(source, "values", ask["values"], positive=False)
+    if "y0" in ask:
+        y0 = ask["y0"]
+        if not (
+            isinstance(y0, list) and len(y0) == 2 and all(_is_number(v) for v in y0)
+        ) or not all(math.isfinite(v) for v in y0):
+            raise _scene_error(source, f"[ask] y0 = {y0!r}: expected [x0, v0]")
+        fields["y0"] = (float(y0[0]), float(y0[1]))
+    default_points = {"frequency_response": 2000, "backbone": 200, "bifurcation_diagram": 60}
+    points = ask.get("points", default_points.get(kind, 2000))
+    if not isinstance(points, int) or isinstance(points, bool) or not 10 <= points <= 10**6:
+        raise _scene_error(source, f"[ask] points = {points!r}: expected an integer in [10, 1e6]")
+    for key, lo, hi in (
+        ("samples", 2, 10**7),
+        ("transient_periods", 0, 10**6),
+        ("record_periods", 1, 10**4),
+    ):
+        if key in ask:
+            value = ask[key]
+            if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
+                raise _scene_error(
+                    source, f"[ask] {key} = {value!r}: expected an integer in [{lo}, {hi}]"
+                )
+            fields[key] = value
+    if kind == "bifurcation_diagram":
+        parameter = ask.get("parameter")
+        if not isinstance(parameter, str) or not parameter.isidentifier():
+            raise _scene_error(
+                source, f"[ask] parameter = {parameter!r}: expected the name of a parameter"
+            )
+        if "values" not in fields:
+            raise _scene_error(source, "[ask] values = [lo, hi] is needed for the diagram")
+        fields["parameter"] = parameter
+
+    method_table = data.get("method", {})
+    method = method_table.get(
+        "name", "auto" if kind in ("time_history", "step_response") else "hb1"
+    )
+    if kind in ("time_history", "step_response", "bifurcation_diagram"):
+        if method not in _INTEGRATORS:
+            raise _scene_error(
+                source,
+                f"[method] name = {method!r}: kind {kind!r} expects an integrator, one of "
+                + ", ".join(_INTEGRATORS),
+            )
+    elif method not in METHODS and method not in _NUMERIC_METHODS:
+        raise _scene_error(
+            source,
+            f"[method] name = {method!r}: expected one of "
+            + ", ".join([*_NUMERIC_METHODS, *METHODS]),
+        )
+    # the limits of the Python API, before any work
+    from perturb.solve import check_harmonics, check_order
+
+    for key in ("order", "harmonics"):
+        if key in method_table:
+            value = method_table[key]
+            if not isinstance(value, int) or isinstance(value, bool):
+                raise _scene_error(
+                    source, f"[method] {key} = {value!r}: expected a positive integer"
+                )
+            try:
+                fields[key] = (
+                    check_order(value, "[method] order", method)
+                    if key == "order"
+                    else check_harmonics(value, "[method] harmonics")
+                )
+            except ParameterError as exc:
+                raise _scene_error(source, str(exc)) from None
+    if "all_branches" in method_table:
+        value = method_table["all_branches"]
+        if not isinstance(value, bool):
+            raise _scene_error(source, f"[method] all_branches = {value!r}: expected true or false")
+        fields["all_branches"] = value
+    compare_table = data.get("compare", {})
+    if compare_table and kind != "frequency_response":
+        raise _scene_error(source, f"[compare] does not apply to kind {kind!r}")
+    if "reference" in compare_table:
+        ref = compare_table["reference"]
+        if ref != "exact":
+            raise _scene_error(source, f"[compare] reference = {ref!r}: expected 'exact'")
+        if method == "exact":
+            raise _scene_error(
+                source,
+                "[compare] reference = 'exact' with [method] name = 'exact': compare "
+                "the exact response with what? Give another method or drop the reference",
+            )
+        fields["reference"] = ref
+    if "methods" in compare_table:
+        names = compare_table["methods"]
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise _scene_error(
+                source, f"[compare] methods = {names!r}: expected a list of method names"
+            )
+        for n in names:
+            if n == "auto" or (n not in METHODS and n not in _NUMERIC_METHODS):
+                raise _scene_error(
+                    source,
+                    f"[compare] methods: {n!r} is not a method: expected one of "
+                    + ", ".join(["hb", "exact", *METHODS]),
+                )
+        if len(set(names)) != len(names) or method in names:
+            raise _scene_error(source, f"[compare] methods = {names!r}: a method twice")
+        if "reference" in fields and "exact" in names:
+            raise _scene_error(source, "[compare] 'exact' is already the reference")
+        fields["compare_methods"] = tuple(names)
+    plot_table = data.get("plot", {})
+    if plot_table and kind != "frequency_response":
+        raise _scene_error(source, f"[plot] does not apply to kind {kind!r}")
+    plot_opts: dict = {}
+    for key in ("mean", "log_amplitude"):
+        if key in plot_table:
+            if not isinstance(plot_table[key], bool):
+                raise _scene_error(
+                    source, f"[plot] {key} = {plot_table[key]!r}: expected true or false"
+                )
+            plot_opts[key] = plot_table[key]
+    if "zoom" in plot_table:
+        z = plot_table["zoom"]
+        if not (
+            isinstance(z, list)
+            and len(z) == 4
+            and all(_is_number(v) and math.isfinite(v) for v in z)
+            and z[0] < z[1]
+            and z[2] < z[3]
+        ):
+            raise _scene_error(
+                source,
+                f"[plot] zoom = {z!r}: expected [omega_lo, omega_hi, amplitude_lo, "
+                "amplitude_hi] with lo < hi",
+            )
+        plot_opts["zoom"] = tuple(float(v) for v in z)
+    if plot_opts:
+        fields["plot"] = MappingProxyType(plot_opts)
+    csv_name, png_name = _DEFAULT_NAMES[kind]
+    outputs = {"csv": csv_name, "png": png_name, "report": "report.json"}
+    if kind == "frequency_response":
+        outputs["latex"] = "derivation.tex"
+    for key, value in data.get("output", {}).items():
+        if not isinstance(value, str) or not value or Path(value).name != value:
+            raise _scene_error(
+                source, f"[output] {key} = {value!r}: expected a plain file name (no directories)"
+            )
+        outputs[key] = value
+    try:
+        check_distinct(outputs.values())
+    except ParameterError as exc:
+        raise ParameterError(f"scene {source}: [output] {exc}") from None
+    accuracy = data.get("accuracy", {})
+    rtol = accuracy.get("rtol")
+    if rtol is not None:
+        from perturb.auto import check_rtol
+
+        try:
+            rtol = check_rtol(rtol)
+        except ParameterError as exc:
+            raise _scene_error(source, f"[accuracy] {exc}") from None
+    if method == "auto" and kind == "frequency_response" and rtol is None:
+        raise _scene_error(source, "[method] name = 'auto' needs [accuracy] rtol = ...")
+    if "spots" in accuracy:
+        spots = accuracy["spots"]
+        if (
+            not isinstance(spots, list)
+            or not spots
+            or not all(_is_number(w) and 0 < w < math.inf for w in spots)
+        ):
+            raise _scene_error(
+                source, f"[accuracy] spots = {spots!r}: expected a list of positive frequencies"
+            )
+        fields["spots"] = tuple(float(w) for w in spots)
+    return Scene(
+        model=str(name),
+        equation=equation,
+        params=MappingProxyType(params),
+        kind=kind,
+        points=points,
+        method=method,
+        rtol=rtol,
+        outputs=MappingProxyType(outputs),
+        source=source,
+        **fields,
+    )
+
+
+_NUMERIC_METHODS = ("auto", "hb", "exact")
+
+
+def _is_number(v: object) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def _interval(source: str, key: str, value: object, *, positive: bool) -> tuple[float, float]:
+    ok = (
+        isinstance(value, list)
+        and len(value) == 2
+        and all(_is_number(w) and math.isfinite(w) for w in value)
+        and value[0] < value[1]
+        and (not positive or value[0] > 0)
+    )
+    if not ok:
+        cond = "0 < low < high" if positive else "low < high"
+        raise _scene_error(source, f"[ask] {key} = {value!r}: expected [low, high] with {cond}")
+    return (float(value[0]), float(value[1]))  # type: ignore[index]
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read a scene file."""
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as exc:
+        raise PerturbError(f"cannot read scene file {str(p)!r}: {exc.strerror}") from None
+    return parse_scene(text, str(p))
+
+
+def default_scene() -> Scene:
+    """The scene embedded in the package: the Zou–Nagarajaiah frequency response, k = -2."""
+    text = resources.files("perturb").joinpath("scenes/default.toml").read_text()
+    return parse_scene(text, "<default scene>")
+
+
+def run_scene(scene: Scene, out_dir: str | Path = "out", *, log=None) -> dict[str, Path]:
+    """Answer ``scene`` and write its outputs into ``out_dir``.
+
+    Parameters
+    ----------
+    scene : Scene
+    out_dir : str or Path
+        Created if missing.
+    log : file, optional
+        Where progress lines go (default standard error).
+
+    Returns
+    -------
+    dict
+        The written paths by kind (``csv``, ``png``, ``report``, and ``latex`` for a
+        frequency response with a symbolic method among its methods). Every file is written
+        to a temporary file beside it and renamed (complete or absent).
+
+    Raises
+    ------
+    ParameterError
+        Before any work, when two outputs would be written to the same file.
+    """
+
+    def say(msg: str) -> None:
+        print(msg, file=log or sys.stderr, flush=True)
+
+    out = Path(out_dir)
+    names = {"csv": scene.outputs["csv"], "png": scene.outputs["png"]}
+    names["report"] = scene.outputs.get("report", "report.json")
+    if scene.kind == "frequency_response" and "latex" in scene.outputs:
+        names["latex"] = scene.outputs["latex"]
+    check_distinct(out / n for n in names.values())
+    out.mkdir(parents=True, exist_ok=True)
+    osc = scene.oscillator()
+    say(f"[perturb] scene {scene.source}: {osc}")
+    paths = {"csv": out / names["csv"], "png": out / names["png"]}
+    runner = {
+        "frequency_response": _run_frequency_response,
+        "backbone": _run_backbone,
+        "time_history": _run_time_history,
+        "step_response": _run_time_history,
+        "bifurcation_diagram": _run_bifurcation,
+    }[scene.kind]
+    report = {
+        "scene": scene.source,
+        "kind": scene.kind,
+        "model": str(osc),
+        "params": dict(scene.params),
+    }
+    report.update(runner(scene, osc, out, paths, say))
+    notes = list(report.get("notes", ()))
+    for note in notes:
+        if not _routine_note(note):
+            say(f"[perturb] note: {note}")
+    report["notes"] = notes
+    paths["report"] = out / names["report"]
+    write_text(paths["report"], json.dumps(report, indent=1, default=str) + "\n")
+    for kind, p in paths.items():
+        say(f"[perturb] wrote {kind}: {p}")
+    return paths
+
+
+def _routine_note(note: str) -> bool:
+    """Notes kept in report.json but not printed: how each exact branch ended, workers."""
+    import re
+
+    return bool(re.search(r"(^|: )(branch \d+: |traced with \d+ worker)", note))
+
+
+def _trace(
+    scene: Scene, osc: Oscillator, method: str, say, *, primary: bool
+) -> tuple[object, object, dict]:
+    """One method's response over the scene's window: (response, approximation or None, info)."""
+    info: dict = {"method": method}
+    approx = None
+    harmonics = scene.harmonics if primary else None
+    order = scene.order if primary else None
+    if method == "auto":
+        from perturb.auto import auto_frequency_response
+
+        say(f"[perturb] choosing a method for rtol = {scene.rtol:g} (spot checks) ...")
+        resp, choice = auto_frequency_response(
+            osc,
+            scene.omega,
+            scene.rtol,
+            spots=scene.spots,
+            points=scene.points,
+            log=lambda line: say(f"[perturb]   {line}"),
+        )
+        say("[perturb] " + choice.summary().replace("\n", "\n[perturb] "))
+        info["auto"] = choice.to_dict()
+        info["auto"]["summary"] = choice.summary()
+        cand = choice.chosen.candidate
+        if cand.method not in ("hb", "exact"):
+            from perturb.auto import _derive
+
+            approx = _derive(cand, osc)
+    elif method in ("hb", "exact"):
+        from perturb.solve import frequency_response
+
+        extra: dict = {}
+        if method == "hb":
+            extra = {"harmonics": 15 if harmonics is None else harmonics}
+            extra["all_branches"] = scene.all_branches
+            info["harmonics"] = extra["harmonics"]
+            info["all_branches"] = scene.all_branches
+        say(f"[perturb] tracing the {method} frequency response over Omega in {scene.omega} ...")
+        resp = frequency_response(osc, method, scene.omega, **extra)
+    else:
+        from perturb.io.cache import cached_derivation
+        from perturb.numeric.amplitude import approximation_response
+        from perturb.numeric.residual import residual_response
+
+        say(f"[perturb] deriving {method} ...")
+        opts = {} if order is None else {"order": order}
+        approx = cached_derivation(method, METHODS[method], osc, **opts)
+        say(f"[perturb] tracing the {method} frequency response over Omega in {scene.omega} ...")
+        poly = approx.frequency_polynomial
+        if poly is None or len(poly) > 3 or approx.slow_flow is None:
+            resp = residual_response(approx, scene.omega)
+        else:
+            resp = approximation_response(approx, scene.omega, points=scene.points)
+    info["response"] = resp.method
+    info["branches"] = len(resp.branches)
+    info["points"] = int(sum(len(b) for b in resp.branches))
+    # the auto choice's summary heads the notes; it is printed above and in the report
+    printed = set(info["auto"]["summary"].splitlines()) if "auto" in info else set()
+    notes = [f"{resp.method}: {n}" for n in resp.notes if n not in printed]
+    if not resp.branches:
+        notes.append(
+            f"{resp.method}: no periodic solution found for Omega in "
+            f"[{scene.omega[0]:g}, {scene.omega[1]:g}] (an empty answer, not a proof that none "
+            "exists): check the damping and forcing, widen the window, or try method 'exact'"
+        )
+    info["notes"] = notes
+    return resp, approx, info
+
+
+def _errors_against(resp, ref, tolerance: float = 0.02) -> dict:
+    """Branches of ``ref`` that ``resp`` finds, and its errors on them (:func:`compare`)."""
+    import numpy as np
+
+    from perturb.comparison import compare
+
+    if not resp.branches or not ref.branches:
+        return {
+            "reference_branches": len(ref.branches),
+            "branches": len(resp.branches),
+            "found": 0,
+            "missed": list(range(len(ref.branches))),
+            "spurious": list(range(len(resp.branches))),
+            "max_error": None,
+            "rms_error": None,
+            "stability_disagreements": 0,
+            "tolerance": tolerance,
+        }
+    c = compare(resp, ref, tolerance=tolerance)
+    found = [r.branch for r in c.reference_branches if r.matched_by]
+    errs = [b.max_error for b in c.branches if b.matched is not None and np.isfinite(b.max_error)]
+    return {
+        "reference_branches": len(ref.branches),
+        "branches": len(resp.branches),
+        "found": len(found),
+        "not_found": [r.branch for r in c.reference_branches if not r.matched_by],
+        "missed": list(c.missed),
+        "spurious": list(c.spurious),
+        "max_error": float(max(errs)) if errs else None,
+        "rms_error": float(c.rms_error) if np.isfinite(c.rms_error) else None,
+        # stability against the nearest exact orbit within compare's default 20 %: an
+        # approximation a few percent off must not escape the check by being off
+        "stability_disagreements": len(compare(resp, ref).stability_disagreements),
+        "tolerance": tolerance,
+    }
+
+
+def _legend_label(resp, errors: dict | None) -> str:
+    from perturb.report.figures import method_label
+
+    label = method_label(resp.method)
+    if errors is None:
+        return f"{label}: {len(resp.branches)} branches"
+    n = errors["reference_branches"]
+    if errors["max_error"] is None:
+        return f"{label}: none of the {n} exact branches"
+    found = "all" if errors["found"] == n else f"{errors['found']} of"
+    text = f"{label}:\n  {found} {n} exact branches, max error {errors['max_error']:.1e} on them"
+    if errors["spurious"]:
+        text += f", {len(errors['spurious'])} spurious"
+    if errors["stability_disagreements"]:
+        text += f",\n  stability differs from exact at {errors['stability_disagreements']} points"
+    return text
+
+
+def _run_frequency_response(scene: Scene, osc: Oscillator, out: Path, paths: dict, say) -> dict:
+    from perturb.report.figures import equation_title, frequency_response_figure
+    from perturb.response import responses_to_csv
+
+    info: dict = {"omega": list(scene.omega), "method": scene.method}
+    notes: list[str] = []
+    resp, approx, main = _trace(scene, osc, scene.method, say, primary=True)
+    info["response"] = resp.method
+    info["branches"] = len(resp.branches)
+    if "auto" in main:
+        info["auto"] = main.pop("auto")
+    notes += main.pop("notes")
+    responses = [resp]
+    runs = [main]
+    for name in scene.compare_methods:
+        r, a, i = _trace(scene, osc, name, say, primary=False)
+        notes += i.pop("notes")
+        responses.append(r)
+        runs.append(i)
+        approx = approx if approx is not None else a
+    ref = None
+    if scene.reference == "exact":
+        ref, _, i = _trace(scene, osc, "exact", say, primary=False)
+        notes += i.pop("notes")
+        i["role"] = "reference"
+        runs.append(i)
+    for r in responses:
+        say(f"[perturb] {r!r}".replace("\n", "\n[perturb] "))
+    extra = None
+    labels = None
+    if ref is not None:
+        from perturb.comparison import relative_errors
+
+        say(f"[perturb] {ref!r}".replace("\n", "\n[perturb] "))
+        errors = [_errors_against(r, ref) for r in responses]
+        labels = [_legend_label(r, e) for r, e in zip(responses, errors, strict=True)]
+        labels.append(f"exact periodic orbits: {len(ref.branches)} branches (the reference)")
+        for run, e in zip(runs, errors, strict=False):
+            run["against_exact"] = e
+            found = "all" if e["found"] == e["reference_branches"] else f"{e['found']} of"
+            err = "-" if e["max_error"] is None else f"{e['max_error']:.2e}"
+            say(
+                f"[perturb] {run['response']} against exact: finds {found} "
+                f"{e['reference_branches']} exact branches, max relative error {err} on them, "
+                f"{len(e['spurious'])} spurious branches"
+            )
+        rel = []
+        for r in responses:
+            rel += [float(v) for v in relative_errors(r, ref)] if r.branches else []
+        rel += [0.0] * sum(len(b) for b in ref.branches)
+        extra = {"rel_error": rel}
+        drawn = [*responses, ref]
+    else:
+        drawn = responses
+        if "auto" in info:
+            from perturb.report.figures import method_label
+
+            ch = info["auto"]
+            spot = ch["chosen"]["max_spot_error"]
+            spot_text = f"{spot:.1e}" if isinstance(spot, float) else str(spot)
+            labels = [
+                f"{method_label(resp.method)}:\n  chosen for rtol {ch['rtol']:g}, max error "
+                f"{spot_text} at {len(ch['spot_frequencies'])} exact spot checks"
+            ] + [method_label(r.method) for r in responses[1:]]
+    info["responses"] = runs
+    responses_to_csv(drawn if ref is None else [*responses, ref], paths["csv"], extra=extra)
+    title = equation_title(osc, dict(scene.params))
+    if ref is not None:
+        title += "\nerrors: relative, of the amplitude $\\max\\,|x|$, against the exact orbits"
+    # the reference underneath (thick, dark), the approximations on top
+    order = list(range(len(drawn)))
+    if ref is not None:
+        order = [len(drawn) - 1, *range(len(drawn) - 1)]
+    palette = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd"]
+    colors = [palette[k % len(palette)] for k in range(len(responses))]
+    widths = [1.3 if k == 0 else 1.0 for k in range(len(responses))]
+    if ref is not None:
+        colors.append("0.15")
+        widths.append(2.8)
+    amps = [float(a) for r in drawn for b in r.branches for a in b.amplitude if a > 0]
+    # amplitudes spanning decades (a resonance peak over small in-well orbits): log axis
+    log_axis = bool(amps) and max(amps) > 30 * max(min(amps), 1e-12)
+    info["legend"] = None if labels is None else list(labels)
+    fig = frequency_response_figure(
+        [drawn[k] for k in order],
+        paths["png"],
+        title=title,
+        zoom=scene.plot.get("zoom"),
+        mean=bool(scene.plot.get("mean", False)),
+        labels=None if labels is None else [labels[k] for k in order],
+        colors=[colors[k] for k in order],
+        linewidths=[widths[k] for k in order],
+        log_amplitude=scene.plot.get("log_amplitude", log_axis),
+        legend_kw={"fontsize": 7, "loc": "upper right" if ref is not None else "best"},
+    )
+    _close(fig)
+    if approx is not None and "latex" in scene.outputs:
+        from perturb.report.latex import latex_document
+
+        paths["latex"] = out / scene.outputs["latex"]
+        write_text(paths["latex"], latex_document(approx))
+        info["derivation"] = approx.label
+    elif "latex" in scene.outputs:
+        info["latex"] = (
+            "not written: none of the scene's methods is symbolic (add one, 'hb1' say, to "
+            "[compare] methods for its derivation)"
+        )
+    info["notes"] = notes
+    return info
+
+
+def _numeric_force(osc: Oscillator):
+    """``f(x)`` of the free undamped oscillator as a numpy function (parameters substituted)."""
+    import numpy as np
+    import sympy as sp
+
+    x = osc.x
+    f = osc.restoring_force.xreplace(osc.substitutions())
+    free = f.free_symbols - {x}
+    if free:
+        raise ParameterError(
+            "backbone: the restoring force needs values for "
+            + ", ".join(sorted(str(s) for s in free))
+        )
+    fn = sp.lambdify(x, f, modules=[{"Heaviside": lambda z, h0=0.5: np.heaviside(z, h0)}, "numpy"])
+    return lambda z: np.asarray(fn(z), dtype=float) * np.ones_like(np.asarray(z, dtype=float))
+
+
+def backbone(osc: Oscillator, amplitudes) -> dict[str, list[float]]:
+    """Period and frequency of the free undamped oscillation from each turning point.
+
+    From rest at ``x0`` the motion runs to the other turning point ``x1`` (the nearest point
+    beyond which the potential ``G(x) = int_0^x f`` exceeds ``G(x0)``) and back, so
+    ``T = 2 |int_{x0}^{x1} dx / sqrt(2 (G(x0) - G(x)))|``, evaluated by adaptive quadrature
+    after ``x = c + h sin(theta)``, which removes the inverse square-root end singularities.
+
+    Parameters
+    ----------
+    osc : Oscillator
+        Damping and forcing are ignored; the restoring force needs parameter values.
+    amplitudes : array_like
+        Starting turning points ``x0 > 0``.
+
+    Returns
+    -------
+    dict
+        Lists ``x0``, ``x1``, ``amplitude`` (``max(|x0|, |x1|)``), ``period``, ``omega``
+        (``2 pi / period``); turning points without a bounded orbit are left out.
+    """
+    import numpy as np
+    from scipy.integrate import quad
+    from scipy.optimize import brentq
+
+    f = _numeric_force(osc)
+    try:
+        kinks = sorted(float(b) for b in osc.piecewise_linear().breakpoints)
+    except Exception:  # a smooth force has no canonical PWL form; nothing to split at
+        kinks = []
+
+    def G(z: float) -> float:
+        pts = [b for b in kinks if min(0.0, z) < b < max(0.0, z)]
+        return float(quad(lambda s: float(f(s)), 0.0, z, points=pts or None, limit=200)[0])
+
+    out: dict[str, list[float]] = {k: [] for k in ("x0", "x1", "amplitude", "period", "omega")}
+    for x0 in np.asarray(amplitudes, dtype=float):
+        f0 = float(f(x0))
+        if f0 == 0.0:
+            continue
+        d = -1.0 if f0 > 0 else 1.0  # the force pushes the mass this way
+        g0 = G(x0)
+        # march until the potential climbs back to G(x0): the other turning point
+        step, z, x1, gz = 0.01 * max(1.0, abs(x0)), x0, None, g0
+        for i in range(20000):
+            z_next = z + d * step
+            # the potential step by step: short integrals instead of one from 0 each time
+            pts = [b for b in kinks if min(z, z_next) < b < max(z, z_next)]
+            g_next = gz + quad(lambda q: float(f(q)), z, z_next, points=pts or None)[0]
+            if g_next >= g0:
+                if i == 0:
+                    break  # at (numerically) an equilibrium: no oscillation to time
+                fa, fb = G(z) - g0, G(z_next) - g0
+                if fa * fb <= 0:
+                    x1 = brentq(lambda q, g0=g0: G(q) - g0, z, z_next, xtol=1e-14, rtol=1e-14)
+                else:
+                    # the step-by-step sum crossed G(x0) and the direct integral, rounded
+                    # differently, did not (a turning point at a hilltop of the potential,
+                    # where G touches G(x0)): the end nearer to it
+                    x1 = z if abs(fa) <= abs(fb) else z_next
+                break
+            z, gz = z_next, g_next
+        if x1 is None:
+            continue
+        c, h = 0.5 * (x0 + x1), 0.5 * (x1 - x0)
+        ths = sorted(float(np.arcsin((b - c) / h)) for b in kinks if min(x0, x1) < b < max(x0, x1))
+
+        def integrand(th: float, c=c, h=h, g0=g0) -> float:
+            gap = 2.0 * (g0 - G(c + h * np.sin(th)))
+            return abs(h) * np.cos(th) / np.sqrt(max(gap, 1e-300))
+
+        half = quad(integrand, -np.pi / 2, np.pi / 2, points=ths or None, limit=200)[0]
+        T = 2.0 * half
+        out["x0"].append(float(x0))
+        out["x1"].append(float(x1))
+        out["amplitude"].append(max(abs(float(x0)), abs(float(x1))))
+        out["period"].append(T)
+        out["omega"].append(2.0 * np.pi / T)
+    return out
+
+
+def _run_backbone(scene: Scene, osc: Oscillator, out: Path, paths: dict, say) -> dict:
+    import numpy as np
+
+    lo, hi = scene.amplitude
+    say(f"[perturb] backbone (free undamped) for turning points {lo:g}..{hi:g} ...")
+    bb = backbone(osc, np.linspace(lo, hi, scene.points))
+    cols = ("x0", "x1", "amplitude", "period", "omega")
+    lines = [",".join(cols)] + [
+        ",".join(repr(bb[c][i]) for c in cols) for i in range(len(bb["x0"]))
+    ]
+    write_text(paths["csv"], "\n".join(lines) + "\n")
+    from perturb.report.figures import equation_title, save_figure
+
+    fig, ax = _figure()
+    ax.plot(bb["omega"], bb["amplitude"], "o", ms=2, mew=0)
+    ax.set_xlabel(r"free-vibration frequency $\omega$")
+    ax.set_ylabel(r"amplitude $\max\,|x|$")
+    ax.set_title("backbone (free, undamped) of\n" + equation_title(osc), fontsize=8)
+    save_figure(fig, paths["png"])
+    _close(fig)
+    info = {"amplitude": [lo, hi], "points": len(bb["x0"]), "method": "energy quadrature"}
+    if not bb["x0"]:
+        info["notes"] = [
+            f"no bounded free oscillation from any turning point in [{lo:g}, {hi:g}]: the "
+            "backbone is empty (is the restoring force confining there?)"
+        ]
+    return info
+
+
+def _figure():
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.8), dpi=110, layout="constrained")
+    ax.grid(alpha=0.3)
+    return fig, ax
+
+
+def _close(fig) -> None:
+    """Release a saved figure (pyplot keeps every open figure alive)."""
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+
+
+def step_oscillator(osc: Oscillator) -> Oscillator:
+    """``osc`` with its forcing held at the value it has at ``t = 0`` (a suddenly applied
+    constant load: ``F`` for ``F cos(Omega t)``)."""
+    import sympy as sp
+
+    eq = osc.equation
+    t = next((s for s in eq.rhs.free_symbols if s.name == "t"), sp.Symbol("t"))
+    rhs = eq.rhs.subs(t, 0)
+    params = {k: v for k, v in osc.params.items() if v is not None and k != "Omega"}
+    return Oscillator.parse(f"{eq.lhs} = {rhs}", params, name=f"{osc.name} step")
+
+
+def _run_time_history(scene: Scene, osc: Oscillator, out: Path, paths: dict, say) -> dict:
+    from perturb.report.figures import plot_time_history
+    from perturb.simulate.time_history import time_history
+
+    if scene.kind == "step_response":
+        osc = step_oscillator(osc)
+        say(f"[perturb] step load: {osc}")
+    say(f"[perturb] integrating over t in {scene.t} from y0 = {scene.y0} ({scene.method}) ...")
+    hist = time_history(osc, scene.y0, scene.t, method=scene.method, samples=scene.samples)
+    say(f"[perturb] {hist!r}")
+    from perturb.atomic import atomic_path
+    from perturb.report.figures import equation_title
+
+    with atomic_path(paths["csv"]) as tmp:
+        hist.to_csv(tmp)
+    _close(plot_time_history(hist, paths["png"], title=equation_title(osc)))
+    return {"t": list(scene.t), "y0": list(scene.y0), "integrator": hist.method}
+
+
+def _run_bifurcation(scene: Scene, osc: Oscillator, out: Path, paths: dict, say) -> dict:
+    import numpy as np
+
+    from perturb.simulate.studies import bifurcation_diagram
+
+    assert scene.values is not None and scene.parameter is not None
+    values = np.linspace(*scene.values, scene.points)
+    say(
+        f"[perturb] bifurcation diagram over {scene.parameter} in {scene.values} "
+        f"({scene.points} values) ..."
+    )
+    diag = bifurcation_diagram(
+        osc,
+        scene.parameter,
+        values,
+        y0=scene.y0,
+        transient_periods=scene.transient_periods,
+        record_periods=scene.record_periods,
+        method=scene.method,
+        progress=False,
+    )
+    say(f"[perturb] {diag!r}")
+    lines = [f"{scene.parameter},run,x,v,period"]
+    for i in range(diag.x.shape[0]):
+        for j, p in enumerate(diag.values):
+            for x, v in zip(diag.x[i, j], diag.v[i, j], strict=True):
+                lines.append(f"{float(p)!r},{i},{float(x)!r},{float(v)!r},{int(diag.period[i, j])}")
+    write_text(paths["csv"], "\n".join(lines) + "\n")
+    from perturb.report.figures import _param_tex, equation_title, save_figure
+
+    fig, ax = _figure()
+    p, x = diag.points()
+    ax.plot(p, x, "o", color="k", ms=2.5, mew=0, alpha=0.7)
+    ax.set_xlabel(f"${_param_tex(scene.parameter)}$")
+    ax.set_ylabel(f"$x$ at phase {diag.phase:g} of each forcing period")
+    ax.set_title(
+        f"bifurcation diagram over ${_param_tex(scene.parameter)}$ of\n"
+        + equation_title(osc, skip=(scene.parameter,)),
+        fontsize=8,
+    )
+    save_figure(fig, paths["png"])
+    _close(fig)
+    notes = []
+    if not len(p):
+        notes.append("no attractor recorded at any parameter value: the diagram is empty")
+    return {
+        "notes": notes,
+        "parameter": scene.parameter,
+        "values": list(scene.values),
+        "points": scene.points,
+        "period_1": int(np.sum(diag.period == 1)),
+        "subharmonic": int(np.sum(diag.period > 1)),
+        "not_periodic": int(np.sum(diag.period == 0)),
+    }

@@ -1,0 +1,856 @@
+"""Automatic method choice: the cheapest method that meets a relative tolerance.
+
+``choose_method(osc, window, rtol)`` walks a ladder of candidates ordered by cost — the
+first-order symbolic methods (``hb1``, first-order modified L-P ``mlp1``, multiple scales
+``ms``, Krylov–Bogoliubov ``kb``), second-order modified L-P ``mlp2``, numeric harmonic
+balance with H = 3, 5, 9, 15, 31, 63 harmonics, and finally the exact solver — and stops at
+the first one whose amplitudes agree with the exact periodic orbits to ``rtol``.
+
+Spot checks
+-----------
+The exact orbits are computed at a few *spot frequencies* spread over the window (one
+brute-force search per frequency, :func:`perturb.simulate.orbits.search.periodic_orbits`: no exact
+sweep of the window), kept away from the folds of the cheap first-order response, where
+amplitudes are most sensitive and solutions pair up.  At each spot frequency a candidate's
+error is the relative amplitude error (``max |x|``) of the worst-reproduced exact orbit,
+each exact orbit matched to the candidate's nearest solution; an exact orbit without any
+candidate solution makes the error infinite.  For symbolic methods that give every solution
+at a frequency, a candidate solution far from every exact orbit (spurious) counts as well.
+
+A-posteriori estimate
+---------------------
+Besides the measured spot error, every candidate carries an estimate that needs no exact
+solution: the relative amplitude difference to the next-richer harmonic-balance truncation
+at the same orbits (H = 3 for the first-order methods, H = 5 for ``mlp2``, ``2H + 1`` for
+numeric HB with H harmonics).  Its ratio to the spot error (the *calibration*) is reported,
+so a user sees how far the estimate can be trusted for this system.  A candidate is accepted
+when both its spot error and its estimate are at most ``rtol``.
+
+Numeric HB at a spot frequency is solved by Newton from the Fourier coefficients of each
+exact orbit, so it finds the HB solution that belongs to that orbit; HB solutions with no
+exact counterpart are not looked for there.  The full-window HB response is one continuation
+run (:func:`perturb.numeric.harmonic_balance.harmonic_balance_response`): branches it does
+not connect to (isolas, in-well orbits) may be absent from the curve, and the report says so
+when the traced curve misses spot orbits.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from perturb.errors import ParameterError, PerturbError
+from perturb.model.oscillator import Oscillator
+from perturb.response import Branch, Response
+
+__all__ = [
+    "Candidate",
+    "CandidateResult",
+    "AutoChoice",
+    "LADDER",
+    "check_rtol",
+    "spot_frequencies",
+    "exact_spot_orbits",
+    "candidate_spot_errors",
+    "choose_method",
+    "auto_frequency_response",
+    "window_estimate",
+]
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One rung of the ladder: a method and its settings.
+
+    Attributes
+    ----------
+    name : str
+        Short label (``"hb1"``, ``"mlp2"``, ``"hb9"``, ``"exact"``).
+    method : str
+        The method name of :func:`perturb.frequency_response`.
+    order : int or None
+        Expansion order of a symbolic method.
+    harmonics : int or None
+        Harmonics of numeric HB.
+    """
+
+    name: str
+    method: str
+    order: int | None = None
+    harmonics: int | None = None
+
+    def settings(self) -> dict[str, Any]:
+        """The keyword arguments of :func:`perturb.frequency_response` for this candidate."""
+        out: dict[str, Any] = {"method": self.method}
+        if self.order is not None:
+            out["order"] = self.order
+        if self.harmonics is not None:
+            out["harmonics"] = self.harmonics
+        return out
+
+
+#: Candidates in order of cost (cheapest first).
+LADDER: tuple[Candidate, ...] = (
+    Candidate("hb1", "hb1"),
+    Candidate("mlp1", "mlp", order=1),
+    Candidate("ms", "ms"),
+    Candidate("kb", "kb"),
+    Candidate("mlp2", "mlp", order=2),
+    *(Candidate(f"hb{h}", "hb", harmonics=h) for h in (3, 5, 9, 15, 31, 63)),
+    Candidate("exact", "exact"),
+)
+
+
+@dataclass(frozen=True)
+class CandidateResult:
+    """What the spot checks measured for one candidate.
+
+    Attributes
+    ----------
+    candidate : Candidate
+    spot_errors : tuple of float
+        Relative amplitude error at each spot frequency (``inf``: an exact orbit without a
+        counterpart, or a spurious solution).
+    estimate : float
+        The a-posteriori estimate (module docstring); ``nan`` when it could not be formed.
+    seconds : float
+        CPU time of the candidate's spot evaluation (without the exact orbits).
+    note : str
+        Why the candidate failed to evaluate, if it did.
+    """
+
+    candidate: Candidate
+    spot_errors: tuple[float, ...]
+    estimate: float
+    seconds: float
+    note: str = ""
+
+    @property
+    def error(self) -> float:
+        """The largest spot error."""
+        return max(self.spot_errors) if self.spot_errors else math.inf
+
+    def meets(self, rtol: float) -> bool:
+        """Whether spot error and estimate are both within ``rtol``."""
+        return self.error <= rtol and not (self.estimate > rtol)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.candidate.name,
+            "settings": self.candidate.settings(),
+            "spot_errors": [_num(e) for e in self.spot_errors],
+            "max_spot_error": _num(self.error),
+            "estimate": _num(self.estimate),
+            "cpu_seconds": round(self.seconds, 4),
+            "note": self.note,
+        }
+
+
+def _num(x: float) -> float | str:
+    # JSON has no inf/nan
+    return float(x) if math.isfinite(x) else str(x)
+
+
+@dataclass(frozen=True)
+class AutoChoice:
+    """The outcome of :func:`choose_method`.
+
+    Attributes
+    ----------
+    chosen : CandidateResult
+        The first candidate that met ``rtol``.
+    rejected : tuple of CandidateResult
+        The cheaper candidates tried before it, with their errors.
+    rtol : float
+    window : tuple of float
+    spot_frequencies : tuple of float
+    exact_orbits : tuple of int
+        Number of exact period-1 orbits found at each spot frequency.
+    exact_seconds : float
+        CPU time of the exact spot orbits.
+    exact_amplitudes : tuple of tuple of float
+        Their amplitudes (``max |x|``), per spot frequency.
+    window_estimate, window_estimate_at : float
+        For numeric HB, after the full-window trace: the largest estimate over points of the
+        traced curve (:func:`window_estimate`) and its frequency; ``nan`` otherwise.
+    notes : tuple of str
+        Remarks added when the full-window response is computed.
+    """
+
+    chosen: CandidateResult
+    rejected: tuple[CandidateResult, ...]
+    rtol: float
+    window: tuple[float, float]
+    spot_frequencies: tuple[float, ...]
+    exact_orbits: tuple[int, ...]
+    exact_seconds: float
+    exact_amplitudes: tuple[tuple[float, ...], ...] = ()
+    window_estimate: float = math.nan
+    window_estimate_at: float = math.nan
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def calibration(self) -> float:
+        """Spot error over estimate for the chosen candidate (``nan`` if undefined)."""
+        e, s = self.chosen.error, self.chosen.estimate
+        if not (math.isfinite(s) and s > 0):
+            return math.nan
+        return e / s
+
+    def summary(self) -> str:
+        """Several lines of text for a person."""
+        c = self.chosen
+        spots = ", ".join(f"{w:.4g}" for w in self.spot_frequencies)
+        errs = ", ".join(f"{e:.2e}" for e in c.spot_errors)
+        lines = [
+            f"auto: chose {c.candidate.name} ({_settings_text(c.candidate)}) for rtol = "
+            f"{self.rtol:g}",
+            f"  spot checks at Omega = {spots} ({', '.join(map(str, self.exact_orbits))} exact "
+            f"orbits, {self.exact_seconds:.1f} s CPU)",
+            f"  spot-check errors: {errs} (max {c.error:.2e})",
+            f"  estimate (vs next richer HB): {c.estimate:.2e}; calibration error/estimate = "
+            f"{self.calibration:.3g}",
+        ]
+        if math.isfinite(self.window_estimate):
+            lines.append(
+                f"  estimate over the traced curve: {self.window_estimate:.2e} (largest at "
+                f"Omega = {self.window_estimate_at:.4g})"
+            )
+        for r in self.rejected:
+            why = f" ({r.note})" if r.note else ""
+            lines.append(
+                f"  rejected {r.candidate.name}: spot error {r.error:.2e}, estimate "
+                f"{r.estimate:.2e}{why}"
+            )
+        lines += [f"  note: {n}" for n in self.notes]
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-serialisable summary."""
+        return {
+            "rtol": self.rtol,
+            "window": list(self.window),
+            "chosen": self.chosen.to_dict(),
+            "spot_frequencies": list(self.spot_frequencies),
+            "exact_orbits_per_spot": list(self.exact_orbits),
+            "exact_amplitudes": [list(a) for a in self.exact_amplitudes],
+            "exact_cpu_seconds": round(self.exact_seconds, 4),
+            "calibration": _num(self.calibration),
+            "window_estimate": _num(self.window_estimate),
+            "window_estimate_at": _num(self.window_estimate_at),
+            "rejected": [r.to_dict() for r in self.rejected],
+            "notes": list(self.notes),
+        }
+
+    def write_json(self, path: str | Path) -> Path:
+        """Write :meth:`to_dict` as JSON to ``path``."""
+        from perturb.atomic import write_text
+
+        p = Path(path)
+        write_text(p, json.dumps(self.to_dict(), indent=1) + "\n")
+        return p
+
+
+def _settings_text(c: Candidate) -> str:
+    return ", ".join(f"{k}={v}" for k, v in c.settings().items())
+
+
+def check_rtol(rtol: Any) -> float:
+    """``rtol`` as a float in ``(0, 1)``.
+
+    Raises
+    ------
+    ParameterError
+        Naming the bad value.
+    """
+    try:
+        value = float(rtol)
+    except (TypeError, ValueError):
+        value = math.nan
+    if isinstance(rtol, bool) or not (0.0 < value < 1.0):
+        raise ParameterError(f"rtol = {rtol!r}: expected a relative tolerance in (0, 1)")
+    return value
+
+
+def _check_window(window: Sequence[float]) -> tuple[float, float]:
+    try:
+        lo, hi = (float(w) for w in window)
+    except (TypeError, ValueError):
+        raise ParameterError(f"Omega = {window!r}: expected (low, high)") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 < lo < hi):
+        raise ParameterError(f"Omega = {window!r}: expected 0 < low < high")
+    return lo, hi
+
+
+def spot_frequencies(
+    oscillator: Oscillator, window: Sequence[float], n: int = 4
+) -> tuple[float, ...]:
+    """``n`` frequencies spread over ``window``, kept away from folds.
+
+    The frequencies start at the midpoints of ``n`` equal parts of the window; one closer
+    than 3 % of the window to a fold of the first-order (``hb1``) response moves to the
+    farthest point from every fold within its part.  A model ``hb1`` cannot treat keeps the
+    plain midpoints.
+    """
+    lo, hi = _check_window(window)
+    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 50:
+        raise ParameterError(f"n = {n!r}: expected an integer number of spot checks in [1, 50]")
+    edges = np.linspace(lo, hi, n + 1)
+    mids = 0.5 * (edges[:-1] + edges[1:])
+    try:
+        from perturb.solve import frequency_response
+
+        folds = np.array([w for w, _ in frequency_response(oscillator, "hb1", (lo, hi)).folds])
+    except PerturbError:
+        folds = np.empty(0)
+    gap = 0.03 * (hi - lo)
+    out = []
+    for i, w in enumerate(mids):
+        if folds.size and np.min(np.abs(folds - w)) < gap:
+            cand = np.linspace(edges[i], edges[i + 1], 41)[1:-1]
+            dist = np.min(np.abs(folds[None, :] - cand[:, None]), axis=1)
+            w = cand[int(np.argmax(dist))]
+        # rounded so scenes and reports show the frequencies that were used
+        out.append(float(f"{w:.6g}"))
+    return tuple(out)
+
+
+def exact_spot_orbits(oscillator: Oscillator, frequencies: Sequence[float]) -> list[list[Any]]:
+    """Every exact period-1 orbit at each frequency (one brute-force search each)."""
+    from perturb.simulate.orbits.search import periodic_orbits
+
+    return [[o for o in periodic_orbits(oscillator, float(w)) if o.m == 1] for w in frequencies]
+
+
+def _coefficients(orbit: Any, H: int, Omega: float) -> np.ndarray:
+    """HB coefficients ``[a0, a1, b1, ...]`` of an exact orbit (phase of cos(Omega t))."""
+    n = max(256, 8 * H)
+    t, x, _ = orbit.sample(n)
+    th = Omega * t
+    u = [float(np.mean(x))]
+    for k in range(1, H + 1):
+        u += [2.0 * float(np.mean(x * np.cos(k * th))), 2.0 * float(np.mean(x * np.sin(k * th)))]
+    return np.array(u)
+
+
+def _hb_amplitudes(oscillator: Oscillator, H: int, w: float, orbits: Sequence[Any]) -> list[float]:
+    """HB amplitude (``max |x|``) near each exact orbit; ``nan`` where Newton fails."""
+    from perturb.numeric.harmonic_balance import harmonic_balance_orbit
+
+    out = []
+    for o in orbits:
+        try:
+            s = harmonic_balance_orbit(
+                oscillator, w, harmonics=H, guess=_coefficients(o, H, w), stability="none"
+            )
+            out.append(float(s.amplitude))
+        except PerturbError:
+            out.append(math.nan)
+    return out
+
+
+def _rel(a: float, r: float) -> float:
+    if not (math.isfinite(a) and math.isfinite(r)):
+        return math.inf
+    return abs(a - r) / abs(r) if r != 0 else (0.0 if a == 0 else math.inf)
+
+
+def _hausdorff(found: Sequence[float], exact: Sequence[float], two_sided: bool) -> float:
+    """Worst relative amplitude error matching every exact value to its nearest found one
+    (and, ``two_sided``, every found value to its nearest exact one)."""
+    if not exact:
+        return 0.0 if not (two_sided and found) else math.inf
+    if not found:
+        return math.inf
+    err = max(min(_rel(a, r) for a in found) for r in exact)
+    if two_sided:
+        err = max(err, max(min(_rel(a, r) for r in exact) for a in found))
+    return err
+
+
+def _derive(c: Candidate, oscillator: Oscillator):
+    from perturb.io.cache import cached_derivation
+    from perturb.methods import METHODS
+
+    opts = {} if c.order is None else {"order": c.order}
+    return cached_derivation(c.method, METHODS[c.method], oscillator, **opts)
+
+
+def _is_polynomial(approx: Any) -> bool:
+    poly = approx.frequency_polynomial
+    return poly is not None and len(poly) <= 3 and approx.slow_flow is not None
+
+
+def candidate_spot_errors(
+    oscillator: Oscillator,
+    candidate: Candidate,
+    frequencies: Sequence[float],
+    orbits: Sequence[Sequence[Any]],
+    window: Sequence[float] | None = None,
+) -> CandidateResult:
+    """Spot errors and estimate of ``candidate`` against the exact ``orbits``.
+
+    Parameters
+    ----------
+    oscillator : Oscillator
+    candidate : Candidate
+    frequencies : sequence of float
+        The spot frequencies.
+    orbits : sequence of sequences of PeriodicOrbit
+        The exact period-1 orbits at each frequency (:func:`exact_spot_orbits`).
+    window : (float, float), optional
+        Needed only by methods traced by residual continuation (``mlp2``), whose solutions
+        at the spot frequencies are read off the traced curve; default: the span of the spots
+        widened by 10 %.
+
+    Returns
+    -------
+    CandidateResult
+    """
+    t0 = time.process_time()
+    exact_amp = [[float(o.amplitude) for o in row] for row in orbits]
+    ws = [float(w) for w in frequencies]
+    if candidate.method == "exact":
+        # the reference itself: its spot error is zero by construction
+        zeros = tuple(0.0 for _ in ws)
+        return CandidateResult(candidate, zeros, 0.0, time.process_time() - t0, "reference")
+    try:
+        if candidate.method == "hb":
+            H = int(candidate.harmonics or 15)
+            found = [_hb_amplitudes(oscillator, H, w, o) for w, o in zip(ws, orbits, strict=True)]
+            richer = [
+                _hb_amplitudes(oscillator, 2 * H + 1, w, o) for w, o in zip(ws, orbits, strict=True)
+            ]
+            errs = tuple(
+                max((_rel(a, r) for a, r in zip(f, e, strict=True)), default=0.0)
+                for f, e in zip(found, exact_amp, strict=True)
+            )
+            est = max(
+                (
+                    _rel(a, r)
+                    for f, g in zip(found, richer, strict=True)
+                    for a, r in zip(f, g, strict=True)
+                ),
+                default=0.0,
+            )
+            return CandidateResult(candidate, errs, est, time.process_time() - t0)
+        approx = _derive(candidate, oscillator)
+        H_ref = 3 if candidate.order in (None, 1) else 5
+        ref = [_hb_amplitudes(oscillator, H_ref, w, o) for w, o in zip(ws, orbits, strict=True)]
+        if _is_polynomial(approx):
+            from perturb.numeric.amplitude import solutions_at
+
+            resp = solutions_at(approx, ws)
+            found = [[] for _ in ws]
+            for b in resp.branches:
+                for w, a in zip(b.omega, b.amplitude, strict=True):
+                    found[ws.index(float(w))].append(float(a))
+            errs = tuple(_hausdorff(f, e, True) for f, e in zip(found, exact_amp, strict=True))
+            est = max(
+                (_hausdorff(f, [r], False) for f, g in zip(found, ref, strict=True) for r in g),
+                default=0.0,
+            )
+        else:
+            from perturb.comparison import relative_errors
+            from perturb.numeric.residual import residual_response
+
+            if window is None:
+                window = (0.9 * min(ws), 1.1 * max(ws))
+            traced = residual_response(approx, tuple(window))
+            errs, est = _traced_errors(traced, ws, exact_amp, ref, relative_errors)
+        return CandidateResult(candidate, errs, est, time.process_time() - t0)
+    except PerturbError as exc:
+        inf = tuple(math.inf for _ in ws)
+        return CandidateResult(candidate, inf, math.nan, time.process_time() - t0, str(exc))
+
+
+def _points_response(ws: Sequence[float], amps: Sequence[Sequence[float]]) -> Response | None:
+    """Isolated points as one-point branches (for :func:`relative_errors`)."""
+    branches = [
+        Branch([w], [a], [a], [0.0], [True], [0.0])
+        for w, row in zip(ws, amps, strict=True)
+        for a in row
+        if math.isfinite(a)
+    ]
+    return Response(tuple(branches), "points") if branches else None
+
+
+def _traced_errors(traced, ws, exact_amp, ref, relative_errors):
+    """Errors of a traced curve at the spot frequencies (one-sided: exact -> curve)."""
+    errs = []
+    for w, row in zip(ws, exact_amp, strict=True):
+        pts = _points_response([w], [row])
+        if pts is None:
+            errs.append(0.0)
+            continue
+        e = relative_errors(pts, traced)
+        errs.append(float(np.max(np.where(np.isfinite(e), e, np.inf))))
+    pts = _points_response(ws, ref)
+    est = math.nan
+    if pts is not None:
+        e = relative_errors(pts, traced)
+        est = float(np.max(np.where(np.isfinite(e), e, np.inf)))
+    return tuple(errs), est
+
+
+def choose_method(
+    oscillator: Oscillator,
+    window: Sequence[float],
+    rtol: float,
+    *,
+    spots: Sequence[float] | None = None,
+    n_spots: int = 4,
+    ladder: Sequence[Candidate] = LADDER,
+    log=None,
+) -> AutoChoice:
+    """The cheapest candidate of ``ladder`` whose spot checks meet ``rtol``.
+
+    Parameters
+    ----------
+    oscillator : Oscillator
+        A forced oscillator with parameter values.
+    window : (float, float)
+        The frequency window ``(low, high)``.
+    rtol : float
+        Relative amplitude tolerance in ``(0, 1)``.
+    spots : sequence of float, optional
+        Spot frequencies (default :func:`spot_frequencies` with ``n_spots``).
+    n_spots : int
+        Number of spot frequencies when ``spots`` is not given (default 4).
+    ladder : sequence of Candidate
+        Candidates, cheapest first (default :data:`LADDER`); the exact solver always ends it.
+    log : callable, optional
+        Called with a line of text per candidate tried.
+
+    Returns
+    -------
+    AutoChoice
+
+    Raises
+    ------
+    ParameterError
+        Bad ``rtol``, window or spot frequencies.
+    """
+    return _choose(oscillator, window, rtol, spots, n_spots, ladder, log)[0]
+
+
+def _skip_reason(cand: Candidate, tried: Sequence[CandidateResult], rtol: float) -> str:
+    """Why a higher-order expansion is not worth its cost here ('' if it is).
+
+    A second order improves on the first by about one power of the small parameter; when the
+    first order of the same method misses by more than 100 x rtol, the second will not close
+    the gap, and its residual continuation costs more than every HB truncation together."""
+    if cand.order is None or cand.order < 2:
+        return ""
+    for r in tried:
+        c = r.candidate
+        if c.method == cand.method and c.order in (None, cand.order - 1) and r.error > 100 * rtol:
+            return f"skipped: order {cand.order - 1} misses by {r.error:.2e} > 100 x rtol"
+    return ""
+
+
+def _choose(
+    oscillator, window, rtol, spots, n_spots, ladder, log, known=None, before=(), exact_s=0.0
+):
+    """:func:`choose_method`; ``known`` caches exact orbits by frequency (filled in here),
+    ``before`` are results of cheaper rungs already rejected (reported, not re-run)."""
+    known = {} if known is None else known
+    rtol = check_rtol(rtol)
+    lo, hi = _check_window(window)
+    if spots is None:
+        spots = spot_frequencies(oscillator, (lo, hi), n_spots)
+    try:
+        ws = tuple(float(w) for w in spots)
+    except (TypeError, ValueError):
+        raise ParameterError(f"spots = {spots!r}: expected positive frequencies") from None
+    if not ws or not all(math.isfinite(w) and w > 0 for w in ws) or len(set(ws)) != len(ws):
+        raise ParameterError(f"spots = {spots!r}: expected distinct positive frequencies")
+    t0 = time.process_time()
+    missing = [w for w in ws if w not in known]
+    known.update(zip(missing, exact_spot_orbits(oscillator, missing), strict=True))
+    orbits = [known[w] for w in ws]
+    exact_s += time.process_time() - t0
+    ladder = [c for c in ladder if c.method != "exact"] + [Candidate("exact", "exact")]
+    tried = list(before)
+    for cand in ladder:
+        skip = _skip_reason(cand, tried, rtol)
+        if skip:
+            res = CandidateResult(cand, tuple(math.inf for _ in ws), math.nan, 0.0, skip)
+            tried.append(res)
+            if log is not None:
+                log(f"{cand.name}: {skip}")
+            continue
+        res = candidate_spot_errors(oscillator, cand, ws, orbits, (lo, hi))
+        if log is not None:
+            log(
+                f"{cand.name}: spot error {res.error:.2e}, estimate {res.estimate:.2e}, "
+                f"{res.seconds:.2f} s CPU"
+                + (f" ({res.note})" if res.note and res.note != "reference" else "")
+            )
+        if res.meets(rtol):
+            choice = AutoChoice(
+                res,
+                tuple(tried),
+                rtol,
+                (lo, hi),
+                ws,
+                tuple(len(o) for o in orbits),
+                exact_s,
+                tuple(tuple(float(o.amplitude) for o in row) for row in orbits),
+            )
+            return choice, [(w, o) for w, row in zip(ws, orbits, strict=True) for o in row]
+        tried.append(res)
+    raise AssertionError("unreachable: the exact candidate always meets rtol")
+
+
+def _hb_multistart(
+    oscillator: Oscillator, H: int, window: tuple[float, float], orbits: Sequence[tuple[float, Any]]
+) -> Response:
+    """Numeric HB traced from the high end of the window and through every exact spot orbit
+    the curves so far do not pass near (both ways from it until the branch leaves the window
+    or closes), so branches that one continuation run would not reach (in-well orbits,
+    isolas) are on the curve too."""
+    from perturb.comparison import relative_errors
+    from perturb.numeric.harmonic_balance import (
+        harmonic_balance_branch,
+        harmonic_balance_branch_through,
+        harmonic_balance_orbit,
+    )
+
+    lo, hi = window
+    raw = [harmonic_balance_branch(oscillator, window, harmonics=H)]
+    parts = [raw[0].to_response()]
+
+    def covered(w: float, a: float) -> bool:
+        pts = _points_response([w], [[a]])
+        for r in parts:
+            e = relative_errors(pts, r)
+            if np.isfinite(e[0]) and e[0] < 0.02:
+                return True
+        return False
+
+    for w, orbit in orbits:
+        if covered(w, float(orbit.amplitude)):
+            continue
+        try:
+            sol = harmonic_balance_orbit(
+                oscillator, w, harmonics=H, guess=_coefficients(orbit, H, w), stability="none"
+            )
+        except PerturbError:
+            continue
+        try:
+            br = harmonic_balance_branch_through(raw[0].system, sol.coefficients, sol.Omega, window)
+        except PerturbError:
+            continue
+        raw.append(br)
+        parts.append(br.to_response())
+    first = parts[0]
+    branches = tuple(b for r in parts for b in r.branches if len(b) > 1)
+    folds = tuple(f for r in parts for f in r.folds)
+    notes = tuple(first.notes) + (
+        f"{len(parts)} continuation runs: from the window's high end and from exact spot orbits",
+    )
+    resp = Response(branches, first.method, first.model, dict(first.params), folds, notes)
+    return resp, raw
+
+
+def window_estimate(
+    oscillator: Oscillator, branches: Sequence[Any], samples: int = 32
+) -> tuple[float, float]:
+    """The a-posteriori estimate between the spot frequencies for numeric HB.
+
+    At up to ``samples`` points spread over the traced HB branches (H harmonics), HB with
+    ``2H + 1`` harmonics is solved at the same frequency from the point's coefficients; the
+    largest relative amplitude difference, and the frequency where it occurs, are returned
+    (``(nan, nan)`` when no point could be re-solved).  Points next to a fold are skipped:
+    there the amplitude at fixed frequency is ill-conditioned and Newton may change branch.
+
+    Parameters
+    ----------
+    oscillator : Oscillator
+    branches : sequence of HarmonicBalanceBranch
+    samples : int
+
+    Returns
+    -------
+    (float, float)
+        ``(estimate, Omega)``.
+    """
+    from perturb.numeric.harmonic_balance import harmonic_balance_orbit
+
+    pts = [(b, j) for b in branches for j in range(len(b))]
+    if not pts:
+        return math.nan, math.nan
+    pick = np.unique(np.linspace(0, len(pts) - 1, min(samples, len(pts))).round().astype(int))
+    worst, where = math.nan, math.nan
+    for i in pick:
+        b, j = pts[int(i)]
+        w = float(b.omega[j])
+        if any(abs(w - wf) < 0.01 * w for wf, _ in b.folds):
+            continue
+        H = b.system.harmonics
+        u = np.zeros(1 + 2 * (2 * H + 1))
+        u[: b.coefficients.shape[1]] = b.coefficients[j]
+        try:
+            s = harmonic_balance_orbit(
+                oscillator, w, harmonics=2 * H + 1, guess=u, stability="none"
+            )
+        except PerturbError:
+            continue
+        e = _rel(float(b.amplitude[j]), float(s.amplitude))
+        if not (e <= worst):  # also replaces the initial nan
+            worst, where = e, w
+    return worst, where
+
+
+def _full_response(
+    oscillator: Oscillator,
+    c: Candidate,
+    window: tuple[float, float],
+    points: int,
+    orbits: Sequence[tuple[float, Any]] = (),
+) -> Response:
+    from perturb.solve import frequency_response
+
+    if c.method == "hb":
+        return _hb_multistart(oscillator, int(c.harmonics or 15), window, orbits)
+    if c.method == "exact":
+        return frequency_response(oscillator, "exact", window)
+    approx = _derive(c, oscillator)
+    if _is_polynomial(approx):
+        from perturb.numeric.amplitude import approximation_response as traced
+
+        return traced(approx, window, points=points)
+    from perturb.numeric.residual import residual_response
+
+    return residual_response(approx, window)
+
+
+def _coverage_notes(resp: Response, choice: AutoChoice) -> tuple[str, ...]:
+    """Say when the traced curve misses spot orbits the spot checks did verify."""
+    from perturb.comparison import relative_errors
+
+    pts = _points_response(choice.spot_frequencies, choice.exact_amplitudes)
+    if pts is None or not resp.branches:
+        return ()
+    e = relative_errors(pts, resp)
+    bad = int(np.sum(~np.isfinite(e) | (e > 0.05)))
+    if bad:
+        return (
+            f"the traced {choice.chosen.candidate.name} curve passes near {e.size - bad} of "
+            f"{e.size} exact spot orbits: branches not connected to the traced one are missing "
+            "(their method was verified at the spot frequencies)",
+        )
+    return ()
+
+
+def auto_frequency_response(
+    oscillator: Oscillator,
+    window: Sequence[float],
+    rtol: float,
+    *,
+    spots: Sequence[float] | None = None,
+    n_spots: int = 4,
+    points: int = 2000,
+    ladder: Sequence[Candidate] = LADDER,
+    log=None,
+    max_extra_spots: int = 3,
+) -> tuple[Response, AutoChoice]:
+    """Choose the method (:func:`choose_method`), then trace only it over ``window``.
+
+    Parameters
+    ----------
+    oscillator, window, rtol, spots, n_spots, ladder, log
+        As in :func:`choose_method`.
+    points : int
+        Curve resolution of amplitude-parametrised methods.
+    max_extra_spots : int
+        Spot checks that may be added where the estimate along a traced HB curve exceeds
+        ``rtol`` (default 3).
+
+    Returns
+    -------
+    (Response, AutoChoice)
+        The response's ``notes`` start with the choice (method, estimate, spot errors).
+    Notes
+    -----
+    When the chosen method is numeric HB, the estimate is also formed along the traced
+    curve (:func:`window_estimate`).  Where it exceeds ``rtol`` — the spot frequencies were
+    a sample and missed the hardest part of the window — that frequency becomes one more
+    spot check (exact orbits there) and the ladder resumes at the chosen rung, at most
+    ``max_extra_spots`` times; what remains is reported in the notes.
+    """
+    known: dict[float, list] = {}
+    exact_s = 0.0
+    ladder = list(ladder)
+    before: tuple[CandidateResult, ...] = ()
+    extra: list[str] = []
+    for attempt in range(max_extra_spots + 1):
+        choice, orbits = _choose(
+            oscillator, window, rtol, spots, n_spots, ladder, log, known, before, exact_s
+        )
+        exact_s = choice.exact_seconds
+        spots = choice.spot_frequencies
+        lo, hi = choice.window
+        cand = choice.chosen.candidate
+        resp = _full_response(oscillator, cand, (lo, hi), points, orbits)
+        notes: tuple[str, ...] = ()
+        if cand.method != "hb":
+            break
+        resp, raw = resp
+        est, at = window_estimate(oscillator, raw)
+        choice = dataclasses.replace(choice, window_estimate=est, window_estimate_at=at)
+        if not est > choice.rtol:
+            break
+        w_new = float(f"{at:.6g}")
+        if w_new in spots:
+            err_there = choice.chosen.spot_errors[spots.index(w_new)]
+            notes += (
+                f"the estimate along the traced curve reaches {est:.2e} at Omega = {w_new:g}, "
+                f"where the exact spot check gives {err_there:.2e} <= rtol: the estimate is "
+                "pessimistic there (or follows an orbit the exact search did not find)",
+            )
+            break
+        if attempt == max_extra_spots:
+            notes += (
+                f"between the spot frequencies the estimate reaches {est:.2e} > rtol "
+                f"(at Omega = {at:.4g}): add spot frequencies there or tighten rtol",
+            )
+            break
+        msg = (
+            f"{cand.name}: estimate {est:.2e} > rtol on the traced curve at Omega = {w_new:g}: "
+            "exact spot check added there"
+        )
+        extra.append(msg)
+        if log is not None:
+            log(msg)
+        spots = (*spots, w_new)
+        # resume at the chosen rung: the cheaper ones already failed at the other spots
+        i = next(j for j, c in enumerate(ladder) if c == cand)
+        before = choice.rejected
+        ladder = ladder[i:]
+    choice = _with_notes(choice, tuple(extra) + notes + _coverage_notes(resp, choice))
+    head = tuple(choice.summary().splitlines())
+    resp = Response(
+        resp.branches,
+        resp.method,
+        resp.model,
+        dict(resp.params),
+        folds=resp.folds,
+        notes=head + tuple(resp.notes),
+    )
+    return resp, choice
+
+
+def _with_notes(choice: AutoChoice, notes: tuple[str, ...]) -> AutoChoice:
+    if not notes:
+        return choice
+    return dataclasses.replace(choice, notes=choice.notes + notes)

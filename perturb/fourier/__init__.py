@@ -1,0 +1,6 @@
+"""The Fourier layer: closed-form Fourier coefficients of nonsmooth terms.
+
+- :mod:`perturb.fourier.coefficients`: numeric coefficients (vectorised, closed form);
+- :mod:`perturb.fourier.symbols`: the same coefficients as SymPy functions for derivations;
+- :mod:`perturb.fourier.trig`: harmonic bookkeeping of trigonometric polynomials.
+"""

@@ -1,0 +1,1 @@
+"""Reading and writing: the whitelisted expression codec and the derivation cache."""

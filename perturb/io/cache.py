@@ -1,0 +1,617 @@
+"""On-disk cache of derivations, stored as authenticated text.
+
+A derivation is keyed by the method, its options, the oscillator's equation (``srepr``) and
+parameter values, perturb's version and a hash of the method's source file — so editing a
+method invalidates its entries.
+
+An entry is JSON: one table of expression nodes shared by every field (the derivation steps
+repeat the same symbols and subexpressions thousands of times), each node a whitelisted
+constructor name with references to earlier nodes, or a literal leaf (symbol, number,
+constant). Reading it calls only those constructors, unevaluated, so a hit rebuilds exactly
+the trees the method returned in milliseconds — parsing ``srepr`` text
+(:mod:`perturb.io.serialize`) costs tenths of a second for a long derivation. An approximation
+whose rebuilt form would differ from it (an expression type the table does not know) is not
+stored.
+
+Trust
+-----
+The cache folder may be shared (``PERTURB_CACHE_DIR`` on a shared disk, a CI cache restored
+from another branch), so whoever can write it must not be able to make perturb run code or
+return a wrong answer. Two independent checks, both before anything is built:
+
+1. **Authentication: HMAC-SHA256 with a per-user secret key.** An entry file is the JSON
+   object ``{"perturb-cache": <layout>, "hmac": "<hex>", "entry": <entry>}``, checked on its
+   bytes before anything is parsed; the HMAC covers the layout, the entry's cache key (its
+   file name — an entry moved to another key fails) and every byte of ``<entry>``, so an
+   edited number, symbol or step is detected. The key is
+   ``$PERTURB_CACHE_KEY`` when set (a secret of at least 16 characters), else 32 random
+   bytes in ``$XDG_CONFIG_HOME/perturb/cache-key`` (default ``~/.config/perturb/cache-key``):
+   created on first use with mode 0600 in a 0700 folder, and refused — caching is then off,
+   with a warning — if it is a link, readable or writable by others, owned by another user,
+   or inside the cache folder. A content hash checked against the file name would not do:
+   the name hashes the *inputs* of a derivation, which anyone can compute, so a forger
+   could store any content under it; only a secret the forger lacks authenticates.
+2. **A closed vocabulary** (:class:`perturb.io.serialize.Vocabulary`, the one the JSON codec
+   reads ``perturb derive --json`` files with): constructor names from
+   :data:`perturb.io.serialize.CLASSES`, symbol names the oscillator declares or the engines
+   use, function names the engines use, numbers as bounded finite numbers (no ``NaN`` or
+   ``Infinity`` in the JSON). This holds even for an entry authenticated by a leaked key.
+
+An entry that fails either check — tampered, written with another key, truncated, from
+another layout, outside the vocabulary — is reported with a :class:`CacheWarning` naming the
+file, recomputed and overwritten: never executed, never trusted.
+
+Location: ``$PERTURB_CACHE_DIR``, else ``$XDG_CACHE_HOME/perturb``, else
+``~/.cache/perturb``; ``PERTURB_CACHE=0`` switches caching off.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import hmac
+import inspect
+import json
+import os
+import re
+import secrets
+import stat
+import sys
+import tempfile
+import warnings
+from collections.abc import Callable, Mapping
+from fractions import Fraction
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+import sympy as sp
+from sympy.core.function import AppliedUndef
+from sympy.printing.repr import mlib_to_str, repr_dps
+
+from perturb.approximation import Approximation, Step
+from perturb.io.serialize import CLASSES, CONSTANTS, FORMAT_VERSION, Vocabulary, check_plain
+from perturb.model.oscillator import Oscillator
+
+__all__ = [
+    "CacheWarning",
+    "authenticate",
+    "cache_dir",
+    "cache_key_file",
+    "cached_derivation",
+    "derivation_key",
+]
+
+# Layout of an entry (bump to orphan older entries): 2 = node table, tagged options;
+# 3 = authenticated (header line with an HMAC), read through serialize's vocabulary.
+_ENTRY_VERSION = 3
+_MAGIC = b"perturb-cache"
+_MAX_NODES = 2_000_000
+_MAX_BYTES = 512 * 2**20  # an entry larger than this is not read
+_MAX_TEXT = 100_000
+
+
+class CacheWarning(UserWarning):
+    """A cache entry (or the cache key) was not trusted: the derivation is recomputed."""
+
+
+def cache_dir() -> Path:
+    """The cache folder (created on first write)."""
+    if os.environ.get("PERTURB_CACHE_DIR"):
+        return Path(os.environ["PERTURB_CACHE_DIR"])
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "perturb"
+
+
+def cache_key_file() -> Path:
+    """The file holding this user's secret cache key (used unless ``PERTURB_CACHE_KEY`` is set):
+    ``$XDG_CONFIG_HOME/perturb/cache-key``, default ``~/.config/perturb/cache-key``."""
+    base = os.environ.get("XDG_CONFIG_HOME") or os.path.join(os.path.expanduser("~"), ".config")
+    return Path(base) / "perturb" / "cache-key"
+
+
+def _source_hash(fn: Callable[..., Any]) -> str:
+    try:
+        module = sys.modules[fn.__module__]
+        text = inspect.getsource(module)
+    except (KeyError, OSError, TypeError):
+        text = repr(fn)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def derivation_key(method: str, fn: Callable[..., Any], osc: Oscillator, options: dict) -> str:
+    """The cache key: a hash of everything the derivation depends on."""
+    from perturb import __version__
+
+    payload = {
+        "format": FORMAT_VERSION,
+        "entry": _ENTRY_VERSION,
+        "version": __version__,
+        "method": method,
+        "source": _source_hash(fn),
+        "options": {k: repr(v) for k, v in sorted(options.items())},
+        "equation": sp.srepr(osc.equation),
+        "params": {k: repr(v) for k, v in sorted(osc.params.items())},
+    }
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+
+
+# ------------------------------------------------------------------------- the secret key --
+class _NoKey(Exception):
+    """No trustworthy key: the cache is not used."""
+
+
+_KEYS: dict[tuple[str | None, str, str], bytes] = {}
+_WARNED: set[str] = set()
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    try:
+        p, f = path.resolve(), folder.resolve()
+    except (OSError, RuntimeError):
+        return False
+    return p == f or f in p.parents
+
+
+def _create_key(path: Path) -> None:
+    """A new random key at ``path`` (0600 in a 0700 folder), unless one appears meanwhile."""
+    path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(secrets.token_hex(32) + "\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+        try:
+            os.link(tmp, path)  # fails if another process created the key first: theirs wins
+        except FileExistsError:
+            pass
+        except OSError:  # a file system without hard links
+            if not path.exists():
+                os.replace(tmp, path)
+    finally:
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+
+
+def _read_key(path: Path) -> bytes:
+    flags = os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0)
+    fd = os.open(path, flags)
+    with os.fdopen(fd, "rb") as fh:
+        st = os.fstat(fh.fileno())
+        if not stat.S_ISREG(st.st_mode):
+            raise _NoKey(f"the key file {str(path)!r} is not a regular file")
+        if hasattr(os, "getuid") and st.st_uid != os.getuid():
+            raise _NoKey(f"the key file {str(path)!r} belongs to another user")
+        if os.name == "posix" and st.st_mode & 0o077:
+            raise _NoKey(
+                f"the key file {str(path)!r} is accessible to other users (mode "
+                f"{stat.S_IMODE(st.st_mode):o}): `chmod 600` it, or delete it to make a new one"
+            )
+        text = fh.read(256).strip()
+    try:
+        key = bytes.fromhex(text.decode("ascii"))
+    except (UnicodeDecodeError, ValueError):
+        key = b""
+    if len(key) < 32:
+        raise _NoKey(f"the key file {str(path)!r} does not hold a key: delete it to make one")
+    return key
+
+
+def _secret() -> bytes:
+    """This user's cache key (see the module docstring); raises :class:`_NoKey`."""
+    env = os.environ.get("PERTURB_CACHE_KEY")
+    path = cache_key_file()
+    memo = (env, str(path), str(cache_dir()))
+    if memo in _KEYS:
+        return _KEYS[memo]
+    if env is not None:
+        if len(env) < 16:
+            raise _NoKey("PERTURB_CACHE_KEY is set but shorter than 16 characters")
+        key = hashlib.sha256(b"perturb-cache-key\0" + env.encode()).digest()
+    else:
+        if not path.is_absolute():
+            raise _NoKey(
+                f"no home folder for the key file ({str(path)!r}): set XDG_CONFIG_HOME or "
+                "PERTURB_CACHE_KEY"
+            )
+        if _inside(path, cache_dir()):
+            raise _NoKey(
+                f"the key file {str(path)!r} lies inside the cache folder {str(cache_dir())!r}, "
+                "which others may be able to read"
+            )
+        key = b""
+        for _ in range(3):  # created by a concurrent process between the two steps: read it
+            try:
+                key = _read_key(path)
+                break
+            except FileNotFoundError:
+                try:
+                    _create_key(path)
+                except OSError as exc:
+                    raise _NoKey(f"cannot create the key file {str(path)!r}: {exc}") from None
+            except OSError as exc:
+                raise _NoKey(f"cannot read the key file {str(path)!r}: {exc}") from None
+        if not key:
+            raise _NoKey(f"cannot create the key file {str(path)!r}")
+    _KEYS[memo] = key
+    return key
+
+
+def authenticate(label: str, data: bytes) -> str | None:
+    """HMAC-SHA256 (hex) of ``data`` bound to ``label`` under this user's cache key (module
+    docstring), for other files perturb reads back (sweep checkpoints); ``None`` when no
+    trustworthy key is available."""
+    try:
+        key = _secret()
+    except _NoKey:
+        return None
+    msg = b"perturb/%s\n" % label.encode() + data
+    return hmac.new(key, msg, hashlib.sha256).hexdigest()
+
+
+def _mac(key: bytes, name: str, body: bytes) -> bytes:
+    msg = b"%s/%d\n%s\n" % (_MAGIC, _ENTRY_VERSION, name.encode()) + body
+    return hmac.new(key, msg, hashlib.sha256).hexdigest().encode()
+
+
+def _seal(key: bytes, name: str, body: bytes) -> bytes:
+    # still one JSON object: {"perturb-cache": <layout>, "hmac": "<hex>", "entry": <body>}
+    return b'{"%s":%d,"hmac":"%s","entry":' % (_MAGIC, _ENTRY_VERSION, _mac(key, name, body)) + (
+        body + b"}"
+    )
+
+
+class _Rejected(Exception):
+    """An entry that is not trusted (the message says why)."""
+
+
+_HEAD = b'{"%s":%d,"hmac":"' % (_MAGIC, _ENTRY_VERSION)
+_BODY_AT = len(_HEAD) + 64 + len(b'","entry":')
+
+
+def _open(raw: bytes, key: bytes, name: str) -> bytes:
+    """The entry's JSON body, if the file's HMAC authenticates it under ``name`` (checked on
+    the bytes, before any parsing)."""
+    if not raw.startswith(_HEAD):
+        m = re.match(rb'\{\s*"perturb-cache"\s*:\s*(\d{1,9})', raw)
+        if m is None:
+            raise _Rejected("it is not an authenticated perturb cache entry")
+        if int(m[1]) != _ENTRY_VERSION:
+            raise _Rejected(f"it is of layout {int(m[1])}, not {_ENTRY_VERSION}")
+        raise _Rejected("it was edited (it is not laid out as perturb writes entries)")
+    mac, sep = raw[len(_HEAD) : len(_HEAD) + 64], raw[len(_HEAD) + 64 : _BODY_AT]
+    body = raw[_BODY_AT:-1]
+    if sep != b'","entry":' or not raw.endswith(b"}"):
+        raise _Rejected("it is not an authenticated perturb cache entry")
+    if not hmac.compare_digest(mac, _mac(key, name, body)):
+        raise _Rejected(
+            "it failed authentication (edited, truncated, moved from another entry, or written "
+            "with another key)"
+        )
+    return body
+
+
+# ------------------------------------------------------------------------ expression table --
+class _Unsupported(Exception):
+    """An expression the table cannot rebuild exactly: the approximation is not stored."""
+
+
+def _assumptions(d: Mapping[str, Any]) -> dict[str, bool]:
+    if not all(isinstance(k, str) and isinstance(v, bool) for k, v in d.items()):
+        raise _Unsupported(f"assumptions {d!r}")
+    return dict(d)
+
+
+class _Writer:
+    def __init__(self) -> None:
+        self.nodes: list[list] = []
+        self.index: dict[tuple, int] = {}
+
+    def ref(self, e: Any) -> int:
+        if not isinstance(e, sp.Basic):
+            raise _Unsupported(f"{type(e).__name__} {e!r} is not a SymPy expression")
+        # a Float equals another of a different precision; the type keeps 1 apart from 1.0
+        key = (type(e), e, e._prec) if isinstance(e, sp.Float) else (type(e), e)
+        i = self.index.get(key)
+        if i is None:
+            node = self._node(e)
+            self.nodes.append(node)
+            i = self.index[key] = len(self.nodes) - 1
+        return i
+
+    def refs(self, items: Any) -> list[int] | None:
+        return None if items is None else [self.ref(e) for e in items]
+
+    def _node(self, e: sp.Basic) -> list:
+        if type(e) is sp.Symbol:
+            return ["sym", e.name, _assumptions(e._assumptions_orig)]
+        if type(e) is sp.Dummy:
+            return ["dummy", e.name, e.dummy_index, _assumptions(e._assumptions_orig)]
+        if isinstance(e, sp.Integer):
+            return ["int", int(e)]
+        if isinstance(e, sp.Rational):
+            return ["rat", int(e.p), int(e.q)]
+        if isinstance(e, sp.Float):
+            return ["float", mlib_to_str(e._mpf_, repr_dps(e._prec)), int(e._prec)]
+        name = type(e).__name__
+        if CONSTANTS.get(name) is e:
+            return ["const", name]
+        if isinstance(e, AppliedUndef):
+            f = type(e)
+            return ["fn", f.__name__, _assumptions(f._kwargs), *(self.ref(a) for a in e.args)]
+        if type(e) is sp.ImmutableDenseMatrix:
+            return ["matrix", e.rows, e.cols, *(self.ref(a) for a in e)]
+        if name not in CLASSES or CLASSES[name][0] is not type(e):
+            raise _Unsupported(f"expression type {name}")
+        return [name, *(self.ref(a) for a in e.args)]
+
+
+def _literal(value: Any, kind: type, limit: int = 200) -> Any:
+    if type(value) is not kind or (kind is str and len(value) > limit):
+        raise ValueError(f"unexpected {str(value)[:80]!r}")
+    return value
+
+
+_CONSTRUCTORS = {name: ctor for name, (_, ctor) in CLASSES.items()}
+
+
+def _read_nodes(nodes: Any, vocab: Vocabulary) -> list[sp.Basic]:
+    """The node table rebuilt; each node checked against ``vocab`` before it is built."""
+    if not isinstance(nodes, list) or len(nodes) > _MAX_NODES:
+        raise ValueError("no node table")
+    built: list[sp.Basic] = []
+    n_built = 0
+
+    def refs(items: list) -> list[sp.Basic]:
+        out = []
+        for i in items:
+            if type(i) is not int or not 0 <= i < n_built:
+                raise ValueError(f"bad reference {str(i)[:40]!r}")
+            out.append(built[i])
+        return out
+
+    for node in nodes:
+        if type(node) is not list or not node or type(node[0]) is not str:
+            raise ValueError(f"bad node {str(node)[:80]!r}")
+        tag, rest = node[0], node[1:]
+        ctor = _CONSTRUCTORS.get(tag)
+        if ctor is not None:  # most nodes: a whitelisted class of built arguments
+            args = refs(rest)
+            if tag == "Pow" and len(args) == 2:
+                vocab.power(*args)
+            e = ctor(args)
+        elif tag == "sym":
+            name, kw = rest
+            e = vocab.symbol(name, kw)
+        elif tag == "dummy":
+            name, index, kw = rest
+            e = vocab.dummy(name, index, kw)
+        elif tag == "int":
+            (value,) = rest
+            e = vocab.integer(value)
+        elif tag == "rat":
+            p, q = rest
+            e = vocab.rational(p, q)
+        elif tag == "float":
+            text, prec = rest
+            e = vocab.float(text, prec)
+        elif tag == "const":
+            (name,) = rest
+            e = vocab.constant(name)
+        elif tag == "fn":
+            name, kw, *args = rest
+            e = vocab.function(name, kw)(*refs(args))
+        elif tag == "matrix":
+            rows, cols, *items = rest
+            e = vocab.matrix(rows, cols, refs(items))
+        else:
+            raise ValueError(f"constructor {tag[:80]!r} is not allowed")
+        built.append(e)
+        n_built += 1
+    return built
+
+
+# JSON has no SymPy values (L-P stores omega0 as a symbol) and no tuples (harmonic balance's
+# harmonic set): tagged, so that a cached approximation's options equal a fresh one's.
+def _encode_option(value: Any, table: _Writer) -> Any:
+    if isinstance(value, sp.Basic):
+        return {"expr": table.ref(value)}
+    if isinstance(value, tuple):
+        return {"tuple": [_encode_option(v, table) for v in value]}
+    if isinstance(value, Fraction):
+        return {"fraction": [value.numerator, value.denominator]}
+    if isinstance(value, list):
+        return [_encode_option(v, table) for v in value]
+    if value is None or isinstance(value, bool | int | float | str):
+        return value
+    raise _Unsupported(f"option value {value!r}")
+
+
+def _decode_option(value: Any, built: list[sp.Basic], vocab: Vocabulary, depth: int = 0) -> Any:
+    if depth > 20:
+        raise ValueError("option nested too deeply")
+    if isinstance(value, dict) and len(value) == 1:
+        ((tag, body),) = value.items()
+        if tag == "expr":
+            if type(body) is not int or not 0 <= body < len(built):
+                raise ValueError(f"bad reference {str(body)[:40]!r}")
+            return built[body]
+        if tag == "tuple":
+            return tuple(_decode_option(v, built, vocab, depth + 1) for v in _literal(body, list))
+        if tag == "fraction":
+            p, q = _literal(body, list)
+            if vocab.integer_value(q) <= 0:
+                raise ValueError(f"fraction {p!r}/{q!r}")
+            return Fraction(vocab.integer_value(p), q)
+    if isinstance(value, list):
+        return [_decode_option(v, built, vocab, depth + 1) for v in value]
+    return check_plain(value, vocab, "option")
+
+
+_SINGLE = ("waveform", "tau", "frequency", "amplitude", "backbone")
+_SEVERAL = ("unknowns", "residuals", "slow_flow", "frequency_polynomial", "phase_from")
+
+
+def _entry(approx: Approximation) -> dict[str, Any]:
+    table = _Writer()
+    fields: dict[str, Any] = {
+        name: None if getattr(approx, name) is None else table.ref(getattr(approx, name))
+        for name in _SINGLE
+    }
+    fields.update({name: table.refs(getattr(approx, name)) for name in _SEVERAL})
+    return {
+        "format": FORMAT_VERSION,
+        "entry": _ENTRY_VERSION,
+        "method": approx.method,
+        "options": {k: _encode_option(v, table) for k, v in approx.options.items()},
+        **fields,
+        "fourier": {k: table.ref(v) for k, v in approx.fourier.items()},
+        "steps": [[s.title, s.text, table.refs(s.math)] for s in approx.steps],
+        "nodes": table.nodes,
+    }
+
+
+def _approximation(data: Any, osc: Oscillator, where: str = "cache entry") -> Approximation:
+    """The approximation an entry describes; raises ``ValueError``/``ParseError`` (and,
+    for a malformed entry, ``KeyError``/``TypeError``) for anything outside the vocabulary."""
+    if not isinstance(data, dict) or data.get("entry") != _ENTRY_VERSION:
+        raise ValueError("an entry of another layout")
+    vocab = Vocabulary.for_oscillator(osc, where)
+    built = _read_nodes(data["nodes"], vocab)
+
+    def at(i: Any) -> sp.Basic:
+        if type(i) is not int or not 0 <= i < len(built):
+            raise ValueError(f"bad reference {str(i)[:40]!r}")
+        return built[i]
+
+    def one(i: Any) -> sp.Basic | None:
+        return None if i is None else at(i)
+
+    def several(items: Any) -> tuple[sp.Basic, ...] | None:
+        return None if items is None else tuple(at(i) for i in _literal(items, list))
+
+    return Approximation(
+        oscillator=osc,
+        method=_literal(data["method"], str),
+        options=MappingProxyType(
+            {
+                _literal(k, str): _decode_option(v, built, vocab)
+                for k, v in _literal(data["options"], dict).items()
+            }
+        ),
+        unknowns=several(data["unknowns"]) or (),
+        residuals=several(data["residuals"]) or (),
+        slow_flow=several(data["slow_flow"]),
+        frequency_polynomial=several(data["frequency_polynomial"]),
+        phase_from=several(data["phase_from"]),
+        fourier=MappingProxyType(
+            {_literal(k, str): one(i) for k, i in _literal(data["fourier"], dict).items()}
+        ),
+        steps=tuple(
+            Step(
+                _literal(title, str, _MAX_TEXT),
+                tuple(at(i) for i in _literal(math, list)),
+                _literal(text, str, _MAX_TEXT),
+            )
+            for title, text, math in _literal(data["steps"], list)
+        ),
+        **{name: one(data[name]) for name in _SINGLE},
+    )
+
+
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a number")
+
+
+def _read(path: Path, name: str, key: bytes, osc: Oscillator) -> Approximation | None:
+    """The entry at ``path`` if it exists and is trusted; ``None`` if absent. An entry that is
+    not trusted is reported (:class:`CacheWarning` naming the file) and ``None`` returned."""
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read(_MAX_BYTES + 1)
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        warnings.warn(
+            f"derivation cache entry {str(path)!r} cannot be read ({exc.strerror}): recomputed",
+            CacheWarning,
+            stacklevel=3,
+        )
+        return None
+    try:
+        if len(raw) > _MAX_BYTES:
+            raise _Rejected(f"it is larger than {_MAX_BYTES} bytes")
+        body = _open(raw, key, name)
+        # authenticated; still read only through the closed vocabulary
+        try:
+            data = json.loads(body, parse_constant=_no_constant)
+            return _approximation(data, osc, f"cache entry {str(path)!r}")
+        except Exception as exc:  # whatever a malformed entry raises: nothing was executed
+            raise _Rejected(f"its content is invalid: {exc}") from None
+    except _Rejected as exc:
+        warnings.warn(
+            f"derivation cache entry {str(path)!r} ignored: {exc}; the derivation is "
+            "recomputed and the entry overwritten",
+            CacheWarning,
+            stacklevel=3,
+        )
+        return None
+
+
+def cached_derivation(
+    method: str,
+    fn: Callable[..., Approximation],
+    osc: Oscillator,
+    *,
+    use_cache: bool | None = None,
+    **options: Any,
+) -> Approximation:
+    """``fn(osc, **options)``, from the cache when an authenticated, valid entry exists.
+
+    The result is identical either way (same expressions and steps); a cache that cannot be
+    read or written only costs time. An entry that is not trusted (module docstring) is
+    reported with a :class:`CacheWarning` naming its file, and recomputed.
+    """
+    if use_cache is None:
+        use_cache = os.environ.get("PERTURB_CACHE", "1") != "0"
+    if not use_cache:
+        return fn(osc, **options)
+    try:
+        key = _secret()
+    except _NoKey as exc:
+        reason = str(exc)
+        if reason not in _WARNED:
+            _WARNED.add(reason)
+            warnings.warn(f"derivation cache not used: {reason}", CacheWarning, stacklevel=2)
+        return fn(osc, **options)
+    name = derivation_key(method, fn, osc, options)
+    path = cache_dir() / f"{name}.json"
+    approx = _read(path, name, key, osc)
+    if approx is not None:
+        return approx
+    approx = fn(osc, **options)
+    try:
+        body = json.dumps(_entry(approx), sort_keys=True, separators=(",", ":"))
+        # store only what reads back as the very same approximation
+        if _approximation(json.loads(body), osc) != approx:
+            return approx
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile("wb", dir=path.parent, delete=False, suffix=".tmp") as fh:
+            try:
+                fh.write(_seal(key, name, body.encode()))
+                fh.close()
+                os.replace(fh.name, path)  # complete or absent
+            except BaseException:
+                fh.close()
+                with contextlib.suppress(OSError):
+                    os.unlink(fh.name)
+                raise
+    except (OSError, ValueError, TypeError, KeyError, RecursionError, _Unsupported):
+        # a read-only or full disk, or an expression outside the table, costs only time
+        # (ParseError, an expression outside the vocabulary, is a ValueError)
+        pass
+    return approx

@@ -1,0 +1,551 @@
+"""Frequency responses of approximations that give only residual equations.
+
+Amplitude parametrisation (:mod:`perturb.numeric.amplitude`) needs the amplitude
+equation as a polynomial of degree at most two in ``Omega**2``. Higher-order approximations —
+second-order modified Lindstedt–Poincaré on a PWL force, for instance — give residuals
+``R(u, Omega) = 0`` in their unknowns ``u`` (amplitude, phase, ...) with no such structure.
+Here every branch is found by
+
+1. *seeding*: at a few frequencies across the window, vectorised Newton from a grid of starts
+   (a logarithmic grid of the amplitude times a grid of every other unknown over a period)
+   collects the solutions it converges to;
+2. *continuation*: each seed that does not lie on a branch traced already is continued both
+   ways through the window by pseudo-arclength continuation
+   (:func:`perturb.numeric.continuation.continue_curve`), with the residuals' analytic
+   Jacobians; folds are located on the curve.
+
+A detached loop is found when a seed frequency crosses it (the seeding grid is the knob).
+Stability is Hill's method about the approximate orbit, truncated at one harmonic as for the
+amplitude-parametrised solver, or the slow flow's Jacobian when the method gives one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import sympy as sp
+
+from perturb.approximation import Approximation
+from perturb.errors import ParameterError, PerturbError
+from perturb.numeric.amplitude import (
+    _FLOQUET_SAMPLES,
+    _WAVEFORM_SAMPLES,
+    _floquet_in_chunks,
+    _Waveform,
+    response_notes,
+)
+from perturb.numeric.compile import bind_parameters, lambdify
+from perturb.numeric.continuation import ContinuationError, continue_curve
+from perturb.response import Branch, Response
+
+__all__ = ["residual_response", "ResidualSystem"]
+
+_STABILITY = ("hill", "slow_flow")
+
+# Each evaluation of compiled PWL residuals costs tens of milliseconds however few points it
+# gets, so the continuation should evaluate about once per point: the Hermite predictor with
+# early acceptance does (options of newer versions of continue_curve only).
+_FAST_CONTINUATION = (
+    {"predictor": "hermite", "early_accept": True}
+    if "early_accept" in inspect.signature(continue_curve).parameters
+    else {}
+)
+
+
+class ResidualSystem:
+    """The residuals of an approximation compiled with their Jacobians.
+
+    ``evaluate(U, W)`` takes unknowns of shape ``(m, n)`` and frequencies ``(m,)`` and returns
+    ``R (m, n)``, ``R_u (m, n, n)``, ``R_Omega (m, n)`` in one call (shared subexpressions).
+    """
+
+    def __init__(self, approx: Approximation) -> None:
+        if not approx.residuals or len(approx.residuals) != len(approx.unknowns):
+            raise PerturbError(
+                f"{approx.label}: {len(approx.residuals)} residuals for "
+                f"{len(approx.unknowns)} unknowns; a square system is needed"
+            )
+        self.approx = approx
+        self.unknowns = tuple(approx.unknowns)
+        self.n = len(self.unknowns)
+        W = approx.frequency
+        keep = (*self.unknowns, W, approx.tau)
+        R = bind_parameters(approx, list(approx.residuals), keep)
+        J = [sp.diff(r, u) for r in R for u in self.unknowns]
+        Rw = [sp.diff(r, W) for r in R]
+        self._fn = lambdify((*self.unknowns, W), [*R, *J, *Rw])
+        self.amplitude_index = (
+            self.unknowns.index(approx.amplitude) if approx.amplitude in self.unknowns else 0
+        )
+
+    def evaluate(self, U: np.ndarray, W: np.ndarray, amplitude_max: float = math.inf):
+        """Residuals and Jacobians; NaN rows where the amplitude is negative (outside the
+        domain of the closed-form Fourier coefficients) or above ``amplitude_max`` (NaN makes
+        a continuation step fail, so a branch running away to infinite amplitude stops
+        there without evaluating the expressions)."""
+        n, m = self.n, W.shape[0]
+        R = np.full((m, n), np.nan)
+        J = np.full((m, n, n), np.nan)
+        Rw = np.full((m, n), np.nan)
+        amp = U[:, self.amplitude_index]
+        ok = (amp >= 0) & (amp <= amplitude_max)
+        if np.any(ok):
+            out = self._fn(*(U[ok, i] for i in range(n)), W[ok])
+            k = int(np.count_nonzero(ok))
+            R[ok] = np.stack(out[:n], axis=-1).reshape(k, n)
+            J[ok] = np.stack(out[n : n + n * n], axis=-1).reshape(k, n, n)
+            Rw[ok] = np.stack(out[n + n * n :], axis=-1).reshape(k, n)
+        return R, J, Rw
+
+
+def _newton_many(sys_: ResidualSystem, U: np.ndarray, W: np.ndarray, iters: int = 40):
+    """Damped Newton from every row of ``U`` at once; rows that converge are returned."""
+    scale = np.maximum(1.0, np.abs(U))
+    for _ in range(iters):
+        R, J, _ = sys_.evaluate(U, W)
+        with np.errstate(all="ignore"):
+            try:
+                dU = np.linalg.solve(J, -R[..., None])[..., 0]
+            except np.linalg.LinAlgError:
+                dU = np.stack(
+                    [np.linalg.lstsq(j, -r, rcond=None)[0] for j, r in zip(J, R, strict=True)]
+                )
+        dU = np.where(np.isfinite(dU), dU, 0.0)
+        # a step of at most half the size of the unknowns keeps Newton inside the basin of
+        # the root it is heading for instead of jumping across the amplitude grid
+        cap = 0.5 * scale
+        big = np.max(np.abs(dU) / cap, axis=1, keepdims=True)
+        # and the amplitude stays positive: at most halved per step
+        a = U[:, sys_.amplitude_index]
+        da = dU[:, sys_.amplitude_index]
+        shrink = np.where(da < -0.5 * a, -da / (0.5 * np.maximum(a, 1e-300)), 1.0)
+        dU = dU / np.maximum(np.maximum(1.0, big), shrink[:, None])
+        U = U + dU
+        scale = np.maximum(1.0, np.abs(U))
+    R, _, _ = sys_.evaluate(U, W)
+    ok = np.all(np.isfinite(U), axis=1) & (np.max(np.abs(R), axis=1) < 1e-9)
+    return U[ok], W[ok]
+
+
+def _unique(U: np.ndarray, W: np.ndarray, amp: int, tol: float = 1e-6):
+    keep: list[int] = []
+    for i in range(U.shape[0]):
+        if all(
+            W[i] != W[j] or np.max(np.abs(U[i] - U[j]) / np.maximum(1.0, np.abs(U[j]))) > tol
+            for j in keep
+        ):
+            keep.append(i)
+    return U[keep], W[keep]
+
+
+def _densify(
+    sys_: ResidualSystem,
+    U: np.ndarray,
+    W: np.ndarray,
+    sub: int,
+    lam_scale: float,
+    amplitude_max: float,
+    iters: int = 8,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Insert ``sub - 1`` points between consecutive points of a traced curve.
+
+    Each new point starts on the chord between its neighbours and is corrected by Newton on
+    ``R(u, Omega) = 0`` plus the condition that it stays on the hyperplane through its start
+    orthogonal to the chord (so it works across folds, like a pseudo-arclength corrector).
+    All points are corrected at once: one evaluation of the compiled residuals for a whole
+    batch costs about as much as for a single point, whereas the continuation that traced the
+    curve evaluates point after point.  A point that does not converge, or converges farther
+    from its start than half the chord, is left out.
+    """
+    n = sys_.n
+    m = W.size - 1
+    if sub < 2 or m < 1:
+        return U, W
+    t = np.arange(1, sub) / sub
+    u0, u1, w0, w1 = U[:-1], U[1:], W[:-1], W[1:]
+    # scaled coordinates, as in the continuation: unknowns relative to their size
+    su = np.maximum(1.0, np.maximum(np.abs(u0), np.abs(u1)))
+    d = np.concatenate([(u1 - u0) / su, ((w1 - w0) / lam_scale)[:, None]], axis=1)
+    rep = np.repeat(np.arange(m), sub - 1)
+    tt = np.tile(t, m)[:, None]
+    Zg = np.concatenate([u0[rep] / su[rep], (w0[rep] / lam_scale)[:, None]], axis=1)
+    Zg = Zg + tt * d[rep]
+    Z = Zg.copy()
+    D, S = d[rep], su[rep]
+    A = np.zeros((Z.shape[0], n + 1, n + 1))
+    rhs = np.zeros((Z.shape[0], n + 1))
+    for _ in range(iters):
+        R, J, Rw = sys_.evaluate(Z[:, :n] * S, Z[:, n] * lam_scale, amplitude_max)
+        A[:, :n, :n] = J * S[:, None, :]
+        A[:, :n, n] = Rw * lam_scale
+        A[:, n] = D
+        rhs[:, :n] = -R
+        rhs[:, n] = -np.einsum("ij,ij->i", D, Z - Zg)
+        with np.errstate(all="ignore"):
+            try:
+                dZ = np.linalg.solve(A, rhs[..., None])[..., 0]
+            except np.linalg.LinAlgError:
+                # a singular row would spoil the batch: solve row by row, NaN where singular
+                dZ = np.full_like(Z, np.nan)
+                for i in range(Z.shape[0]):
+                    try:
+                        dZ[i] = np.linalg.solve(A[i], rhs[i])
+                    except np.linalg.LinAlgError:
+                        pass
+        Z = Z + dZ
+    R, _, _ = sys_.evaluate(Z[:, :n] * S, Z[:, n] * lam_scale, amplitude_max)
+    chord = np.linalg.norm(D, axis=1)
+    ok = (
+        np.all(np.isfinite(Z), axis=1)
+        & (np.max(np.abs(R), axis=1) < 1e-9)
+        & (np.linalg.norm(Z - Zg, axis=1) <= 0.5 * chord)
+    )
+    Un, Wn = Z[:, :n] * S, Z[:, n] * lam_scale
+    out_u, out_w = [U[:1]], [W[:1]]
+    for j in range(m):
+        sel = np.arange(j * (sub - 1), (j + 1) * (sub - 1))
+        sel = sel[ok[sel]]
+        out_u += [Un[sel], U[j + 1 : j + 2]]
+        out_w += [Wn[sel], W[j + 1 : j + 2]]
+    return np.concatenate(out_u), np.concatenate(out_w)
+
+
+def _slice(b: Branch, i: int, j: int) -> Branch:
+    return Branch(
+        omega=b.omega[i:j],
+        amplitude=b.amplitude[i:j],
+        first_harmonic_amplitude=b.first_harmonic_amplitude[i:j],
+        mean=b.mean[i:j],
+        stable=b.stable[i:j],
+        max_multiplier=b.max_multiplier[i:j],
+    )
+
+
+def _valid_runs(ok: np.ndarray) -> list[tuple[int, int]]:
+    """``(start, stop)`` of the runs of True in ``ok`` that have at least two points."""
+    edges = np.diff(np.concatenate([[0], ok.astype(int), [0]]))
+    starts, stops = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
+    return [(a, b) for a, b in zip(starts, stops, strict=True) if b - a >= 2]
+
+
+def residual_response(
+    approximation: Approximation,
+    omega_range: Sequence[float] = (0.2, 2.0),
+    *,
+    amplitude_range: Sequence[float] = (1e-2, 1e2),
+    seed_frequencies: int = 8,
+    seed_amplitudes: int = 24,
+    seed_phases: int = 6,
+    ds_max: float = 0.02,
+    refine: int = 4,
+    max_correction: float = 1.0,
+    stability: str = "hill",
+) -> Response:
+    """Every branch of ``approximation``'s residuals ``R(u, Omega) = 0`` over ``omega_range``.
+
+    Parameters
+    ----------
+    approximation
+        Square residual system in its unknowns; all parameters but the frequency need values.
+    omega_range
+        ``(low, high)`` forcing frequencies.
+    amplitude_range
+        Amplitudes of the seeding grid (logarithmic); a branch is followed up to the upper
+        end (a higher-order expansion can have branches running away to infinite amplitude,
+        far outside its range of validity).
+    seed_frequencies, seed_amplitudes, seed_phases
+        Size of the seeding grid: frequencies across the window, amplitudes, and values of
+        every other unknown over ``[-pi, pi)``.
+    ds_max
+        Output spacing along a branch (scaled arclength, relative to the window and to the
+        amplitude).
+    refine
+        The continuation steps up to ``refine * ds_max``; ``refine - 1`` points are inserted
+        between consecutive continuation points by one vectorised Newton correction of all of
+        them (1: plain continuation at ``ds_max``).  Each continuation point costs one
+        evaluation of the compiled residuals, a batch of any size about the same.
+    max_correction
+        Validity bound: points whose waveform ``x(tau)`` departs from its first harmonic by
+        more than ``max_correction`` times that harmonic's amplitude
+        (``max|x| > (1 + max_correction) * first-harmonic amplitude``) are left out, and a
+        branch is split there.  A higher-order expansion whose correction terms outgrow the
+        leading term is outside its range of validity (second-order mLP of ``nsd`` at low
+        frequency, where a small divisor of the correction vanishes, for instance); its
+        solutions there are artefacts of the truncation.  ``inf``: keep every point.  No
+        effect on a first-order waveform.
+    stability
+        ``"hill"`` or ``"slow_flow"`` (when the method gives a slow flow).
+
+    Returns
+    -------
+    Response
+        One branch per traced curve; ``folds`` from the continuation.
+
+    Raises
+    ------
+    ParameterError
+        Bad window, grid sizes or stability option.
+    PerturbError
+        A non-square residual system, or no slow flow for ``stability="slow_flow"``.
+    """
+    approx = approximation
+    if not isinstance(approx, Approximation):
+        raise ParameterError(f"approximation = {approx!r}: expected an Approximation")
+    try:
+        lo, hi = (float(w) for w in omega_range)
+    except (TypeError, ValueError):
+        raise ParameterError(f"omega_range = {omega_range!r}: expected (low, high)") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
+        raise ParameterError(f"omega_range = {omega_range!r}: expected 0 < low < high")
+    a_lo, a_hi = (float(a) for a in amplitude_range)
+    if not (0 < a_lo < a_hi and math.isfinite(a_hi)):
+        raise ParameterError(f"amplitude_range = {amplitude_range!r}: expected 0 < low < high")
+    for name, v in (
+        ("seed_frequencies", seed_frequencies),
+        ("seed_amplitudes", seed_amplitudes),
+        ("seed_phases", seed_phases),
+    ):
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise ParameterError(f"{name} = {v!r}: expected a positive integer")
+    if isinstance(refine, bool) or not isinstance(refine, int) or refine < 1:
+        raise ParameterError(f"refine = {refine!r}: expected a positive integer")
+    try:
+        max_correction = float(max_correction)
+    except (TypeError, ValueError):
+        max_correction = float("nan")
+    if not max_correction > 0:
+        raise ParameterError(f"max_correction = {max_correction!r}: expected a number > 0")
+    if stability not in _STABILITY:
+        raise ParameterError(f"stability = {stability!r}: expected one of {', '.join(_STABILITY)}")
+    if stability == "slow_flow" and approx.slow_flow is None:
+        raise PerturbError(f"{approx.label} has no slow flow: use stability='hill'")
+    approx = _polar(approx)
+    sys_ = ResidualSystem(approx)
+    n, amp = sys_.n, sys_.amplitude_index
+
+    # seeds: every combination of the grids, all Newton iterations vectorised
+    ws = np.linspace(lo, hi, seed_frequencies + 2)[1:-1]
+    axes = [
+        np.geomspace(a_lo, a_hi, seed_amplitudes)
+        if i == amp
+        else np.linspace(-np.pi, np.pi, seed_phases, endpoint=False)
+        for i in range(n)
+    ]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, n)
+    U0 = np.tile(grid, (ws.size, 1))
+    W0 = np.repeat(ws, grid.shape[0])
+    U, W = _newton_many(sys_, U0, W0)
+    pos = U[:, amp] > 0
+    U, W = U[pos], W[pos]
+    if n > 1:  # phases modulo 2 pi, so the same solution from different starts is one seed
+        other = [i for i in range(n) if i != amp]
+        U[:, other] = np.angle(np.exp(1j * U[:, other]))
+    U, W = _unique(U, W, amp)
+
+    # continue_curve asks for the Jacobian right after the residual at the same point, and
+    # one evaluation of the compiled expressions gives both: evaluate once per point
+    last: list = [None, None, None]
+
+    def point(u, lam):
+        if last[0] is None or last[1] != lam or not np.array_equal(last[0], u):
+            last[0], last[1] = u.copy(), lam
+            last[2] = sys_.evaluate(u[None, :], np.array([lam]), a_hi)
+        return last[2]
+
+    def residual(u, lam):
+        return point(u, lam)[0][0]
+
+    def jacobian(u, lam):
+        _, J, Rw = point(u, lam)
+        return J[0], Rw[0]
+
+    def key(u: np.ndarray, w: np.ndarray) -> np.ndarray:
+        # where a solution lies in the plane of the response plot: frequency over the window
+        # and log amplitude, so seeds on traced branches are recognised at any amplitude
+        return np.column_stack([w / (hi - lo), np.log(np.maximum(u[:, amp], 1e-300))])
+
+    curves = []
+    traced: list[np.ndarray] = []
+    for u0, w0 in zip(U, W, strict=True):
+        k0 = key(u0[None, :], np.array([w0]))[0]
+        if any(np.min(np.linalg.norm(t - k0, axis=1)) < 2 * ds_max for t in traced):
+            continue  # on a branch traced already
+        a_scale = np.ones(n)
+        a_scale[amp] = max(1.0, abs(u0[amp]))
+        parts = []
+        for direction in (-1, 1):
+            try:
+                parts.append(
+                    continue_curve(
+                        residual,
+                        jacobian,
+                        u0,
+                        float(w0),
+                        (lo, hi),
+                        direction=direction,
+                        u_scale=a_scale,
+                        # steps relative to the amplitude: a branch growing by decades is
+                        # traced in a few hundred points, not cut off by max_points
+                        adaptive_scale=True,
+                        ds_max=ds_max * refine,
+                        max_points=4000,
+                        **_FAST_CONTINUATION,
+                    )
+                )
+            except ContinuationError:
+                parts.append(None)
+        if parts[0] is None and parts[1] is None:
+            continue
+        back, fwd = parts
+        if back is not None and back.stop_reason == "closed":
+            u_c, w_c, folds = back.u, back.lam, list(back.folds)
+        else:
+            us, ls, folds = [], [], []
+            if back is not None:
+                us.append(back.u[::-1])
+                ls.append(back.lam[::-1])
+                folds += list(back.folds)
+            if fwd is not None:
+                start = 1 if back is not None else 0
+                us.append(fwd.u[start:])
+                ls.append(fwd.lam[start:])
+                folds += list(fwd.folds)
+            u_c, w_c = np.concatenate(us), np.concatenate(ls)
+        good = (u_c[:, amp] > 0) & np.all(np.isfinite(u_c), axis=1)
+        if np.count_nonzero(good) < 2:
+            continue
+        u_c, w_c = _densify(sys_, u_c[good], w_c[good], refine, hi - lo, a_hi)
+        curves.append((u_c, w_c, folds))
+        traced.append(key(u_c, w_c))
+
+    wave = _Waveform(approx, approx.amplitude or sys_.unknowns[amp], *_phase_and_freq(approx))
+    branches, fold_pts = [], []
+    dropped = 0
+    for u_c, w_c, folds in curves:
+        b = _branch(approx, sys_, wave, u_c, w_c, stability)
+        ok = b.amplitude <= (1.0 + max_correction) * b.first_harmonic_amplitude
+        if np.all(ok):
+            branches.append(b)
+        else:
+            dropped += int(np.count_nonzero(~ok))
+            branches += [_slice(b, i, j) for i, j in _valid_runs(ok)]
+        for f in folds:
+            # a fold of the left-out part is not reported either
+            near = np.argmin(np.abs(w_c - f.lam) + np.abs(u_c[:, amp] - f.u[amp]))
+            if ok[near]:
+                fold_pts.append((float(f.lam), float(f.u[amp])))
+    notes: tuple[str, ...] = ()
+    if not branches:
+        notes += (
+            f"no solution found on the seeding grid ({seed_frequencies} frequencies in "
+            f"[{lo:.6g}, {hi:.6g}])",
+        )
+    notes += response_notes(approx, branches, (lo, hi))
+    if dropped:
+        notes += (
+            f"{dropped} points left out where the waveform's correction exceeds "
+            f"{max_correction:g} times its first harmonic (outside the expansion's validity)",
+        )
+    params = {k: v for k, v in approx.oscillator.params.items() if v is not None}
+    return Response(
+        tuple(branches),
+        approx.label,
+        approx.oscillator.name,
+        params,
+        folds=tuple(fold_pts),
+        notes=notes,
+    )
+
+
+def _polar(approx: Approximation) -> Approximation:
+    """A Cartesian approximation (unknowns ``p, q`` with waveform ``p cos tau + q sin tau``
+    and no amplitude symbol, as van der Pol's averaging gives) in polar unknowns
+    ``p = A cos phi``, ``q = A sin phi``: the seeding grid, the positive-amplitude domain and
+    the waveform statistics are all in amplitude and phase.  Others pass through."""
+    if approx.amplitude is not None or len(approx.unknowns) != 2:
+        return approx
+    p, q = approx.unknowns
+    c, sn = approx.waveform.coeff(sp.cos(approx.tau)), approx.waveform.coeff(sp.sin(approx.tau))
+    if sp.simplify(approx.waveform - p * sp.cos(approx.tau) - q * sp.sin(approx.tau)) != 0 or (
+        c != p or sn != q
+    ):
+        return approx
+    A = sp.Symbol("A", positive=True)
+    phi = sp.Symbol("phi", real=True)
+    to = {p: A * sp.cos(phi), q: A * sp.sin(phi)}
+    res = [sp.sympify(r).xreplace(to) for r in approx.residuals]
+    # the balance of the cosine and sine parts, rotated to the (A, phi) directions
+    rot = (
+        res[0] * sp.cos(phi) + res[1] * sp.sin(phi),
+        -res[0] * sp.sin(phi) + res[1] * sp.cos(phi),
+    )
+    flow = None
+    if approx.slow_flow is not None and len(approx.slow_flow) == 2:
+        dp, dq = (sp.sympify(f).xreplace(to) for f in approx.slow_flow)
+        flow = (
+            dp * sp.cos(phi) + dq * sp.sin(phi),
+            (-dp * sp.sin(phi) + dq * sp.cos(phi)) / A,
+        )
+    return dataclasses.replace(
+        approx,
+        unknowns=(A, phi),
+        residuals=rot,
+        waveform=A * sp.cos(approx.tau - phi),
+        slow_flow=flow,
+        amplitude=A,
+    )
+
+
+def _phase_and_freq(approx: Approximation):
+    others = [u for u in approx.unknowns if u != approx.amplitude]
+    phase = others[0] if others else sp.Symbol("phi")
+    return phase, approx.frequency
+
+
+def _branch(approx, sys_, wave: _Waveform, U: np.ndarray, w: np.ndarray, stability: str):
+    if len(approx.unknowns) != 2:
+        raise PerturbError(
+            f"{approx.label}: waveform statistics need exactly two unknowns (amplitude, phase); "
+            f"got {', '.join(map(str, approx.unknowns))}"
+        )
+    amp = sys_.amplitude_index
+    a, phi = U[:, amp], U[:, 1 - amp]
+    coefs = wave.coefficients(a, phi, w) if wave.terms is not None else None
+    xs, _ = wave.samples(a, phi, w, _WAVEFORM_SAMPLES, coefs)
+    amplitude = wave.max_abs(a, phi, w, xs, coefs)
+    if coefs is not None:
+        mean, first = coefs[0][:, 0], np.hypot(coefs[0][:, 1], coefs[1][:, 1])
+    else:
+        mean = xs.mean(axis=1)
+        first = 2 * np.abs(np.fft.rfft(xs, axis=1)[:, 1]) / _WAVEFORM_SAMPLES
+    period = 2 * np.pi / w
+    if stability == "hill":
+        xf, dxf = wave.samples(a, phi, w, _FLOQUET_SAMPLES, coefs)
+        max_mult = _floquet_in_chunks(
+            approx, xf, w[:, None] * dxf, period, approx.frequency, w, "hill"
+        )
+        stable = max_mult < 1 - 1e-9
+    else:
+        keep = (*approx.unknowns, approx.frequency, approx.tau)
+        flow = bind_parameters(approx, list(approx.slow_flow or ()), keep)
+        jac = lambdify(
+            (*approx.unknowns, approx.frequency),
+            list(sp.Matrix(flow).jacobian(sp.Matrix(approx.unknowns))),
+        )
+        vals = jac(*(U[:, i] for i in range(U.shape[1])), w)
+        Jm = np.stack(vals, axis=-1).reshape(-1, 2, 2)
+        re = np.max(np.linalg.eigvals(Jm).real, axis=1)
+        max_mult = np.exp(np.clip(re * period, -700, 700))
+        stable = re < 0
+    return Branch(
+        omega=w,
+        amplitude=amplitude,
+        first_harmonic_amplitude=first,
+        mean=mean,
+        stable=stable,
+        max_multiplier=max_mult,
+    )
