@@ -158,7 +158,7 @@ class _PreviousTrigRows:
         return out
 
 
-def _previous_extrema(C: np.ndarray, S: np.ndarray, count: int = fr._WAVEFORM_SAMPLES):
+def _previous_extrema(C: np.ndarray, S: np.ndarray, count: int = fr.WAVEFORM_SAMPLES):
     """Every critical point of the rows ``x(tau) = sum_n C_n cos(n tau) + S_n sin(n tau)``.
 
     Returns flat arrays ``rows, tau, x`` ordered by row, then ``tau`` in ``[0, 2 pi)``.

@@ -79,7 +79,7 @@ def test_public_functions_still_validate() -> None:
 
 
 def test_unchecked_table_maps_the_public_kernels() -> None:
-    assert {c: u for c, u in PAIRS} == F._UNCHECKED
+    assert {c: u for c, u in PAIRS} == F.UNCHECKED
 
 
 def _ramp_integral_reference(m, phi, c, s):

@@ -242,7 +242,7 @@ def test_exact_pwl_hill_matches_sampled_hill_exponents(k):
     them over the orbit sampled at N instants with a cubic crossing estimate; the latter
     converges to the former as N grows."""
     from perturb.methods import modified_lindstedt
-    from perturb.numeric.amplitude import _Waveform, compile_response
+    from perturb.numeric.amplitude import Waveform, compile_response
     from perturb.numeric.stability import hill_exponents
 
     osc = builtin_model("nsd", k=k, mu=0.05, F=2.0)
@@ -254,7 +254,7 @@ def test_exact_pwl_hill_matches_sampled_hill_exponents(k):
     A = np.concatenate([br.first_harmonic_amplitude for br in resp.branches])[::7]
     pc, ps = cp.phase_u(cp.atoms.evaluate(A, cp.phase_u.rows), A, w)
     phi = np.arctan2(ps, pc)
-    wave = _Waveform(approx, cp.A, cp.phase, cp.Omega)
+    wave = Waveform(approx, cp.A, cp.phase, cp.Omega)
     coefs = wave.coefficients(A, phi, w)
     from perturb.numeric.amplitude import _extrema
 

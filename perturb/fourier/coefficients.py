@@ -871,7 +871,7 @@ def _dirac_coefficients_unchecked(
 #: checked public function -> its unchecked twin, for callers that build valid inputs
 #: themselves (looked up by function so that a caller falls back to the checked one for
 #: anything not listed)
-_UNCHECKED = {
+UNCHECKED = {
     step_coefficients: _step_coefficients_unchecked,
     ramp_coefficients: _ramp_coefficients_unchecked,
     dirac_coefficients: _dirac_coefficients_unchecked,

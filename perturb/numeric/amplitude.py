@@ -30,7 +30,7 @@ import sympy as sp
 
 from perturb.approximation import Approximation
 from perturb.errors import ParameterError, PerturbError
-from perturb.fourier.coefficients import _UNCHECKED
+from perturb.fourier.coefficients import UNCHECKED
 from perturb.fourier.symbols import (
     NUMERIC_IMPLEMENTATIONS,
     DiracCoefficient,
@@ -51,8 +51,8 @@ __all__ = [
 
 _SCAN_POINTS = 6000
 _SCAN_RANGE = (1e-8, 1e8)
-_WAVEFORM_SAMPLES = 128
-_FLOQUET_SAMPLES = 512
+WAVEFORM_SAMPLES = 128
+FLOQUET_SAMPLES = 512
 _CHUNK = 512
 _STABILITY = ("hill", "floquet", "slow_flow")
 #: a branch moves by at most 1/_WINDOW_RESOLUTION of the window (in Omega and in log Omega)
@@ -259,7 +259,7 @@ class _Atoms:
                 # the unchecked twin of the public kernel: ns, the amplitudes and b, d are
                 # built here and valid, and the checks would be most of a call's fixed cost
                 checked = NUMERIC_IMPLEMENTATIONS[name]
-                fn = _UNCHECKED.get(checked, checked) if self.unchecked else checked
+                fn = UNCHECKED.get(checked, checked) if self.unchecked else checked
                 plan.append((fn, arg_fn, float(b), float(d), members, ns))
             self._plans[rows] = plan
         a = np.asarray(a, float)
@@ -959,7 +959,7 @@ def _level_crossings(C, S, rows, d, lo, hi, x_lo, x_hi) -> np.ndarray:
     return _safe_newton(level, lo, hi, x_lo - d, x_hi - d, guess, 1e-7)
 
 
-def _extrema(C: np.ndarray, S: np.ndarray, count: int = _WAVEFORM_SAMPLES):
+def _extrema(C: np.ndarray, S: np.ndarray, count: int = WAVEFORM_SAMPLES):
     """Every critical point of the rows ``x(tau) = sum_n C_n cos(n tau) + S_n sin(n tau)``.
 
     Returns flat arrays ``rows, tau, x`` ordered by row, then ``tau`` in ``[0, 2 pi)``.
@@ -1045,7 +1045,7 @@ def _max_abs_at(rows: np.ndarray, xe: np.ndarray, n_rows: int, const: np.ndarray
     return out
 
 
-class _Waveform:
+class Waveform:
     """x(tau) of an approximation as a trigonometric polynomial with coefficients that depend
     on the unknowns: ``x = sum_n C_n cos(n tau) + S_n sin(n tau)``.
 
@@ -1151,7 +1151,7 @@ class _Waveform:
         if self.terms is None:
             return best
         C, S = self.coefficients(a, phi, w) if coefs is None else coefs
-        rows, _, xe = _extrema(C, S, max(xs.shape[1], _WAVEFORM_SAMPLES))
+        rows, _, xe = _extrema(C, S, max(xs.shape[1], WAVEFORM_SAMPLES))
         return np.maximum(best, _max_abs_at(rows, xe, C.shape[0], C[:, 0]))
 
 
@@ -1382,7 +1382,7 @@ class FrequencyResponseSolver:
         self.poly_rows = self.poly_u.rows
         cos_part, sin_part = bind_parameters(approx, list(approx.phase_from or (1, 0)), keep)
         self.phase_u = _Compiled(self.atoms, (self.A, self.Omega), [cos_part, sin_part])
-        self.wave = _Waveform(approx, self.A, self.phase, self.Omega, atoms=self.atoms)
+        self.wave = Waveform(approx, self.A, self.phase, self.Omega, atoms=self.atoms)
         self._jac: _Compiled | None = None
         self.hill = _PWLHill.build(approx.oscillator, self.Omega)
         scan = np.geomspace(*_SCAN_RANGE, _SCAN_POINTS)
@@ -1458,19 +1458,19 @@ def _branches(
         mean = coefs[0][:, 0]
         first = np.hypot(coefs[0][:, 1], coefs[1][:, 1])
     else:
-        xs, _ = wave.samples(a, phi, w, _WAVEFORM_SAMPLES)
+        xs, _ = wave.samples(a, phi, w, WAVEFORM_SAMPLES)
         amplitude = np.max(np.abs(xs), axis=1)
         mean = xs.mean(axis=1)
-        first = 2 * np.abs(np.fft.rfft(xs, axis=1)[:, 1]) / _WAVEFORM_SAMPLES
+        first = 2 * np.abs(np.fft.rfft(xs, axis=1)[:, 1]) / WAVEFORM_SAMPLES
 
     period = 2 * np.pi / w
     if stability == "hill" and cp.hill is not None and extrema is not None:
         max_mult = cp.hill.max_multiplier(coefs, extrema, w)
         stable = max_mult < 1 - 1e-9
     elif stability in ("floquet", "hill"):
-        xf, dxf = wave.samples(a, phi, w, _FLOQUET_SAMPLES, coefs)
+        xf, dxf = wave.samples(a, phi, w, FLOQUET_SAMPLES, coefs)
         vf = w[:, None] * dxf  # dx/dt = Omega dx/dtau
-        max_mult = _floquet_in_chunks(approx, xf, vf, period, cp.Omega, w, stability)
+        max_mult = floquet_in_chunks(approx, xf, vf, period, cp.Omega, w, stability)
         stable = max_mult < 1 - 1e-9
     else:
         j11, j12, j21, j22 = cp.jacobian()(U, a, phi, w)
@@ -1497,7 +1497,10 @@ def _branches(
     return out
 
 
-def _floquet_in_chunks(approx, xf, vf, period, Omega, w, stability) -> np.ndarray:
+def floquet_in_chunks(approx, xf, vf, period, Omega, w, stability) -> np.ndarray:
+    """Largest Floquet multiplier of the orbit sampled as ``xf`` (positions) and ``vf``
+    (velocities) at each frequency ``w`` (periods ``period``), by ``stability`` (``"hill"``
+    or the time-domain monodromy), in chunks that bound the memory of one batch."""
     out = np.empty(period.size)
     # amplitude parametrisation applies to single-harmonic amplitude equations (two unknowns,
     # amplitude and phase): Hill's truncation must match the balanced harmonics, one, for its
