@@ -1,0 +1,211 @@
+"""Tests of perturb.numeric.roots against independent oracles (closed forms, scipy brentq)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import scipy.sparse as sps
+from scipy.optimize import brentq
+
+from perturb.errors import ParameterError
+from perturb.numeric.roots import (
+    damped_newton,
+    illinois,
+    illinois_vectorized,
+    newton_direction,
+)
+
+
+# ---------------------------------------------------------------------------------------------
+# regula falsi (Illinois)
+# ---------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("f", "a", "b", "exact"),
+    [
+        (lambda x: x * x - 2.0, 0.0, 2.0, math.sqrt(2.0)),
+        (lambda x: math.cos(x) - x, 0.0, 1.0, None),
+        (lambda x: math.exp(x) - 10.0, 0.0, 5.0, math.log(10.0)),
+        (lambda x: x**3 - x - 1.0, 1.0, 2.0, None),
+    ],
+)
+def test_illinois_matches_closed_forms_and_brentq(f, a, b, exact):
+    res = illinois(f, a, b)
+    oracle = exact if exact is not None else brentq(f, a, b, xtol=1e-15, rtol=1e-15)
+    assert res.converged
+    assert res.root == pytest.approx(oracle, abs=1e-13)
+    assert res.iterations < 30  # superlinear: far below the cap
+
+
+def _plain_regula_falsi(f, a, b, n):
+    fa, fb = f(a), f(b)
+    for _ in range(n):
+        c = b - fb * (b - a) / (fb - fa)
+        fc = f(c)
+        if fc * fa > 0:
+            a, fa = c, fc
+        else:
+            b, fb = c, fc
+    return a, b
+
+
+def test_illinois_fixes_the_stalling_of_plain_regula_falsi():
+    # x^10 - 1 on [0, 1.3]: convex, plain regula falsi keeps b = 1.3 for ever and creeps up
+    # on the root from the left
+    f = lambda x: x**10 - 1.0  # noqa: E731
+    a, b = _plain_regula_falsi(f, 0.0, 1.3, 25)
+    assert b == 1.3  # the stalled end: the bracket does not shrink to 0
+    assert abs(a - 1.0) > 1e-3  # after 25 evaluations still 3 digits off
+    res = illinois(f, 0.0, 1.3, max_iter=25)
+    assert res.converged
+    assert res.root == pytest.approx(1.0, abs=1e-14)
+    assert res.iterations < 25
+    lo, hi = res.bracket
+    assert lo <= 1.0 <= hi
+
+
+def test_illinois_cap_and_failure_and_payload():
+    f = lambda x: math.tanh(50 * (x - 0.3))  # noqa: E731
+    capped = illinois(f, 0.0, 1.0, max_iter=2)
+    assert capped.iterations == 2 and not capped.converged
+    # f fails at the first iterate: stops, reports failure, keeps the better end
+    failing = illinois(lambda x: None, 0.0, 1.0, fa=-1.0, fb=2.0)
+    assert failing.failed and not failing.converged and failing.root == 0.0
+    assert math.isnan(illinois(lambda x: None, 0.0, 1.0, -1, 2, include_ends=False).root)
+    # payload of the best iterate
+    res = illinois(lambda x: (x - 0.25, f"at {x}"), 0.0, 1.0)
+    assert res.root == pytest.approx(0.25) and res.payload == f"at {res.root}"
+    # ftol: stop early
+    loose = illinois(lambda x: x - 0.25, 0.0, 1.0, fa=-0.25, fb=0.75, ftol=1.0)
+    assert loose.converged and loose.iterations == 1
+
+
+def test_illinois_rejects_bad_brackets():
+    with pytest.raises(ParameterError):
+        illinois(lambda x: x * x + 1, -1.0, 1.0)
+    with pytest.raises(ParameterError):
+        illinois(lambda x: x, 1.0, -1.0)
+    with pytest.raises(ParameterError):
+        illinois(lambda x: x, 0.0, math.inf)
+
+
+def test_illinois_vectorized_against_brentq():
+    c = np.linspace(0.5, 30.0, 40)
+
+    def f(x):
+        return x**3 - c
+
+    lo, hi = np.zeros_like(c), np.full_like(c, 4.0)
+    res = illinois_vectorized(f, lo, hi, f(lo))
+    oracle = np.array([brentq(lambda x, ci=ci: x**3 - ci, 0.0, 4.0, xtol=1e-15) for ci in c])
+    np.testing.assert_allclose(res.root, oracle, rtol=1e-14)
+    np.testing.assert_allclose(res.root, np.cbrt(c), rtol=1e-14)
+    assert res.converged.all() and res.iterations < 60
+
+
+def test_illinois_vectorized_cap():
+    res = illinois_vectorized(
+        lambda x: x**10 - 1.0, np.array([0.0]), np.array([1.3]), np.array([-1.0]), max_iter=3
+    )
+    assert res.iterations == 3 and not res.converged[0]
+
+
+# ---------------------------------------------------------------------------------------------
+# damped Newton
+# ---------------------------------------------------------------------------------------------
+def _arctan(z):
+    return np.array([math.atan(z[0] - 1.0)]), np.array([[1.0 / (1.0 + (z[0] - 1.0) ** 2)]]), None
+
+
+def test_damped_newton_arctan_needs_damping():
+    # undamped Newton on atan(x - 1) from x = 4 diverges (|x_k - 1| grows): check that first
+    z = 4.0
+    for _ in range(5):
+        z = z - math.atan(z - 1.0) * (1.0 + (z - 1.0) ** 2)
+    assert abs(z - 1.0) > 1e3 or not math.isfinite(z)
+    res = damped_newton(_arctan, np.array([4.0]), tol=1e-14, max_iter=50)
+    assert res.converged and res.status == "residual"
+    assert res.z[0] == pytest.approx(1.0, abs=1e-13)
+    res_undamped = damped_newton(_arctan, np.array([4.0]), tol=1e-14, max_halvings=0)
+    assert not res_undamped.converged and res_undamped.status == "no_decrease"
+
+
+def test_damped_newton_system_with_separate_jacobian():
+    # intersection of the circle x^2 + y^2 = 4 with y = e^x - 1 ... oracle via brentq in x
+    def r(z):
+        return np.array([z[0] ** 2 + z[1] ** 2 - 4.0, z[1] - math.exp(z[0]) + 1.0])
+
+    def J(z):
+        return np.array([[2 * z[0], 2 * z[1]], [-math.exp(z[0]), 1.0]])
+
+    res = damped_newton(r, np.array([1.0, 1.0]), jac=J, tol=1e-13, scale=1.0)
+    x = brentq(lambda x: x**2 + (math.exp(x) - 1) ** 2 - 4, 0.0, 2.0, xtol=1e-15)
+    assert res.converged
+    np.testing.assert_allclose(res.z, [x, math.exp(x) - 1], atol=1e-12)
+    assert res.evaluations >= res.iterations + 1
+
+
+def test_damped_newton_no_root_terminates():
+    # x^2 + 1 has no real root: every cap must stop it
+    calls = []
+
+    def fun(z):
+        calls.append(1)
+        return np.array([z[0] ** 2 + 1.0]), np.array([[2 * z[0]]]), None
+
+    res = damped_newton(fun, np.array([0.5]), tol=1e-12, max_iter=30, max_halvings=8)
+    assert not res.converged and res.status in {"no_decrease", "max_iter", "singular"}
+    assert len(calls) <= 1 + 30 * 9
+    assert res.rnorm >= 1.0
+
+
+def test_damped_newton_caps_steps_bounds_and_errors():
+    class Outside(Exception):
+        pass
+
+    def fun(z):
+        if z[0] < 0:
+            raise Outside
+        return np.array([z[0] - 2.0]), np.array([[1.0]]), "data"
+
+    # the first full step from 100 lands on the root; max_step = 1 forces many capped steps
+    res = damped_newton(fun, np.array([100.0]), tol=1e-12, max_step=1.0, max_iter=200)
+    assert res.converged and res.iterations >= 98 and res.data == "data"
+    # iteration cap reached
+    res = damped_newton(fun, np.array([100.0]), tol=1e-12, max_step=1.0, max_iter=5)
+    assert res.status == "max_iter" and res.z[0] == pytest.approx(95.0)
+    # initial error reported, not raised
+    res = damped_newton(fun, np.array([-1.0]), catch=(Outside,))
+    assert res.status == "initial_error" and isinstance(res.error, Outside)
+    with pytest.raises(Outside):
+        damped_newton(fun, np.array([-1.0]))
+
+    # bounds: the iterate never leaves [1.5, 3]; root of (x - 1) is outside, so no decrease
+    def g(z):
+        return np.array([z[0] - 1.0]), np.array([[1.0]]), None
+
+    res = damped_newton(g, np.array([2.5]), tol=1e-12, bounds=(1.5, 3.0))
+    assert not res.converged and 1.5 <= res.z[0] <= 3.0
+
+
+def test_damped_newton_step_test_and_final_step():
+    def fun(z):
+        return np.array([z[0] - 1.0]), np.array([[1.0]]), None
+
+    res = damped_newton(fun, np.array([1.0 + 1e-10]), tol=0.0, step_tol=1e-8)
+    assert res.status == "step" and res.z[0] == 1.0 + 1e-10  # correction not taken
+    res = damped_newton(fun, np.array([1.0 + 1e-10]), step_tol=1e-8, take_final_step=True)
+    assert res.z[0] == pytest.approx(1.0, abs=1e-16)
+
+
+def test_newton_direction_paths():
+    rng = np.random.default_rng(0)
+    for n in (2, 5):
+        A = rng.normal(size=(n, n)) + n * np.eye(n)
+        x = rng.normal(size=n)
+        np.testing.assert_allclose(newton_direction(A, A @ x), x, rtol=1e-12)
+        np.testing.assert_allclose(newton_direction(sps.csr_matrix(A), A @ x), x, rtol=1e-12)
+    # singular: minimum-norm least squares
+    S = np.array([[1.0, 1.0], [1.0, 1.0]])
+    np.testing.assert_allclose(newton_direction(S, np.array([2.0, 2.0])), [1.0, 1.0])
