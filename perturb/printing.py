@@ -9,10 +9,13 @@ from __future__ import annotations
 import sympy as sp
 from sympy.printing.latex import LatexPrinter
 
-__all__ = ["latex"]
+__all__ = ["PerturbLatexPrinter", "latex"]
 
 
-class _PerturbLatexPrinter(LatexPrinter):
+class PerturbLatexPrinter(LatexPrinter):
+    """SymPy's LaTeX printer with ``H(x)`` for ``Heaviside(x)``; the base of the report's
+    printer (:class:`perturb.report.layout.DocPrinter`)."""
+
     def _print_Heaviside(self, expr, exp=None):
         arg = self._print(expr.args[0])
         tex = f"H\\left({arg}\\right)"
@@ -21,4 +24,4 @@ class _PerturbLatexPrinter(LatexPrinter):
 
 def latex(expr: sp.Basic, **settings) -> str:
     """LaTeX of ``expr`` with perturb's notation (``H`` for Heaviside)."""
-    return _PerturbLatexPrinter(settings).doprint(expr)
+    return PerturbLatexPrinter(settings).doprint(expr)

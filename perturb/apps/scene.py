@@ -967,15 +967,15 @@ def _run_bifurcation(scene: Scene, osc: Oscillator, out: Path, paths: dict, say)
             for x, v in zip(diag.x[i, j], diag.v[i, j], strict=True):
                 lines.append(f"{float(p)!r},{i},{float(x)!r},{float(v)!r},{int(diag.period[i, j])}")
     write_text(paths["csv"], "\n".join(lines) + "\n")
-    from perturb.report.figures import _param_tex, equation_title, save_figure
+    from perturb.report.figures import equation_title, param_tex, save_figure
 
     fig, ax = _figure()
     p, x = diag.points()
     ax.plot(p, x, "o", color="k", ms=2.5, mew=0, alpha=0.7)
-    ax.set_xlabel(f"${_param_tex(scene.parameter)}$")
+    ax.set_xlabel(f"${param_tex(scene.parameter)}$")
     ax.set_ylabel(f"$x$ at phase {diag.phase:g} of each forcing period")
     ax.set_title(
-        f"bifurcation diagram over ${_param_tex(scene.parameter)}$ of\n"
+        f"bifurcation diagram over ${param_tex(scene.parameter)}$ of\n"
         + equation_title(osc, skip=(scene.parameter,)),
         fontsize=8,
     )

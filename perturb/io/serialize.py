@@ -47,9 +47,6 @@ from sympy.functions.elementary.piecewise import ExprCondPair
 from perturb.approximation import Approximation, Step
 from perturb.errors import ParseError
 from perturb.fourier.symbols import DiracCoefficient, RampCoefficient, StepCoefficient
-from perturb.methods.lindstedt import (
-    _Continued,  # the engines' continuation rows in derivation steps
-)
 
 __all__ = [
     "CLASSES",
@@ -107,6 +104,26 @@ _RELATIONS = (
     sp.LessThan,
     sp.GreaterThan,
 )
+
+
+class _Continued(sp.Expr):
+    """A continuation row of a long equation in a derivation; prints as ``+ terms``.
+
+    The engines no longer split equations (the writer, :mod:`perturb.report.latex`, does, and
+    joins such rows back); kept here, with the underscore its saved form ``_Continued(...)``
+    spells, so that derivations saved as JSON by earlier versions load."""
+
+    def __new__(cls, expr: sp.Expr) -> _Continued:
+        return sp.Expr.__new__(cls, sp.sympify(expr))
+
+    def _latex(self, printer: Any, *args: Any) -> str:
+        s = printer._print(self.args[0])
+        return r"\qquad " + (s if s.lstrip().startswith("-") else "+ " + s)
+
+    def _sympystr(self, printer: Any, *args: Any) -> str:
+        s = printer._print(self.args[0])
+        return "    " + (s if s.startswith("-") else "+ " + s)
+
 
 #: Class name -> (class, constructor from the rebuilt arguments): every expression type the
 #: engines produce. Each satisfies ``constructor(e.args) == e``: operators and functions

@@ -81,6 +81,8 @@ from perturb.printing import latex
 
 __all__ = [
     "fourier_components",
+    "frequency_polynomial_coefficients",
+    "response_frequency_symbol",
     "EquivalentLinearisation",
     "equivalent_linearisation",
     "krylov_bogoliubov",
@@ -503,7 +505,7 @@ def _linearisation_step(
     return tuple(steps)
 
 
-def _frequency_polynomial(
+def frequency_polynomial_coefficients(
     cos_part: sp.Expr, sin_part: sp.Expr, F: sp.Expr, Omega: sp.Expr
 ) -> tuple[sp.Expr, ...] | None:
     """Coefficients in W = Omega**2 of cos_part**2 + sin_part**2 - F**2, if it is a
@@ -656,13 +658,13 @@ def krylov_bogoliubov(
             frequency=Omega,
             slow_flow=(sp.expand(a_dot), phi_dot),
             amplitude=a,
-            frequency_polynomial=_frequency_polynomial(cos_part, sin_part, F, Omega),
+            frequency_polynomial=frequency_polynomial_coefficients(cos_part, sin_part, F, Omega),
             phase_from=(cos_part, sin_part),
             fourier=fourier,
             steps=tuple(steps),
         )
     beta = real_symbol("beta")
-    omega = _response_frequency(osc)
+    omega = response_frequency_symbol(osc)
     a_dot = sp.expand(gs / (2 * w))
     beta_dot = sp.expand((eq.stiffness - w**2) / (2 * w))
     backbone = w + beta_dot
@@ -719,7 +721,7 @@ def krylov_bogoliubov(
     )
 
 
-def _response_frequency(osc: Oscillator) -> sp.Symbol:
+def response_frequency_symbol(osc: Oscillator) -> sp.Symbol:
     """The symbol for the (unknown) frequency of a free oscillation, not clashing with a
     parameter name; positive, so that ``sqrt(omega**2) = omega``."""
     name = "omega"
@@ -860,7 +862,7 @@ def van_der_pol_averaging(
         residuals=(sp.expand(2 * w * q_dot), sp.expand(-2 * w * p_dot)),
         waveform=p * sp.cos(tau) + q * sp.sin(tau),
         tau=tau,
-        frequency=w if st.forced else _response_frequency(osc),
+        frequency=w if st.forced else response_frequency_symbol(osc),
         slow_flow=(p_dot, q_dot),
         fourier=MappingProxyType(fourier),
         steps=steps,

@@ -64,7 +64,11 @@ from perturb.fourier.symbols import closed_form, series_coefficient
 from perturb.fourier.trig import fold_mirror_angles
 from perturb.fourier.trig import harmonics as trig_harmonics
 from perturb.methods.applicability import check_order, expression_argument, require_centred
-from perturb.methods.averaging import _frequency_polynomial, _response_frequency, fourier_components
+from perturb.methods.averaging import (
+    fourier_components,
+    frequency_polynomial_coefficients,
+    response_frequency_symbol,
+)
 from perturb.model.oscillator import Oscillator
 from perturb.model.parsing import real_symbol
 from perturb.model.pwl import is_nonsmooth
@@ -368,7 +372,7 @@ def _single(osc: Oscillator, bias: bool) -> Approximation:
         h = osc.forcing.harmonics[0]
         F, w, p0 = h.amplitude, _forcing_frequency(osc), h.phase
     else:
-        F, w, p0 = sp.Integer(0), _response_frequency(osc), sp.Integer(0)
+        F, w, p0 = sp.Integer(0), response_frequency_symbol(osc), sp.Integer(0)
     conservative = not osc.g.has(v)
     bias_sym = b if bias else sp.Integer(0)
     comps = fourier_components(osc.g, x, v, A, w, bias_sym, (0, 1) if bias else (1,), _values(osc))
@@ -489,7 +493,7 @@ def _single(osc: Oscillator, bias: bool) -> Approximation:
             frequency=w,
             slow_flow=slow_flow,
             amplitude=A,
-            frequency_polynomial=_frequency_polynomial(cos_part, sin_part, F, w),
+            frequency_polynomial=frequency_polynomial_coefficients(cos_part, sin_part, F, w),
             phase_from=(cos_part, sin_part),
             fourier=MappingProxyType({"g_0": g0, "g_c": gc, "g_s": gs}),
             steps=tuple(steps),
@@ -655,7 +659,7 @@ def _multi(osc: Oscillator, hs: tuple[Fraction, ...], bias: bool) -> Approximati
                 )
             forcing += h.amplitude * sp.cos(int(k) * theta + h.phase)
     else:
-        w = nu = _response_frequency(osc)
+        w = nu = response_frequency_symbol(osc)
     conservative = not forced and not g.has(v)
     c0 = real_symbol("c_0")
     ansatz = c0 if bias else sp.Integer(0)

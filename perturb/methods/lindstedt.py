@@ -276,23 +276,6 @@ def _eq(lhs: sp.Expr, rhs: sp.Expr) -> sp.Equality:
     return sp.Eq(lhs, rhs, evaluate=False)
 
 
-class _Continued(sp.Expr):
-    """A continuation row of a long equation in a derivation; prints as ``+ terms``. The
-    engines no longer split equations (the writer, :mod:`perturb.report.latex`, does, and
-    joins such rows back); kept so that derivations saved as JSON by earlier versions load."""
-
-    def __new__(cls, expr: sp.Expr) -> _Continued:
-        return sp.Expr.__new__(cls, sp.sympify(expr))
-
-    def _latex(self, printer: Any, *args: Any) -> str:
-        s = printer._print(self.args[0])
-        return r"\qquad " + (s if s.lstrip().startswith("-") else "+ " + s)
-
-    def _sympystr(self, printer: Any, *args: Any) -> str:
-        s = printer._print(self.args[0])
-        return "    " + (s if s.startswith("-") else "+ " + s)
-
-
 @lru_cache(maxsize=1 << 14)
 def _width(expr: sp.Basic) -> int:
     """Rough printed width of ``expr`` in glyphs, estimated on the expression tree (printing

@@ -124,7 +124,9 @@ def _renders(tex: str) -> bool:
     return True
 
 
-def _param_tex(name: str) -> str:
+def param_tex(name: str) -> str:
+    """Matplotlib mathtext of a parameter name: Greek names as letters, a trailing number as
+    a subscript (``zeta1`` -> ``\\zeta_{1}``), any other name upright with ``_`` escaped."""
     if name in _GREEK:
         return _GREEK[name]
     if re.fullmatch(r"[A-Za-z]", name):
@@ -146,7 +148,7 @@ def _params_text(params: Mapping[str, float], skip=("Omega",)) -> str:
             val = f"{float(v):g}"
         except (TypeError, ValueError):
             continue
-        parts.append(f"{_param_tex(n)} = {val}")
+        parts.append(f"{param_tex(n)} = {val}")
     if not parts:
         return ""
     tex = "$" + r",\ ".join(parts) + "$"
@@ -167,7 +169,7 @@ def _equation_tex(oscillator) -> str | None:
         acc = next(
             (s for s in eq.lhs.free_symbols if getattr(s, "name", "") == f"{x.name}''"), None
         )
-        names = {s: _param_tex(s.name) for s in eq.free_symbols if s.name in _GREEK}
+        names = {s: param_tex(s.name) for s in eq.free_symbols if s.name in _GREEK}
         names[x] = "x"
         names[v] = r"\dot{x}"
         if acc is not None:

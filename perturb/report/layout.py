@@ -27,7 +27,7 @@ import sympy as sp
 from sympy.core.function import AppliedUndef
 
 from perturb.fourier.symbols import DiracCoefficient, RampCoefficient, StepCoefficient
-from perturb.printing import _PerturbLatexPrinter
+from perturb.printing import PerturbLatexPrinter
 
 __all__ = [
     "DocPrinter",
@@ -166,7 +166,7 @@ def ordered_terms(terms: Sequence[sp.Expr], phases: frozenset[str] = _PHASES) ->
 # ------------------------------------------------------------------------------------------
 # the printer
 # ------------------------------------------------------------------------------------------
-class DocPrinter(_PerturbLatexPrinter):
+class DocPrinter(PerturbLatexPrinter):
     """perturb's LaTeX printer with the reading order and short names of a document.
 
     Parameters
