@@ -163,10 +163,12 @@ def main() -> None:
     print(lines[-1])
 
     from perturb.methods.harmonic_balance import single_harmonic_balance
+    from perturb.seeds import approximation_seeds
 
     hb = single_harmonic_balance(osc)
     with Clock() as ck:
-        res_hb = exact_branches(osc, WINDOW, approximation=hb, sweep_points=0, progress=False)
+        hb_seeds = approximation_seeds(hb, WINDOW, 16)
+        res_hb = exact_branches(osc, WINDOW, seeds=hb_seeds, sweep_points=0, progress=False)
     t_hb = ck.wall
     lines.append(
         row(

@@ -54,7 +54,7 @@ from perturb.numeric.harmonic_balance import (  # noqa: E402
     harmonic_balance_orbit,
     harmonic_balance_response,
 )
-from perturb.simulate.orbits.search import periodic_orbits  # noqa: E402
+from perturb.solve import periodic_orbits  # noqa: E402
 
 PARAMS = {"k": -0.5, "mu": 0.05, "F": 2.0}
 WINDOW = (0.3, 2.0)

@@ -67,7 +67,7 @@ from perturb.report.latex import derivation_body
 from perturb.response import Branch, Response
 from perturb.simulate.exact_response import continue_orbits
 from perturb.simulate.flows.exact import ExactPWLFlow
-from perturb.simulate.orbits.search import periodic_orbits
+from perturb.solve import periodic_orbits
 from perturb.simulate.orbits.shooting import PeriodicOrbit, limit_cycle, periodic_orbit
 from perturb.simulate.studies import (
     basins,

@@ -28,9 +28,10 @@ from perturb.solve import frequency_response
 
 
 def __getattr__(name: str):
-    # the reference solvers pull in scipy.integrate; load them on first use
+    # the reference solvers pull in scipy.integrate; load them on first use (the front
+    # door: the search started also from approximations' solutions, perturb.seeds)
     if name == "periodic_orbits":
-        from perturb.simulate.orbits.search import periodic_orbits
+        from perturb.solve import periodic_orbits
 
         return periodic_orbits
     if name in ("compare", "relative_errors"):

@@ -325,7 +325,7 @@ def spot_frequencies(
 
 def exact_spot_orbits(oscillator: Oscillator, frequencies: Sequence[float]) -> list[list[Any]]:
     """Every exact period-1 orbit at each frequency (one brute-force search each)."""
-    from perturb.simulate.orbits.search import periodic_orbits
+    from perturb.solve import periodic_orbits
 
     return [[o for o in periodic_orbits(oscillator, float(w)) if o.m == 1] for w in frequencies]
 

@@ -39,6 +39,7 @@ from perturb.response import Branch, Response
 
 __all__ = [
     "frequency_response",
+    "periodic_orbits",
     "ALIASES",
     "MAX_HARMONICS",
     "MAX_ORDER",
@@ -220,12 +221,8 @@ def frequency_response(
             )
         return auto_frequency_response(oscillator, Omega, rtol, **options)[0]
     if method == "exact":
-        from perturb.simulate.exact_response import exact_frequency_response, exact_solutions_at
-
         _refuse(method, order=order, harmonics=harmonics)
-        if frequencies is not None:
-            return exact_solutions_at(oscillator, frequencies, **options)
-        return exact_frequency_response(oscillator, Omega, **options)
+        return _exact(oscillator, Omega, frequencies, options)
     if method == "hb" and order is None:
         from perturb.numeric.harmonic_balance import harmonic_balance_response
 
@@ -263,6 +260,100 @@ def frequency_response(
     if frequencies is not None:
         return solutions_at(approx, frequencies, **options)
     return traced(approx, Omega, **options)
+
+
+def periodic_orbits(
+    oscillator: Oscillator,
+    Omega: float | None = None,
+    *,
+    m: int = 1,
+    guesses: Sequence[Sequence[float]] = (),
+    grid: int = 3,
+    transient_periods: int = 100,
+    extent: float | None = None,
+) -> tuple:
+    """Every period-``m`` orbit found at forcing frequency ``Omega`` (the front door).
+
+    :func:`perturb.simulate.orbits.search.periodic_orbits` (attractors from a grid of
+    initial conditions, closed-form segment orbits, ``guesses``), started also, for
+    ``m = 1``, from the approximations' solutions of
+    :func:`perturb.seeds.periodic_orbit_guesses` (single-harmonic balance and a multi-start
+    numeric harmonic-balance search).  Those only start shooting: every orbit is accepted on
+    the exact flow's residual.  The parameters are those of the search.
+
+    Returns
+    -------
+    tuple of PeriodicOrbit
+        Sorted by amplitude.
+    """
+    from perturb import seeds
+    from perturb.simulate.orbits.search import periodic_orbits as search
+
+    nodes = seeds.periodic_orbit_guesses(oscillator, Omega, extent=extent) if m == 1 else []
+    return search(
+        oscillator,
+        Omega,
+        m=m,
+        guesses=guesses,
+        node_guesses=nodes,
+        grid=grid,
+        transient_periods=transient_periods,
+        extent=extent,
+    )
+
+
+def _exact(
+    oscillator: Oscillator,
+    Omega: Sequence[float],
+    frequencies: list[float] | None,
+    options: dict[str, Any],
+) -> Response:
+    """Method ``"exact"``: the exact solvers, started also from approximations' solutions.
+
+    ``approximation`` (an :class:`~perturb.approximation.Approximation`, e.g.
+    ``single_harmonic_balance(osc)``) adds ``approximation_seeds`` (default 16) points along
+    each of its branches to the caller's ``seeds`` (:func:`perturb.seeds.approximation_seeds`);
+    the search at single frequencies starts also from
+    :func:`perturb.seeds.periodic_orbit_guesses`.
+    """
+    from perturb import seeds
+    from perturb.simulate.exact_response import (
+        ONE_FREQUENCY_WINDOW,
+        exact_frequency_response,
+        exact_solutions_at,
+    )
+
+    options = dict(options)
+    approximation = options.pop("approximation", None)
+    per_branch = options.pop("approximation_seeds", 16)
+    if isinstance(per_branch, bool) or not isinstance(per_branch, int) or per_branch < 0:
+        raise ParameterError(
+            f"approximation_seeds = {per_branch!r}: expected a non-negative integer"
+        )
+    if frequencies is None:
+        window: Sequence[float] = Omega
+    else:
+        targets = sorted(set(frequencies))
+        if len(targets) == 1:
+            window = (targets[0] / ONE_FREQUENCY_WINDOW, targets[0] * ONE_FREQUENCY_WINDOW)
+        else:
+            window = (targets[0], targets[-1])
+    if approximation is not None:
+        try:
+            lo, hi = (float(w) for w in window)
+        except (TypeError, ValueError):
+            lo = hi = math.nan
+        if math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi:
+            extra = seeds.approximation_seeds(approximation, (lo, hi), per_branch)
+            options["seeds"] = [*options.get("seeds", ()), *extra]
+    if frequencies is not None:
+        return exact_solutions_at(
+            oscillator,
+            frequencies,
+            orbit_guesses=lambda w: seeds.periodic_orbit_guesses(oscillator, w),
+            **options,
+        )
+    return exact_frequency_response(oscillator, Omega, **options)
 
 
 def _refuse(method: str, **given: Any) -> None:

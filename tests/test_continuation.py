@@ -311,11 +311,11 @@ def test_pitchfork_is_passed_not_stalled():
 @pytest.mark.slow
 def test_k3_branch_count_independent_of_seeds(nsd_k3):
     from perturb.methods.harmonic_balance import single_harmonic_balance
+    from perturb.seeds import approximation_seeds
 
     osc = builtin_model("nsd", **NSD_K3)
-    with_hb = exact_branches(
-        osc, (0.2, 2.0), approximation=single_harmonic_balance(osc), progress=False
-    )
+    seeds = approximation_seeds(single_harmonic_balance(osc), (0.2, 2.0), 16)
+    with_hb = exact_branches(osc, (0.2, 2.0), seeds=seeds, progress=False)
     assert len(with_hb.branches) == len(nsd_k3.branches)
     key = sorted((round(b.amplitudes.max(), 1), len(b.folds)) for b in with_hb.branches)
     assert key == sorted((round(b.amplitudes.max(), 1), len(b.folds)) for b in nsd_k3.branches)

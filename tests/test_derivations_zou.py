@@ -14,7 +14,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from perturb.numeric.harmonic_balance import harmonic_balance_branch
-from perturb.simulate.orbits.search import periodic_orbits
+from perturb.solve import periodic_orbits
 from perturb.simulate.time_history import time_history
 from perturb.solve import frequency_response
 

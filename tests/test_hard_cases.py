@@ -56,7 +56,7 @@ from perturb.simulate.flows.event_driven import EventFlow, simulate
 from perturb.simulate.flows.exact import ExactPWLFlow
 from perturb.simulate.flows.lcp import simulate_lcp
 from perturb.simulate.flows.piecewise_exact import PWLSystem, propagate
-from perturb.simulate.orbits.search import periodic_orbits
+from perturb.solve import periodic_orbits
 from perturb.simulate.orbits.shooting import periodic_orbit
 from perturb.simulate.studies import (
     bifurcation_diagram,

@@ -286,7 +286,7 @@ def test_nsd_bias_at_the_brief_parameters():
     #   large orbit               6.906613 vs 6.716416 (2.8 %; HB calls it stable, the exact
     #                             symmetric orbit is unstable and its stable neighbours are
     #                             the asymmetric pair, 11 % lower in first harmonic)
-    from perturb.simulate.orbits.search import periodic_orbits
+    from perturb.solve import periodic_orbits
 
     osc = builtin_model("nsd", F=2.0, **NSD)
     sols = balance_solutions(harmonic_balance(osc, bias=True), 0.4)
@@ -314,7 +314,7 @@ def test_nsd_in_well_orbits_with_bias():
     # reach x = 1, so the outer linear segment makes them exact), stable; and a pair of
     # unstable in-well orbits crossing into the negative-stiffness segment (b = +-2.776,
     # A = 2.294) near the separatrix, where one harmonic is a poor description.
-    from perturb.simulate.orbits.search import periodic_orbits
+    from perturb.solve import periodic_orbits
 
     F, W = 1.5, 0.4
     osc = builtin_model("nsd", F=F, **NSD)

@@ -26,7 +26,7 @@ from perturb.numeric.compile import bind_parameters, lambdify
 from perturb.report.latex import latex_document
 from perturb.simulate.flows.base import ODEFlow
 from perturb.simulate.flows.exact import ExactPWLFlow
-from perturb.simulate.orbits.search import periodic_orbits
+from perturb.solve import periodic_orbits
 from perturb.simulate.orbits.shooting import limit_cycle, periodic_orbit
 
 A = sp.Symbol("A", positive=True)

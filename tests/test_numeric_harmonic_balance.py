@@ -51,7 +51,7 @@ from perturb.numeric.harmonic_balance import (
 from perturb.response import CSV_COLUMNS
 from perturb.simulate.flows.base import ODEFlow
 from perturb.simulate.flows.exact import ExactPWLFlow
-from perturb.simulate.orbits.search import periodic_orbits
+from perturb.solve import periodic_orbits
 from perturb.simulate.orbits.shooting import periodic_orbit
 
 TWO_PI = 2.0 * math.pi

@@ -20,7 +20,7 @@ from scipy.integrate import solve_ivp
 
 from perturb.model.oscillator import builtin_model
 from perturb.simulate.exact_response import _polish_at, exact_branches
-from perturb.simulate.orbits.search import periodic_orbits
+from perturb.solve import periodic_orbits
 
 MU, F = 0.05, 2.0
 

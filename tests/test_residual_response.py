@@ -16,7 +16,7 @@ from perturb.methods import modified_lindstedt
 from perturb.model.oscillator import builtin_model
 from perturb.numeric.amplitude import solutions_at
 from perturb.numeric.residual import residual_response
-from perturb.simulate.orbits.search import periodic_orbits
+from perturb.solve import periodic_orbits
 from perturb.solve import frequency_response
 
 NSD = {"k": -0.5, "mu": 0.05, "F": 2.0}

@@ -247,7 +247,7 @@ def test_frc_compare_exact_adds_rel_error_against_exact_orbits(tmp_path):
     with open(out) as fh:
         rows = list(csv.DictReader(fh))
     assert tuple(rows[0].keys()) == (*CSV_COLUMNS, "rel_error")
-    from perturb.simulate.orbits.search import periodic_orbits
+    from perturb.solve import periodic_orbits
 
     osc = builtin_model("nsd", k=-0.5, mu=0.05, F=2.0)
     for r in rows:
@@ -429,7 +429,7 @@ def test_bifurcation_scene_period_one_points_are_periodic_orbits(tmp_path):
     import numpy as np
 
     from perturb.apps.scene import load_scene
-    from perturb.simulate.orbits.search import periodic_orbits
+    from perturb.solve import periodic_orbits
 
     scene = load_scene(ROOT / "scenes" / "zou_fig6_bifurcation.toml")
     scene = dataclasses.replace(

@@ -510,7 +510,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_periodic(args: argparse.Namespace) -> int:
-    from perturb.simulate.orbits.search import periodic_orbits
+    from perturb.solve import periodic_orbits
 
     _check_outputs(out=args.out)
     _bounded_int("--m", args.m, 1, MAX_SUBHARMONIC, "forcing periods per orbit")

@@ -103,8 +103,9 @@ Branches
 
 Exact frequency response
     :func:`exact_branches` seeds from the closed-form arcs of every segment, the caller's
-    seeds, an approximation's branches (e.g. single-harmonic balance, detached branches
-    included), and up and down sweeps; it polishes each seed by Newton at fixed parameter,
+    seeds (the front door :func:`perturb.solve.frequency_response` adds points along an
+    approximation's branches, :func:`perturb.seeds.approximation_seeds`), and up and down
+    sweeps; it polishes each seed by Newton at fixed parameter,
     skips it when it lies on a traced branch, switches at every branch point, completes
     branches by the symmetry :math:`(x, t) \to (-x, t + T/2)` of odd systems (an image branch
     costs at most half a propagation per point), and, on request, follows period doublings.
@@ -2632,58 +2633,6 @@ def _mirror_branch(tracer: _Tracer, pts: list[_Pt]) -> list[_Pt]:
     return out
 
 
-# =============================================================================================
-# seeds
-# =============================================================================================
-def _approximation_seeds(
-    approximation: Any, window: tuple[float, float], per_branch: int
-) -> list[tuple[float, np.ndarray]]:
-    """(Omega, (x0, v0)) along every branch of an amplitude-parametrised approximation
-    (waveform ``x(tau)``, ``tau = Omega t``, unknowns ``(A, phase)``); the amplitude unknown is
-    taken as the branch's first-harmonic amplitude (exact for single-harmonic balance)."""
-    import sympy as sp
-
-    from perturb.approximation import Approximation
-    from perturb.numeric.amplitude import approximation_response
-    from perturb.numeric.compile import bind_parameters, lambdify
-
-    if not isinstance(approximation, Approximation):
-        raise ParameterError(
-            f"approximation = {approximation!r}: expected an Approximation (e.g. "
-            "single_harmonic_balance(osc)); pass states as seeds= instead"
-        )
-    ap = approximation
-    if ap.amplitude is None or ap.phase_from is None or len(ap.unknowns) != 2:
-        raise ParameterError(
-            f"{ap.label}: seeds need an amplitude-parametrised approximation with unknowns "
-            "(A, phase) and phase_from"
-        )
-    resp = approximation_response(ap, window, points=400, stability="slow_flow")
-    A, Om, ph, tau = ap.amplitude, ap.frequency, ap.unknowns[1], ap.tau
-    keep = (A, Om, ph, tau)
-    wave, dwave, pc, ps = bind_parameters(
-        ap, [ap.waveform, sp.diff(ap.waveform, tau), *ap.phase_from], keep
-    )
-    fx = lambdify((tau, A, ph, Om), [wave, dwave])
-    fphi = lambdify((A, Om), [pc, ps])
-    Sp = window[1] - window[0]
-    out = []
-    for br in resp.branches:
-        w, a = br.omega, br.first_harmonic_amplitude
-        if w.size == 0:
-            continue
-        s = np.r_[0.0, np.cumsum(np.hypot(np.diff(w) / Sp, np.diff(a) / max(1.0, a.max())))]
-        targets = np.linspace(0.0, s[-1], per_branch + 2)[1:-1] if s[-1] > 0 else [0.0]
-        idx = np.unique(np.searchsorted(s, targets).clip(0, w.size - 1))
-        c, sn = fphi(a[idx], w[idx])
-        phi = np.arctan2(sn, c)
-        x0, dx = fx(np.zeros(idx.size), a[idx], phi, w[idx])
-        for wi, xi, vi in zip(w[idx], x0, w[idx] * dx, strict=True):
-            if np.isfinite(xi) and np.isfinite(vi):
-                out.append((float(wi), np.array([xi, vi], dtype=float)))
-    return out
-
-
 def _walk(pts: list[_Pt], closed: bool, i: int, target: float) -> tuple[bool, int, int]:
     """Follow a branch from point ``i`` towards parameter ``target`` over stable points only:
     (reached, index reached, last stable index)."""
@@ -2987,8 +2936,6 @@ def exact_branches(
     window: Sequence[float] = (0.2, 2.0),
     *,
     seeds: Sequence[tuple[float, ArrayLike]] = (),
-    approximation: Any = None,
-    approximation_seeds: int = 16,
     sweep_points: int = 60,
     transient_periods: int = 40,
     ds_max: float = 0.005,
@@ -3008,8 +2955,9 @@ def exact_branches(
     Seeds, in order (each polished by Newton at its frequency and skipped when it lies on a
     branch already traced): the closed-form orbits of every linear segment of a PWL force that
     stay in their segment (the saddle branch of ``nsd`` inside :math:`|x| < 1`, the one-well
-    orbits off resonance); the caller's ``seeds``; ``approximation_seeds`` points along every
-    branch of ``approximation`` (detached loops included); virtual sweeps up and down (module
+    orbits off resonance); the caller's ``seeds`` (e.g. points along every branch of an
+    approximation, :func:`perturb.seeds.approximation_seeds`, as the front door
+    :func:`perturb.solve.frequency_response` passes them); virtual sweeps up and down (module
     docstring).  Then the other branch at every branch point (symmetry-breaking pitchforks),
     and with ``period_doubling=True`` the period-2 branch at every period doubling and the
     branch of any period-2 motion a sweep settles on (detached period-2 loops included).  With
@@ -3023,10 +2971,8 @@ def exact_branches(
     window
         ``(low, high)`` forcing frequencies, ``low > 0``.
     seeds
-        Pairs ``(Omega, (x0, v0))`` at ``t = 0``.
-    approximation
-        An :class:`~perturb.approximation.Approximation` with an amplitude-parametrised
-        response (e.g. ``single_harmonic_balance(osc)``).
+        Pairs ``(Omega, (x0, v0))`` at ``t = 0``, each only a start of Newton on the exact
+        flow (a seed that does not converge is counted in a note).
     sweep_points
         Frequencies of the virtual sweeps (0: none).
     transient_periods
@@ -3068,7 +3014,6 @@ def exact_branches(
         ("sweep_points", sweep_points),
         ("transient_periods", transient_periods),
         ("max_branches", max_branches),
-        ("approximation_seeds", approximation_seeds),
     ):
         if isinstance(v, bool) or not isinstance(v, int) or v < 0:
             raise ParameterError(f"{name} = {v!r}: expected a non-negative integer")
@@ -3107,8 +3052,6 @@ def exact_branches(
             spec,
             t_begin,
             seeds=seeds,
-            approximation=approximation,
-            approximation_seeds=approximation_seeds,
             sweep_points=sweep_points,
             transient_periods=transient_periods,
             branch_points=branch_points,
@@ -3129,8 +3072,6 @@ def _exact_branches(
     t_begin: float,
     *,
     seeds: Sequence[tuple[float, ArrayLike]],
-    approximation: Any,
-    approximation_seeds: int,
     sweep_points: int,
     transient_periods: int,
     branch_points: bool,
@@ -3194,8 +3135,6 @@ def _exact_branches(
     for p, y in raw:
         if not lo <= p <= hi or y.shape != (2,) or not np.all(np.isfinite(y)):
             raise ParameterError(f"seed ({p}, {y.tolist()}): expected (Omega in window, (x0, v0))")
-    if approximation is not None:
-        raw += _approximation_seeds(approximation, (lo, hi), approximation_seeds)
     closed_seeds = tracer.closed.seeds() if tracer.closed is not None else []
     total = len(closed_seeds) + len(raw) + 2 * sweep_points
     # seeds differ widely in cost (a seed on a known branch costs nothing): no estimate of
@@ -3494,7 +3433,7 @@ def _polish_at(branch: ContinuationBranch, j: int, w: float) -> PeriodicOrbit | 
 
 
 #: the window traced around a single requested frequency: [w / f, w * f]
-_ONE_WINDOW = 1.25
+ONE_FREQUENCY_WINDOW = 1.25
 #: wall-clock budget of that tracing (seconds) unless the caller gives max_seconds
 _ONE_SECONDS = 120.0
 
@@ -3506,16 +3445,23 @@ def _same_orbit(a: PeriodicOrbit, b: PeriodicOrbit) -> bool:
     return float(np.max(np.abs(np.asarray(a.y0) - np.asarray(b.y0)))) <= 1e-6 * scale
 
 
-def _solutions_at_one(oscillator: Oscillator, w: float, options: dict[str, Any]) -> Response:
+def _solutions_at_one(
+    oscillator: Oscillator,
+    w: float,
+    options: dict[str, Any],
+    orbit_guesses: Callable[[float], Sequence[np.ndarray]] | None = None,
+) -> Response:
     """Every orbit at the single frequency ``w``: the brute-force search of
-    :func:`~perturb.simulate.orbits.search.periodic_orbits`, and every crossing of ``w`` by the
-    branches that :func:`exact_branches` traces over ``[w / 1.25, w * 1.25]`` (seeded with
-    the orbits found), polished by shooting at exactly ``w``; duplicates removed."""
+    :func:`~perturb.simulate.orbits.search.periodic_orbits` (started also from
+    ``orbit_guesses(w)``), and every crossing of ``w`` by the branches that
+    :func:`exact_branches` traces over ``[w / 1.25, w * 1.25]`` (seeded with the orbits
+    found), polished by shooting at exactly ``w``; duplicates removed."""
     from perturb.simulate.orbits.search import periodic_orbits
 
     family = FlowFamily(oscillator)
     notes: list[str] = []
-    orbits: list[PeriodicOrbit] = list(periodic_orbits(oscillator, w))
+    nodes = orbit_guesses(w) if orbit_guesses is not None else ()
+    orbits: list[PeriodicOrbit] = list(periodic_orbits(oscillator, w, node_guesses=nodes))
     n_search = len(orbits)
     undamped = _undamped_note(family, (w, w))
     if undamped is not None:
@@ -3525,7 +3471,7 @@ def _solutions_at_one(oscillator: Oscillator, w: float, options: dict[str, Any])
         seeds = list(opts.pop("seeds", ()))
         seeds += [(w, o.y0) for o in orbits if o.m == 1]
         opts.setdefault("max_seconds", _ONE_SECONDS)
-        lo, hi = w / _ONE_WINDOW, w * _ONE_WINDOW
+        lo, hi = w / ONE_FREQUENCY_WINDOW, w * ONE_FREQUENCY_WINDOW
         try:
             found = exact_branches(oscillator, (lo, hi), seeds=seeds, **opts)
         except PerturbError as exc:
@@ -3574,6 +3520,8 @@ def _solutions_at_one(oscillator: Oscillator, w: float, options: dict[str, Any])
 def exact_solutions_at(
     oscillator: Oscillator,
     frequencies: Sequence[float],
+    *,
+    orbit_guesses: Callable[[float], Sequence[np.ndarray]] | None = None,
     **options: Any,
 ) -> Response:
     """Every exact periodic orbit at exactly the forcing frequencies ``frequencies``.
@@ -3586,6 +3534,12 @@ def exact_solutions_at(
     :func:`~perturb.simulate.orbits.search.periodic_orbits` together with the crossings of the
     branches traced over ``[w / 1.25, w * 1.25]`` (each orbit its own branch; the tracing
     has a wall-clock budget of 120 s unless ``max_seconds`` is given).
+
+    ``orbit_guesses(Omega)``, when given, returns node guesses (arrays of states over one
+    forcing period) that :func:`~perturb.simulate.orbits.search.periodic_orbits` also shoots
+    from (``node_guesses``); the front door :func:`perturb.solve.frequency_response` passes
+    :func:`perturb.seeds.periodic_orbit_guesses` (approximations' solutions).  They only start
+    shooting on the exact flow.
 
     Raises
     ------
@@ -3606,14 +3560,17 @@ def exact_solutions_at(
 
     targets = np.unique(w_all)
     if targets.size == 1:
-        return _solutions_at_one(oscillator, float(targets[0]), options)
+        return _solutions_at_one(oscillator, float(targets[0]), options, orbit_guesses)
 
     # a short window gives the sweeps and closed-form seeds few chances to meet every branch,
     # so the orbits found at the middle frequency (brute force over initial conditions plus
-    # approximation guesses) seed the tracing as well
+    # the caller's orbit guesses) seed the tracing as well
     w_mid = float(targets[targets.size // 2])
     seeds = list(options.pop("seeds", ()))
-    seeds += [(w_mid, o.y0) for o in periodic_orbits(oscillator, w_mid) if o.m == 1]
+    nodes = orbit_guesses(w_mid) if orbit_guesses is not None else ()
+    seeds += [
+        (w_mid, o.y0) for o in periodic_orbits(oscillator, w_mid, node_guesses=nodes) if o.m == 1
+    ]
     found = exact_branches(
         oscillator, (float(targets[0]), float(targets[-1])), seeds=seeds, **options
     )
