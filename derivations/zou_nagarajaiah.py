@@ -67,7 +67,6 @@ from perturb.report.latex import derivation_body
 from perturb.response import Branch, Response
 from perturb.simulate.exact_response import continue_orbits
 from perturb.simulate.flows.exact import ExactPWLFlow
-from perturb.solve import periodic_orbits
 from perturb.simulate.orbits.shooting import PeriodicOrbit, limit_cycle, periodic_orbit
 from perturb.simulate.studies import (
     basins,
@@ -76,7 +75,7 @@ from perturb.simulate.studies import (
     poincare_section,
 )
 from perturb.simulate.time_history import time_history
-from perturb.solve import frequency_response
+from perturb.solve import frequency_response, periodic_orbits
 
 plt.switch_backend("Agg")  # files only, never a window
 

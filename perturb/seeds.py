@@ -19,7 +19,7 @@ Three kinds of seed:
     :func:`perturb.simulate.orbits.search.periodic_orbits` (``node_guesses=``).
 :func:`single_harmonic_seeds`
     Single-harmonic balance points as coefficient vectors of numeric harmonic balance,
-    for :mod:`perturb.numeric.harmonic_balance` (``seeds=``).
+    for :func:`perturb.numeric.harmonic_balance.harmonic_balance_branches` (``seeds=``).
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ import numpy as np
 
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
+from perturb.numeric.harmonic_balance import HarmonicBalanceSystem
 from perturb.simulate.flows.base import Flow, FlowFamily
 from perturb.simulate.orbits.search import NODES, default_extent, odd_symmetric
 
@@ -40,6 +41,7 @@ __all__ = [
     "periodic_orbit_guesses",
     "harmonic_balance_guesses",
     "single_harmonic_guesses",
+    "single_harmonic_seeds",
 ]
 
 
@@ -354,3 +356,57 @@ def harmonic_balance_guesses(
         np.column_stack([basis.evaluate(u, theta), w * basis.evaluate(u, theta, 1)])
         for u in solutions
     ]
+
+
+# =============================================================================================
+# numeric harmonic balance: coefficient vectors on single-harmonic branches
+# =============================================================================================
+def single_harmonic_seeds(
+    system: HarmonicBalanceSystem, window: tuple[float, float], per_branch: int
+) -> list[tuple[float, np.ndarray]]:
+    """Starting guesses ``(Omega, u)`` for numeric harmonic balance
+    (:func:`perturb.numeric.harmonic_balance.harmonic_balance_branches`, ``seeds=``) on
+    every branch of the single-harmonic balance response (amplitude parametrisation:
+    detached loops included, no continuation), at ``per_branch`` points spread along each
+    branch. Empty when the method does not apply.
+
+    Only the response's public columns are used: the mean ``a0`` and the first-harmonic
+    amplitude ``A``. The phase follows from this system's own residual: the equation of
+    motion is time-invariant, so shifting ``x = a0 + A cos theta`` in time turns the
+    first-harmonic part ``Z = R_a1 - i R_b1`` of its unforced residual by the same angle,
+    and the shift that turns ``Z`` onto the forcing's ``F_a1 - i F_b1`` balances it."""
+    from perturb.methods import single_harmonic_balance
+    from perturb.numeric.amplitude import approximation_response
+
+    basis = system.basis
+    pos = basis.index_of(system.m)
+    if pos is None:
+        return []
+    try:
+        resp = approximation_response(
+            single_harmonic_balance(system.oscillator), window, points=400, stability="slow_flow"
+        )
+    except PerturbError:
+        return []
+    seeds = []
+    for br in resp.branches:
+        n = br.omega.size
+        idx = np.unique(np.linspace(0, n - 1, per_branch + 2).round().astype(int)[1:-1])
+        for j in idx:
+            W, A = float(br.omega[j]), float(br.first_harmonic_amplitude[j])
+            if not (math.isfinite(W) and math.isfinite(A) and A > 0):
+                continue
+            u = np.zeros(basis.size)
+            if basis.bias:
+                u[0] = float(br.mean[j])
+            u[pos] = A
+            fh, fs, _ = system.forcing_vector(W)
+            R = system.evaluate(u, W, jacobian=False)[0] + fh
+            Z = complex(R[pos], -R[pos + 1])
+            target = complex(fh[pos], -fh[pos + 1])
+            if Z == 0 or target == 0:
+                continue
+            turn = (target / Z) / abs(target / Z)
+            u[pos], u[pos + 1] = (A * turn).real, -(A * turn).imag
+            seeds.append((W, u))
+    return seeds

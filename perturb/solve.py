@@ -176,7 +176,10 @@ def frequency_response(
     options
         Passed to the solver. With ``"hb"``: ``all_branches`` (default ``True``; ``False``
         traces only the branch connected to the window's high end) and the options of
-        :func:`perturb.numeric.harmonic_balance.harmonic_balance_response`. With ``"auto"``:
+        :func:`perturb.numeric.harmonic_balance.harmonic_balance_response` (``seeds``
+        defaults to :func:`perturb.seeds.single_harmonic_seeds`). With ``"exact"``:
+        ``approximation`` and ``approximation_seeds`` (see :func:`_exact`) and the options of
+        :func:`perturb.simulate.exact_response.exact_branches`. With ``"auto"``:
         ``rtol`` (relative amplitude tolerance in ``(0, 1)``, default ``1e-3``), ``spots`` /
         ``n_spots`` (spot-check frequencies), ``points``.
 
@@ -224,9 +227,12 @@ def frequency_response(
         _refuse(method, order=order, harmonics=harmonics)
         return _exact(oscillator, Omega, frequencies, options)
     if method == "hb" and order is None:
+        from perturb import seeds
         from perturb.numeric.harmonic_balance import harmonic_balance_response
 
         options.setdefault("all_branches", True)
+        # every branch: Newton started also from the single-harmonic balance branches
+        options.setdefault("seeds", seeds.single_harmonic_seeds)
         H = 15 if harmonics is None else harmonics
         if frequencies is not None:
             return _hb_solutions_at(oscillator, frequencies, H, options)
@@ -402,8 +408,11 @@ def _hb_solutions_at(
     system_keys = ("m", "odd_only", "projection", "samples")
     orbit_opts = {k: opts[k] for k in (*system_keys, "stability", "tol") if k in opts}
     window = _covering_window(targets)
+    seeds = opts.pop("seeds", None)
     if all_branches:
-        found = harmonic_balance_branches(oscillator, window, harmonics=harmonics, **opts)
+        found = harmonic_balance_branches(
+            oscillator, window, harmonics=harmonics, seeds=seeds, **opts
+        )
     else:
         found = (harmonic_balance_branch(oscillator, window, harmonics=harmonics, **opts),)
     wanted = sorted(set(targets))

@@ -14,9 +14,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from perturb.numeric.harmonic_balance import harmonic_balance_branch
-from perturb.solve import periodic_orbits
 from perturb.simulate.time_history import time_history
-from perturb.solve import frequency_response
+from perturb.solve import frequency_response, periodic_orbits
 
 
 @pytest.fixture(scope="module")

@@ -56,7 +56,6 @@ from perturb.simulate.flows.event_driven import EventFlow, simulate
 from perturb.simulate.flows.exact import ExactPWLFlow
 from perturb.simulate.flows.lcp import simulate_lcp
 from perturb.simulate.flows.piecewise_exact import PWLSystem, propagate
-from perturb.solve import periodic_orbits
 from perturb.simulate.orbits.shooting import periodic_orbit
 from perturb.simulate.studies import (
     bifurcation_diagram,
@@ -65,6 +64,7 @@ from perturb.simulate.studies import (
     poincare_section,
 )
 from perturb.simulate.time_history import time_history
+from perturb.solve import periodic_orbits
 
 TWO_PI = 2.0 * math.pi
 QUIET = {"progress": False}

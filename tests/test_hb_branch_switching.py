@@ -48,6 +48,7 @@ from perturb.numeric.harmonic_balance import (
     harmonic_balance_branches,
     harmonic_balance_response,
 )
+from perturb.seeds import single_harmonic_seeds
 from perturb.simulate.exact_response import exact_branches
 from perturb.simulate.flows.base import ODEFlow
 from perturb.simulate.flows.exact import ExactPWLFlow
@@ -115,7 +116,9 @@ def nsd_exact():
 @functools.cache
 def nsd_hb(branch_points: bool = True):
     osc = builtin_model("nsd", **NSD_K3)
-    return harmonic_balance_branches(osc, WINDOW, harmonics=15, branch_points=branch_points)
+    return harmonic_balance_branches(
+        osc, WINDOW, harmonics=15, branch_points=branch_points, seeds=single_harmonic_seeds
+    )
 
 
 def double_well(F: float = 0.6) -> Oscillator:
@@ -126,7 +129,9 @@ def double_well(F: float = 0.6) -> Oscillator:
 def double_well_hb():
     # H = 31: the cross-well orbits below Omega ~ 0.5 need it (H = 15 leaves 1e-4..1e-2 in
     # amplitude there); no stability, whose full Hill eigenproblem per point would dominate
-    return harmonic_balance_branches(double_well(), DW_WINDOW, harmonics=31, stability="none")
+    return harmonic_balance_branches(
+        double_well(), DW_WINDOW, harmonics=31, stability="none", seeds=single_harmonic_seeds
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -244,7 +249,9 @@ def test_nsd_k3_in_well_branches_that_were_missed_now_match_exact():
     eb = nsd_exact()
     exact = eb.to_response()
     osc = builtin_model("nsd", **NSD_K3)
-    resp = harmonic_balance_response(osc, WINDOW, harmonics=15, all_branches=True)
+    resp = harmonic_balance_response(
+        osc, WINDOW, harmonics=15, all_branches=True, seeds=single_harmonic_seeds
+    )
     cmp = compare(resp, exact)
     assert cmp.missed == ()
     in_well = _exact_in_well(eb)
@@ -385,7 +392,9 @@ def test_nsd_k05_every_exact_branch_once():
     osc = builtin_model("nsd", k=-0.5, mu=0.05, F=2.0)
     exact = exact_branches(osc, (0.2, 2.0), progress=False).to_response()
     # (at H = 31 the loop's image was added again; at H = 15 it happened to be caught)
-    hb = harmonic_balance_response(osc, (0.2, 2.0), harmonics=31, all_branches=True)
+    hb = harmonic_balance_response(
+        osc, (0.2, 2.0), harmonics=31, all_branches=True, seeds=single_harmonic_seeds
+    )
     assert len(hb.branches) == len(exact.branches) == 4
     cmp = compare(hb, exact)
     assert not cmp.missed and not cmp.spurious
@@ -430,7 +439,11 @@ def test_mirror_images_are_solutions_and_symmetry_is_detected():
 def test_branch_points_are_reported_in_the_response_notes():
     hb = nsd_hb()
     resp = harmonic_balance_response(
-        builtin_model("nsd", **NSD_K3), WINDOW, harmonics=15, all_branches=True
+        builtin_model("nsd", **NSD_K3),
+        WINDOW,
+        harmonics=15,
+        all_branches=True,
+        seeds=single_harmonic_seeds,
     )
     assert len(resp.branches) == len(hb)
     note = [n for n in resp.notes if n.startswith("branch points at Omega")]

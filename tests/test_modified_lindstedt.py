@@ -26,8 +26,8 @@ from perturb.numeric.compile import bind_parameters, lambdify
 from perturb.report.latex import latex_document
 from perturb.simulate.flows.base import ODEFlow
 from perturb.simulate.flows.exact import ExactPWLFlow
-from perturb.solve import periodic_orbits
 from perturb.simulate.orbits.shooting import limit_cycle, periodic_orbit
+from perturb.solve import periodic_orbits
 
 A = sp.Symbol("A", positive=True)
 eps, w0 = real_symbol("eps"), real_symbol("omega0")

@@ -49,10 +49,11 @@ from perturb.numeric.harmonic_balance import (
     switching_angles,
 )
 from perturb.response import CSV_COLUMNS
+from perturb.seeds import single_harmonic_seeds
 from perturb.simulate.flows.base import ODEFlow
 from perturb.simulate.flows.exact import ExactPWLFlow
-from perturb.solve import periodic_orbits
 from perturb.simulate.orbits.shooting import periodic_orbit
+from perturb.solve import periodic_orbits
 
 TWO_PI = 2.0 * math.pi
 NSD = {"k": -0.5, "mu": 0.05, "F": 2.0}
@@ -542,7 +543,7 @@ def test_every_branch_point_is_a_solution_and_output_spacing_holds():
 @functools.cache
 def nsd_k3_branches():
     osc = builtin_model("nsd", k=-3.0, mu=0.05, F=2.0)
-    return harmonic_balance_branches(osc, (0.2, 2.0), harmonics=9)
+    return harmonic_balance_branches(osc, (0.2, 2.0), harmonics=9, seeds=single_harmonic_seeds)
 
 
 def test_detached_loop_found_from_single_harmonic_seeds():
@@ -580,7 +581,11 @@ def test_detached_loop_found_from_single_harmonic_seeds():
         amps.append(ref.amplitude)
     assert min(amps) > 8.0 and max(amps) > 19.0  # 8.928 and 19.567
     resp = harmonic_balance_response(
-        builtin_model("nsd", k=-3.0, mu=0.05, F=2.0), (0.2, 2.0), harmonics=9, all_branches=True
+        builtin_model("nsd", k=-3.0, mu=0.05, F=2.0),
+        (0.2, 2.0),
+        harmonics=9,
+        all_branches=True,
+        seeds=single_harmonic_seeds,
     )
     assert len(resp.branches) == len(brs)
 

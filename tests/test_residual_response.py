@@ -16,8 +16,7 @@ from perturb.methods import modified_lindstedt
 from perturb.model.oscillator import builtin_model
 from perturb.numeric.amplitude import solutions_at
 from perturb.numeric.residual import residual_response
-from perturb.solve import periodic_orbits
-from perturb.solve import frequency_response
+from perturb.solve import frequency_response, periodic_orbits
 
 NSD = {"k": -0.5, "mu": 0.05, "F": 2.0}
 

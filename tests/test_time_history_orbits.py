@@ -10,8 +10,8 @@ from scipy.integrate import solve_ivp
 
 from perturb import ParameterError, builtin_model
 from perturb.apps.cli import main
-from perturb.solve import periodic_orbits
 from perturb.simulate.time_history import time_history
+from perturb.solve import periodic_orbits
 
 NSD = dict(k=-2.0, mu=0.05, F=2.0, Omega=0.6)
 T = 2 * np.pi / 0.6

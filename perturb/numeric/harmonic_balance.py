@@ -120,8 +120,9 @@ Every branch
 ------------
 :func:`harmonic_balance_branches` (and ``harmonic_balance_response(..., all_branches=True)``)
 adds the branches that continuation from the start cannot reach, detached loops included:
-it seeds Newton from points of every branch of the single-harmonic balance response, which
-amplitude parametrisation traces without continuation, and from the closed-form orbits of
+it seeds Newton from the caller's ``seeds`` (the front door passes points of every branch of
+the single-harmonic balance response, which amplitude parametrisation traces without
+continuation: :func:`perturb.seeds.single_harmonic_seeds`), and from the closed-form orbits of
 the linear segments of a PWL force (linear responses about the equilibria otherwise) at
 five frequencies across the window, and traces each seed that lies on no branch found so
 far. The zero-mean single-harmonic seeds of an odd system are symmetric, and continuation
@@ -204,6 +205,12 @@ __all__ = [
 
 Projection = Literal["auto", "exact", "aft"]
 Stability = Literal["hill", "hill_full", "none"]
+#: ``seeds(system, window, per_branch) -> [(Omega, u), ...]``: starting guesses for
+#: :func:`harmonic_balance_branches` from outside this layer (e.g. an approximation's
+#: branches, :func:`perturb.seeds.single_harmonic_seeds`)
+SeedFunction = Callable[
+    ["HarmonicBalanceSystem", tuple[float, float], int], Sequence[tuple[float, np.ndarray]]
+]
 
 #: Grid intervals per highest harmonic for the isolation of crossings.
 _GRID_PER_HARMONIC = 4
@@ -2242,55 +2249,6 @@ def _assemble(
     )
 
 
-def _single_harmonic_seeds(
-    system: HarmonicBalanceSystem, window: tuple[float, float], per_branch: int
-) -> list[tuple[float, np.ndarray]]:
-    """Starting guesses ``(Omega, u)`` on every branch of the single-harmonic balance
-    response (amplitude parametrisation: detached loops included, no continuation), at
-    ``per_branch`` points spread along each branch. Empty when the method does not apply.
-
-    Only the response's public columns are used: the mean ``a0`` and the first-harmonic
-    amplitude ``A``. The phase follows from this system's own residual: the equation of
-    motion is time-invariant, so shifting ``x = a0 + A cos theta`` in time turns the
-    first-harmonic part ``Z = R_a1 - i R_b1`` of its unforced residual by the same angle,
-    and the shift that turns ``Z`` onto the forcing's ``F_a1 - i F_b1`` balances it."""
-    from perturb.methods import single_harmonic_balance
-    from perturb.numeric.amplitude import approximation_response
-
-    basis = system.basis
-    pos = basis.index_of(system.m)
-    if pos is None:
-        return []
-    try:
-        resp = approximation_response(
-            single_harmonic_balance(system.oscillator), window, points=400, stability="slow_flow"
-        )
-    except PerturbError:
-        return []
-    seeds = []
-    for br in resp.branches:
-        n = br.omega.size
-        idx = np.unique(np.linspace(0, n - 1, per_branch + 2).round().astype(int)[1:-1])
-        for j in idx:
-            W, A = float(br.omega[j]), float(br.first_harmonic_amplitude[j])
-            if not (math.isfinite(W) and math.isfinite(A) and A > 0):
-                continue
-            u = np.zeros(basis.size)
-            if basis.bias:
-                u[0] = float(br.mean[j])
-            u[pos] = A
-            fh, fs, _ = system.forcing_vector(W)
-            R = system.evaluate(u, W, jacobian=False)[0] + fh
-            Z = complex(R[pos], -R[pos + 1])
-            target = complex(fh[pos], -fh[pos + 1])
-            if Z == 0 or target == 0:
-                continue
-            turn = (target / Z) / abs(target / Z)
-            u[pos], u[pos + 1] = (A * turn).real, -(A * turn).imag
-            seeds.append((W, u))
-    return seeds
-
-
 def _on_branch(branch: HarmonicBalanceBranch, u: np.ndarray, W: float, rtol: float) -> bool:
     """Whether the solution ``u`` at ``W`` lies on ``branch``: within ``rtol`` (relative to
     its largest coefficient) of the chord of a segment that brackets ``W``. The chords are
@@ -2478,6 +2436,7 @@ def harmonic_balance_branches(
     ds_max: float = 0.05,
     max_points: int = 5000,
     tol: float = 1e-10,
+    seeds: SeedFunction | None = None,
     seeds_per_branch: int = 3,
     branch_points: bool = True,
     mirror: bool = True,
@@ -2489,11 +2448,10 @@ def harmonic_balance_branches(
     In order:
 
     1. :func:`harmonic_balance_branch` from the window's edge (``origin='start'``).
-    2. Seeds (``origin='seed'``): ``seeds_per_branch`` points along each branch of the
-       single-harmonic balance (``perturb.methods.single_harmonic_balance``) response,
-       traced by amplitude parametrisation
-       (:func:`perturb.numeric.amplitude.approximation_response`), which returns every
-       one of its branches, detached loops included, without continuation; then, at five
+    2. Seeds (``origin='seed'``): the caller's ``seeds(system, window, seeds_per_branch)``
+       (the front door :func:`perturb.solve.frequency_response` passes
+       :func:`perturb.seeds.single_harmonic_seeds`: ``seeds_per_branch`` points along each
+       branch of the single-harmonic balance response, detached loops included); then, at five
        frequencies across the window (edges included), the closed-form orbits of the linear
        segments of a PWL force that stay in their segment and the linear responses about
        each static equilibrium (:func:`_linear_seeds`: the one-well branches that the
@@ -2535,8 +2493,13 @@ def harmonic_balance_branches(
     start, direction, ds_max, max_points, tol
         See :func:`harmonic_balance_branch` (``start`` and ``direction`` for the first branch
         only).
+    seeds : callable, optional
+        ``seeds(system, window, per_branch)`` returning starting guesses ``(Omega, u)``
+        (coefficient vectors of ``system``), e.g. :func:`perturb.seeds.single_harmonic_seeds`
+        (an approximation's branches).  They only start Newton on this system's residual.
+        Default: none (the linear-segment and equilibrium seeds only).
     seeds_per_branch : int
-        Seeds taken on each single-harmonic branch.
+        Passed to ``seeds``: guesses per branch of the approximation.
     branch_points : bool
         Locate branch points and switch branches there (stage 3).
     mirror : bool
@@ -2602,9 +2565,9 @@ def harmonic_balance_branches(
             return None
         return replace(br, origin=origin)
 
-    seeds = _single_harmonic_seeds(system, window, int(seeds_per_branch))
-    seeds += _linear_seeds(system, window, _LINEAR_SEED_FREQUENCIES)
-    for W, guess in seeds:
+    starts = list(seeds(system, window, int(seeds_per_branch))) if seeds is not None else []
+    starts += _linear_seeds(system, window, _LINEAR_SEED_FREQUENCIES)
+    for W, guess in starts:
         if len(found) >= max_branches:
             break
         if any(_on_branch(b, guess, W, 0.05) for b in found):
@@ -2748,6 +2711,7 @@ def harmonic_balance_response(
     max_points: int = 5000,
     tol: float = 1e-10,
     all_branches: bool = False,
+    seeds: SeedFunction | None = None,
 ) -> Response:
     """Frequency response by numeric harmonic balance as a :class:`~perturb.response.Response`.
 
@@ -2757,7 +2721,8 @@ def harmonic_balance_response(
     T)|`` over the two Hill exponents (``-1`` when ``stability='none'``).
 
     With ``all_branches``, every branch of :func:`harmonic_balance_branches` (the connected
-    one, those seeded from the single-harmonic balance response and from linear-segment
+    one, those seeded from ``seeds`` — the front door passes the single-harmonic balance
+    response's, :func:`perturb.seeds.single_harmonic_seeds` — and from linear-segment
     orbits, those switched onto at branch points, and mirror images for odd systems), at the
     cost of the symbolic single-harmonic balance and of tracing each branch with the
     branch-point test function (see there); the branch points are listed in ``notes``
@@ -2779,6 +2744,7 @@ def harmonic_balance_response(
             ds_max=ds_max,
             max_points=max_points,
             tol=tol,
+            seeds=seeds,
         )
         first = found[0]
         origins = [b.origin for b in found]
