@@ -19,6 +19,7 @@ from collections.abc import Mapping
 import sympy as sp
 
 from perturb.errors import PerturbError
+from perturb.model.parsing import expression_argument
 
 __all__ = [
     "Harmonics",
@@ -52,11 +53,7 @@ def harmonics(expr: sp.Expr, psi: sp.Symbol) -> dict[int, tuple[sp.Expr, sp.Expr
         If ``expr`` contains ``psi`` other than through ``cos``/``sin`` of ``n*psi + c``
         (a string ``expr`` goes through :func:`perturb.model.parsing.parse_expression`).
     """
-    from perturb.methods.applicability import (
-        expression_argument,  # strings: the safe parser, never sympify
-    )
-
-    expr = expression_argument(expr, "expr")
+    expr = expression_argument(expr, "expr")  # strings: the safe parser, never sympify
     z = sp.Dummy("z")
     reps: dict[sp.Basic, sp.Expr] = {}
     for f in expr.atoms(sp.cos, sp.sin):

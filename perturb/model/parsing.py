@@ -47,12 +47,15 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from fractions import Fraction
+from typing import Any
 
 import sympy as sp
 
 from perturb.errors import ParseError
 
 __all__ = [
+    "expression_argument",
     "FUNCTIONS",
     "CONSTANTS",
     "MAX_LENGTH",
@@ -849,4 +852,50 @@ def parse_equation(text: str) -> ParsedEquation:
         state=parser.state_name,
         derivative_order=parser.derivative_order,
         symbols=tuple(parser.symbols.values()),
+    )
+
+
+def expression_argument(value: Any, what: str, *, allow_derivatives: bool = False) -> sp.Expr:
+    """A caller's value as a SymPy expression, without ``sympify`` on text.
+
+    The one safe door for expressions given as arguments (the symbolic engines and
+    :func:`perturb.fourier.trig.harmonics` use it): strings only through
+    :func:`parse_expression`.
+
+    Parameters
+    ----------
+    value
+        A SymPy expression, a number (int, float, Fraction) or a string; strings go through
+        :func:`parse_expression`.
+    what
+        The argument's name, for the message.
+    allow_derivatives
+        Whether a string may contain ``x'``.
+
+    Raises
+    ------
+    ParseError
+        For a string the safe parser refuses.
+    ParameterError
+        For any other type.
+    """
+    import numpy as np  # only for its scalar types; the parser itself needs no NumPy
+
+    from perturb.errors import ParameterError
+
+    if isinstance(value, str):
+        return parse_expression(value, allow_derivatives=allow_derivatives)
+    if isinstance(value, sp.Basic):
+        return value
+    if isinstance(value, bool):
+        raise ParameterError(f"{what} = {value!r}: expected a number or an expression")
+    if isinstance(value, int | np.integer):
+        return sp.Integer(int(value))
+    if isinstance(value, Fraction):
+        return sp.Rational(value.numerator, value.denominator)
+    if isinstance(value, float | np.floating):
+        return sp.Float(float(value))
+    raise ParameterError(
+        f"{what} = {value!r} (type {type(value).__name__}): expected a SymPy expression, a "
+        "number or a string (parsed by perturb.model.parsing.parse_expression)"
     )
