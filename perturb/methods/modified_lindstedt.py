@@ -80,30 +80,30 @@ from perturb.approximation import Approximation, Step
 from perturb.errors import ModelError, ParameterError
 from perturb.fourier.symbols import DiracCoefficient, RampCoefficient, StepCoefficient
 from perturb.methods.applicability import check_order, require_centred
-from perturb.methods.lindstedt import (
-    _ONE,
-    _ZERO,
+from perturb.methods.series import (
+    ONE,
     PWL_MAX_ORDER,
+    ZERO,
+    Expansion,
+    LaurentPolynomial,
     Series,
-    _check_options,
-    _closed_form_step,
-    _dummy,
-    _eq,
-    _Expansion,
-    _free_symbol,
-    _is_short,
-    _lift,
-    _Lp,
-    _model,
-    _s_at_zero,
-    _s_combine,
-    _s_deriv,
-    _s_solve,
-    _s_sympy,
-    _step,
-    _tidy,
-    _vanishes,
-    _w0_lp,
+    check_options,
+    closed_form_step,
+    derivation_step,
+    equation,
+    free_symbol,
+    is_short,
+    lift,
+    method_dummy,
+    omega0_coefficient,
+    series_at_zero,
+    series_combine,
+    series_derivative,
+    series_solve,
+    series_to_sympy,
+    split_model,
+    tidy_coefficient,
+    vanishes,
 )
 from perturb.model.oscillator import Oscillator
 from perturb.model.parsing import real_symbol
@@ -113,7 +113,7 @@ __all__ = ["modified_lindstedt"]
 
 def _forcing(osc: Oscillator) -> tuple[sp.Expr, sp.Expr] | None:
     """``(F, Omega)`` of a single forcing harmonic ``F cos(Omega t)``, or None if free."""
-    live = [h for h in osc.forcing.harmonics if not _vanishes(h.amplitude, osc)]
+    live = [h for h in osc.forcing.harmonics if not vanishes(h.amplitude, osc)]
     if not live:
         return None
     if len(live) > 1:
@@ -215,14 +215,14 @@ def modified_lindstedt(
         :data:`~perturb.methods.applicability.ORDER_LIMITS` ``["mlp"]``.
     """
     osc = oscillator
-    order = check_order("mlp", _check_options(order, amplitude, harmonics))
+    order = check_order("mlp", check_options(order, amplitude, harmonics))
     if osc.velocity != 0 or osc.parametric != 0:
         raise ModelError(
             f"the modified Lindstedt-Poincare method covers x'' + mu x' + f(x) = F cos(Omega t); "
             f"model {osc.name!r} also has {osc.velocity + osc.parametric}"
         )
     forced = _forcing(osc)
-    damped = not _vanishes(osc.damping, osc)
+    damped = not vanishes(osc.damping, osc)
     if forced is None and damped:
         raise ModelError(
             f"model {osc.name!r} is free and damped ({osc.damping}): it has no periodic orbit "
@@ -237,14 +237,14 @@ def modified_lindstedt(
     # (the series of 1/(1 - alpha) cut at the first term), even on a linear oscillator;
     # a one-sided piecewise-linear force: its mean is of order one, not a correction
     require_centred(osc, "the modified Lindstedt-Poincare method (mlp)")
-    model = _model(osc, omega0)
+    model = split_model(osc, omega0)
     if model.ramps and order > PWL_MAX_ORDER:
         raise ParameterError(
             f"order = {order} for the piecewise-linear model {osc.name!r}: expected at most "
             f"{PWL_MAX_ORDER} (higher orders need products of whole truncated series)"
         )
     w0, w2 = model.w0, model.w2
-    w0_lp = _w0_lp(w0)
+    w0_lp = omega0_coefficient(w0)
     w2_lp = w0_lp * w0_lp
     nmax = harmonics if model.ramps else None
     force = model.force
@@ -253,32 +253,32 @@ def modified_lindstedt(
     tau = real_symbol("tau")
     psi = real_symbol("psi")
     phi = real_symbol("phi")
-    nu = _dummy("nu")
-    alpha = _dummy("alphahat" if "alpha" in osc.params else "alpha")
-    deltas = [None, None] + [_dummy(f"delta_{n}") for n in range(2, order + 1)]
+    nu = method_dummy("nu")
+    alpha = method_dummy("alphahat" if "alpha" in osc.params else "alpha")
+    deltas = [None, None] + [method_dummy(f"delta_{n}") for n in range(2, order + 1)]
     if forced is not None:
         F, Omega = forced
         mu = osc.damping if damped else sp.Integer(0)
     else:
-        F, Omega, mu = sp.Integer(0), _free_symbol(osc, "omega"), sp.Integer(0)
-    eps, om1, om2 = _dummy("varepsilon"), _dummy("omega_1"), _dummy("omega_2")
+        F, Omega, mu = sp.Integer(0), free_symbol(osc, "omega"), sp.Integer(0)
+    eps, om1, om2 = method_dummy("varepsilon"), method_dummy("omega_1"), method_dummy("omega_2")
     cphi, sphi = sp.cos(phi), sp.sin(phi)
-    inv_nu = _Lp.atom(nu, -1)
-    damp_lp = _lift(mu) * _lift(Omega) * inv_nu  # mu Omega / nu
-    A_lp = _Lp.atom(A)
+    inv_nu = LaurentPolynomial.atom(nu, -1)
+    damp_lp = lift(mu) * lift(Omega) * inv_nu  # mu Omega / nu
+    A_lp = LaurentPolynomial.atom(A)
 
-    exp = _Expansion({1: (A_lp, _ZERO)}, A, nmax)
+    exp = Expansion({1: (A_lp, ZERO)}, A, nmax)
     xf = [sp.Function(f"x_{n}") for n in range(order + 1)]
     xpp = real_symbol(osc.x.name + "''")
     g_expr = model.g_written(osc)
     gfun = sp.Function("g")
     steps: list[Step] = [
-        _step("Equation of motion", (osc.equation,)),
-        _step(
+        derivation_step("Equation of motion", (osc.equation,)),
+        derivation_step(
             "Split of the restoring force",
             (
-                _eq(gfun(osc.x), g_expr),
-                _eq(xpp + mu * osc.v + w2 * osc.x + gfun(osc.x), F * sp.cos(Omega * osc.t)),
+                equation(gfun(osc.x), g_expr),
+                equation(xpp + mu * osc.v + w2 * osc.x + gfun(osc.x), F * sp.cos(Omega * osc.t)),
             ),
             "The restoring force is a linear reference term plus the remainder $g$"
             + (
@@ -288,15 +288,15 @@ def modified_lindstedt(
             )
             + ". The damping, $g$ and the forcing are taken small, of order $\\varepsilon$.",
         ),
-        _step(
+        derivation_step(
             "Alpha-transformation",
             (
-                _eq(tau, Omega * osc.t),
-                _eq(Omega**2, w2 + eps * om1 + eps**2 * om2 + sp.Symbol("...")),
-                _eq(nu, eps * om1),
-                _eq(alpha, eps * om1 / (w2 + eps * om1)),
-                _eq(alpha, nu / (w2 + nu)),
-                _eq(
+                equation(tau, Omega * osc.t),
+                equation(Omega**2, w2 + eps * om1 + eps**2 * om2 + sp.Symbol("...")),
+                equation(nu, eps * om1),
+                equation(alpha, eps * om1 / (w2 + eps * om1)),
+                equation(alpha, nu / (w2 + nu)),
+                equation(
                     Omega**2,
                     w2
                     * (1 + sp.Add(*(deltas[n] * alpha**n for n in range(2, order + 1))))
@@ -308,10 +308,10 @@ def modified_lindstedt(
             "$\\alpha$ (Cheung, Chen and Lau), which stays below one however strong the "
             "nonlinearity; the higher shifts become the coefficients $\\delta_n$.",
         ),
-        _step(
+        derivation_step(
             "Transformed equation and expansion",
             (
-                _eq(
+                equation(
                     (1 + sp.Add(*(deltas[n] * alpha**n for n in range(2, order + 1))))
                     * sp.Derivative(osc.x, tau, 2)
                     + osc.x
@@ -324,18 +324,18 @@ def modified_lindstedt(
                     ),
                     0,
                 ),
-                _eq(osc.x, sp.Add(*(alpha**n * xf[n](tau) for n in range(order + 1)))),
+                equation(osc.x, sp.Add(*(alpha**n * xf[n](tau) for n in range(order + 1)))),
             ),
             "Dividing by the squared frequency at first order, $\\omega_0^2 + \\nu$, leaves an "
             "equation linear in $\\alpha$ apart from the $\\delta_n$; $x$ is expanded in powers "
             "of $\\alpha$.",
         ),
-        _step(
+        derivation_step(
             "Order zero in $\\alpha$",
             (
-                _eq(sp.Derivative(xf[0](tau), tau, 2) + xf[0](tau), 0),
-                _eq(xf[0](tau), A * sp.cos(psi)),
-                _eq(psi, tau + phi),
+                equation(sp.Derivative(xf[0](tau), tau, 2) + xf[0](tau), 0),
+                equation(xf[0](tau), A * sp.cos(psi)),
+                equation(psi, tau + phi),
             ),
             "The amplitude $A$ is "
             + (
@@ -347,15 +347,15 @@ def modified_lindstedt(
         ),
     ]
     g0 = exp.compose(force, 0)
-    g1 = g0.get(1, (_ZERO, _ZERO))[0]
+    g1 = g0.get(1, (ZERO, ZERO))[0]
     ghat = sp.Function("ghat_1")(A)
     fourier = {f"g_{n}": (2 * c if n == 0 else c).to_sympy() for n, (c, _) in g0.items()}
     fourier["f_1"] = (w2_lp * A_lp + g1).to_sympy()
-    cf = _closed_form_step(ghat, g1.to_sympy(), "First harmonic of $g$ in closed form")
+    cf = closed_form_step(ghat, g1.to_sympy(), "First harmonic of $g$ in closed form")
     steps.append(
-        _step(
+        derivation_step(
             "Fourier coefficients of $g$ along the generating solution",
-            (_eq(ghat, _tidy(g1)),),
+            (equation(ghat, tidy_coefficient(g1)),),
             "$g(A\\cos\\psi)$ is expanded in $\\cos n\\psi$; piecewise-linear terms enter "
             "through their closed-form ramp and step coefficients, never through a Taylor "
             "series.",
@@ -364,35 +364,35 @@ def modified_lindstedt(
     if cf is not None:
         steps.append(cf)
 
-    delta_val: dict[int, _Lp] = {}
-    sines: dict[int, _Lp] = {}
-    first: tuple[_Lp, _Lp] | None = None
+    delta_val: dict[int, LaurentPolynomial] = {}
+    sines: dict[int, LaurentPolynomial] = {}
+    first: tuple[LaurentPolynomial, LaurentPolynomial] | None = None
     for n in range(1, order + 1):
         terms: list[tuple[Any, Series]] = [(1, exp.x[n - 1]), (-inv_nu, exp.compose(force, n - 1))]
         if damped:
-            terms.append((-damp_lp, _s_deriv(exp.x[n - 1])))
+            terms.append((-damp_lp, series_derivative(exp.x[n - 1])))
         for j in range(2, n):
-            terms.append((-delta_val[j], _s_deriv(exp.x[n - j], 2)))
+            terms.append((-delta_val[j], series_derivative(exp.x[n - j], 2)))
         if n == 1 and forced is not None:
             # (F/nu) cos(psi - phi) = (F/nu)(cos phi cos psi + sin phi sin psi)
-            fl = _lift(F) * inv_nu
-            terms.append((fl, {1: (_Lp.atom(cphi), _Lp.atom(sphi))}))
-        rhs = _s_combine(*terms)
-        c1, s1 = rhs.get(1, (_ZERO, _ZERO))
-        shown = _s_sympy(rhs, psi, tidy=True)
+            fl = lift(F) * inv_nu
+            terms.append((fl, {1: (LaurentPolynomial.atom(cphi), LaurentPolynomial.atom(sphi))}))
+        rhs = series_combine(*terms)
+        c1, s1 = rhs.get(1, (ZERO, ZERO))
+        shown = series_to_sympy(rhs, psi, tidy=True)
         if n == 1:
             first = (c1, s1)
             if forced is None:
                 if s1:
                     raise ModelError(f"sine secular term {s1.to_sympy()}: not conservative")
-                conditions = (_eq(nu, _tidy(g1 / A_lp)),)
+                conditions = (equation(nu, tidy_coefficient(g1 / A_lp)),)
                 note = (
                     "No secular term: the coefficient of $\\cos\\psi$ vanishes, which gives $\\nu$."
                 )
             else:
                 conditions = (
-                    _eq(_tidy(c1 * _Lp.atom(nu)), 0),
-                    _eq(_tidy(s1 * _Lp.atom(nu)), 0),
+                    equation(tidy_coefficient(c1 * LaurentPolynomial.atom(nu)), 0),
+                    equation(tidy_coefficient(s1 * LaurentPolynomial.atom(nu)), 0),
                 )
                 note = (
                     "No secular terms: the coefficients of $\\cos\\psi$ and $\\sin\\psi$ vanish"
@@ -410,7 +410,7 @@ def modified_lindstedt(
                 sines[n] = s1
                 if forced is None:
                     raise ModelError(f"sine secular term {s1.to_sympy()}: not conservative")
-            conditions = (_eq(deltas[n], _tidy(delta_val[n])),)
+            conditions = (equation(deltas[n], tidy_coefficient(delta_val[n])),)
             note = (
                 "No secular term: the coefficient of $\\cos\\psi$ vanishes, which gives "
                 f"$\\delta_{n}$"
@@ -420,20 +420,20 @@ def modified_lindstedt(
                     else "."
                 )
             )
-        xn = _s_solve(rhs)
+        xn = series_solve(rhs)
         if amplitude == "initial":
-            at0 = _s_at_zero(xn)
+            at0 = series_at_zero(xn)
             if at0:
-                xn = _s_combine((1, xn), (-at0, {1: (_ONE, _ZERO)}))
+                xn = series_combine((1, xn), (-at0, {1: (ONE, ZERO)}))
         exp.push(xn)
         shown_delta = deltas[n] * A * sp.cos(psi) if n >= 2 else 0
         steps.append(
-            _step(
+            derivation_step(
                 f"Order {n} in $\\alpha$",
                 (
-                    _eq(sp.Derivative(xf[n](tau), tau, 2) + xf[n](tau), shown + shown_delta),
+                    equation(sp.Derivative(xf[n](tau), tau, 2) + xf[n](tau), shown + shown_delta),
                     *conditions,
-                    _eq(xf[n](tau), _s_sympy(xn, psi, tidy=True)),
+                    equation(xf[n](tau), series_to_sympy(xn, psi, tidy=True)),
                 ),
                 note,
             )
@@ -445,14 +445,16 @@ def modified_lindstedt(
     beta = 1 / (w2 + nu)
     scaled: list[Series] = []
     for n in range(1, order + 1):
-        nun = _Lp.atom(nu, n)
+        nun = LaurentPolynomial.atom(nu, n)
         scaled.append({m: (c * nun, s * nun) for m, (c, s) in exp.x[n].items()})
         assert all(min(v.degree(nu)[0] for v in cs) >= 0 for cs in scaled[-1].values())
-    corr_terms = [beta**n * (delta_val[n] * _Lp.atom(nu, n)).to_sympy() for n in delta_val]
+    corr_terms = [
+        beta**n * (delta_val[n] * LaurentPolynomial.atom(nu, n)).to_sympy() for n in delta_val
+    ]
     freq_factor = 1 + sp.Add(*corr_terms)  # 1 + sum delta_n alpha^n
 
     def waveform_in(psi_value: sp.Expr, tidy: bool = False) -> sp.Expr:
-        conv = _tidy if tidy else _Lp.to_sympy
+        conv = tidy_coefficient if tidy else LaurentPolynomial.to_sympy
         out = A * sp.cos(psi_value)
         for n, ser in enumerate(scaled, start=1):
             for m, (c, s) in sorted(ser.items()):
@@ -465,9 +467,9 @@ def modified_lindstedt(
         terms = sum(len(c.t) + len(s.t) for ser in scaled for c, s in ser.values())
         if terms <= 60:
             explicit = waveform_in(psi_value, tidy=True).xreplace(reps or {})
-            if _is_short(explicit):
-                return _eq(osc.x, explicit)
-        return _eq(osc.x, sp.Add(*(alpha**n * xf[n](tau) for n in range(order + 1))))
+            if is_short(explicit):
+                return equation(osc.x, explicit)
+        return equation(osc.x, sp.Add(*(alpha**n * xf[n](tau) for n in range(order + 1))))
 
     options: dict[str, Any] = {"order": order, "amplitude": amplitude, "omega0": w0}
     hmax = max([1] + [m for ser in scaled for m in ser])
@@ -485,15 +487,15 @@ def modified_lindstedt(
             value = dv.to_sympy().xreplace({nu: nu_value})
             if not model.ramps:
                 value = sp.factor(sp.cancel(value))
-            shown_deltas.append(_eq(deltas[n], value))
+            shown_deltas.append(equation(deltas[n], value))
         steps.append(
-            _step(
+            derivation_step(
                 "Result",
                 (
-                    _eq(nu, _tidy(g1 / A_lp)),
-                    _eq(alpha, sp.factor(alpha_value) if not model.ramps else alpha_value),
+                    equation(nu, tidy_coefficient(g1 / A_lp)),
+                    equation(alpha, sp.factor(alpha_value) if not model.ramps else alpha_value),
                     *shown_deltas,
-                    _eq(
+                    equation(
                         Omega,
                         w0
                         * sp.sqrt(
@@ -523,8 +525,8 @@ def modified_lindstedt(
         )
 
     c1, s1 = first
-    cos_res = (c1 * _Lp.atom(nu)).to_sympy()  # nu A - ghat_1 + F cos(phi)
-    sin_res = (s1 * _Lp.atom(nu)).to_sympy()  # mu Omega A + F sin(phi)
+    cos_res = (c1 * LaurentPolynomial.atom(nu)).to_sympy()  # nu A - ghat_1 + F cos(phi)
+    sin_res = (s1 * LaurentPolynomial.atom(nu)).to_sympy()  # mu Omega A + F sin(phi)
     if order == 1:
         # first order: nu = Omega^2 - omega_0^2 exactly, alpha/nu = 1/Omega^2 (eq. (59))
         residuals = (sp.expand(cos_res.xreplace({nu: Omega**2 - w2})), sin_res)
@@ -536,11 +538,11 @@ def modified_lindstedt(
             -(F * cphi - f1 + W * A) / (2 * Omega * A),
         )
         steps.append(
-            _step(
+            derivation_step(
                 "First-order result",
                 (
-                    _eq(nu, Omega**2 - w2),
-                    *(_eq(r, 0) for r in residuals),
+                    equation(nu, Omega**2 - w2),
+                    *(equation(r, 0) for r in residuals),
                     shown_wave(tau + phi, {nu: Omega**2 - w2}),
                 ),
                 "At first order the squared forcing frequency is $\\omega_0^2 + \\nu$, so "
@@ -549,10 +551,10 @@ def modified_lindstedt(
             )
         )
         steps.append(
-            _step(
+            derivation_step(
                 "Frequency-amplitude equation and slow flow",
                 (
-                    _eq(
+                    equation(
                         sp.Add(
                             sp.Pow(_readable_difference(A, W, f1), 2, evaluate=False),
                             sp.Pow(sp.Mul(mu, Omega, A, evaluate=False), 2, evaluate=False),
@@ -560,9 +562,9 @@ def modified_lindstedt(
                         ),
                         F**2,
                     ),
-                    _eq(c2p * W**2 + c1p * W + c0p, 0),
-                    _eq(sp.Derivative(A, osc.t), slow_flow[0]),
-                    _eq(sp.Derivative(phi, osc.t), slow_flow[1]),
+                    equation(c2p * W**2 + c1p * W + c0p, 0),
+                    equation(sp.Derivative(A, osc.t), slow_flow[0]),
+                    equation(sp.Derivative(phi, osc.t), slow_flow[1]),
                 ),
                 "Squaring and adding the two conditions eliminates the phase; the result is "
                 "a quadratic in the squared frequency, with $f_1$ the first harmonic of the whole "
@@ -592,7 +594,8 @@ def modified_lindstedt(
     # the sine conditions summed into the phase equation
     nu_value = (g1_sym - F * cphi) / A
     phase_terms = [
-        beta ** (n - 1) * (sv * _Lp.atom(nu, n)).to_sympy() for n, sv in sorted(sines.items())
+        beta ** (n - 1) * (sv * LaurentPolynomial.atom(nu, n)).to_sympy()
+        for n, sv in sorted(sines.items())
     ]
     residuals = (
         ((w2 + nu) * freq_factor - Omega**2).xreplace({nu: nu_value}),
@@ -601,23 +604,23 @@ def modified_lindstedt(
     waveform = waveform_in(tau + phi).xreplace({nu: nu_value})
     S = {n: sp.Symbol(f"S_{n}") for n in sines}
     steps.append(
-        _step(
+        derivation_step(
             f"Order-{order} result",
             (
-                _eq(nu, nu_value),
-                _eq(alpha, nu / (w2 + nu)),
-                _eq(
+                equation(nu, nu_value),
+                equation(alpha, nu / (w2 + nu)),
+                equation(
                     Omega**2,
                     (w2 + nu) * (1 + sp.Add(*(deltas[n] * alpha**n for n in delta_val))),
                 ),
-                _eq(
+                equation(
                     sin_res + sp.Add(*(alpha ** (n - 1) * nu * S[n] for n in sorted(sines))),
                     0,
                 ),
                 *(
-                    _eq(S[n], _tidy(sv))
+                    equation(S[n], tidy_coefficient(sv))
                     for n, sv in sorted(sines.items())
-                    if _is_short(_tidy(sv), 30)
+                    if is_short(tidy_coefficient(sv), 30)
                 ),
                 shown_wave(tau + phi),
             ),
