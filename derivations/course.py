@@ -50,12 +50,13 @@ from perturb.methods import (  # noqa: E402
     modified_lindstedt,
     single_harmonic_balance,
 )
-from perturb.methods.harmonic_balance import backbone_series, solve_residuals  # noqa: E402
+from perturb.methods.harmonic_balance import backbone_series  # noqa: E402
 from perturb.methods.multiple_scales import modulation_equations, transition_curves  # noqa: E402
 from perturb.model.parsing import real_symbol  # noqa: E402
 from perturb.numeric.amplitude import (  # noqa: E402
     approximation_response as traced_response,
 )
+from perturb.numeric.balance import solve_residuals  # noqa: E402
 from perturb.numeric.stability import expm2  # noqa: E402
 from perturb.simulate.flows.base import ODEFlow  # noqa: E402
 from perturb.simulate.orbits.shooting import limit_cycle, periodic_orbit  # noqa: E402

@@ -26,12 +26,11 @@ from perturb.fourier.symbols import NUMERIC_IMPLEMENTATIONS
 from perturb.fourier.trig import harmonics
 from perturb.methods.harmonic_balance import (
     backbone_series,
-    balance_solutions,
     harmonic_balance,
     single_harmonic_balance,
-    solve_residuals,
 )
 from perturb.model.parsing import real_symbol
+from perturb.numeric.balance import balance_solutions, solve_residuals
 from perturb.report.latex import latex_document
 
 omega0, alpha2, alpha3 = (real_symbol(n) for n in ("omega0", "alpha2", "alpha3"))
