@@ -22,7 +22,6 @@ amplitude-parametrised solver, or the slow flow's Jacobian when the method gives
 from __future__ import annotations
 
 import dataclasses
-import inspect
 import math
 from collections.abc import Sequence
 
@@ -48,12 +47,8 @@ _STABILITY = ("hill", "slow_flow")
 
 # Each evaluation of compiled PWL residuals costs tens of milliseconds however few points it
 # gets, so the continuation should evaluate about once per point: the Hermite predictor with
-# early acceptance does (options of newer versions of continue_curve only).
-_FAST_CONTINUATION = (
-    {"predictor": "hermite", "early_accept": True}
-    if "early_accept" in inspect.signature(continue_curve).parameters
-    else {}
-)
+# early acceptance does.
+_FAST_CONTINUATION = {"predictor": "hermite", "early_accept": True}
 
 
 class ResidualSystem:
