@@ -16,10 +16,21 @@ import re
 import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from perturb.response import Response
+#: A :class:`~perturb.response.Response` (or anything with its ``branches``, ``method``,
+#: ``model`` and ``params``).  Not imported: ``Response.plot`` imports this module (the
+#: response layer's one upward import, listed in pyproject's ``ignore_imports``), and importing
+#: Response here would close a circle; figures recognise a response by its fields instead.
+Response = Any
+
+
+def _is_response(obj: object) -> bool:
+    """Whether ``obj`` is one response (not a sequence of them)."""
+    return hasattr(obj, "branches") and hasattr(obj, "method")
+
 
 __all__ = [
     "plot",
@@ -313,7 +324,7 @@ def plot(
 
     items: list[Response] = []
     for r in responses:
-        if isinstance(r, Response):
+        if _is_response(r):
             items.append(r)
         else:  # a list of responses passed as one argument
             items.extend(r)
@@ -387,7 +398,7 @@ def plot_frequency_response(
 
     The file is written atomically (:mod:`perturb.atomic`): complete or absent.
     """
-    items = [responses] if isinstance(responses, Response) else list(responses)
+    items = [responses] if _is_response(responses) else list(responses)
     ax = plot(*items, ax=ax, title=title, **options)
     fig = ax.figure
     if path is not None:
