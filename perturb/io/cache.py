@@ -8,10 +8,13 @@ An entry is JSON: one table of expression nodes shared by every field (the deriv
 repeat the same symbols and subexpressions thousands of times), each node a whitelisted
 constructor name with references to earlier nodes, or a literal leaf (symbol, number,
 constant). Reading it calls only those constructors, unevaluated, so a hit rebuilds exactly
-the trees the method returned in milliseconds — parsing ``srepr`` text
-(:mod:`perturb.io.serialize`) costs tenths of a second for a long derivation. An approximation
-whose rebuilt form would differ from it (an expression type the table does not know) is not
-stored.
+the trees the method returned in milliseconds — parsing ``srepr`` text costs tenths of a
+second for a long derivation. The codec is :mod:`perturb.io.serialize`'s
+(:func:`~perturb.io.serialize.approximation_to_table`,
+:func:`~perturb.io.serialize.approximation_from_table`, with the same closed vocabulary as
+its srepr reader); this module adds the cache key, the authentication and the files. An
+approximation whose rebuilt form would differ from it (an expression type the table does not
+know) is not stored.
 
 Trust
 -----
@@ -59,18 +62,19 @@ import stat
 import sys
 import tempfile
 import warnings
-from collections.abc import Callable, Mapping
-from fractions import Fraction
+from collections.abc import Callable
 from pathlib import Path
-from types import MappingProxyType
 from typing import Any
 
 import sympy as sp
-from sympy.core.function import AppliedUndef
-from sympy.printing.repr import mlib_to_str, repr_dps
 
-from perturb.approximation import Approximation, Step
-from perturb.io.serialize import CLASSES, CONSTANTS, FORMAT_VERSION, Vocabulary, check_plain
+from perturb.approximation import Approximation
+from perturb.io.serialize import (
+    FORMAT_VERSION,
+    UnsupportedExpression,
+    approximation_from_table,
+    approximation_to_table,
+)
 from perturb.model.oscillator import Oscillator
 
 __all__ = [
@@ -86,9 +90,7 @@ __all__ = [
 # 3 = authenticated (header line with an HMAC), read through serialize's vocabulary.
 _ENTRY_VERSION = 3
 _MAGIC = b"perturb-cache"
-_MAX_NODES = 2_000_000
 _MAX_BYTES = 512 * 2**20  # an entry larger than this is not read
-_MAX_TEXT = 100_000
 
 
 class CacheWarning(UserWarning):
@@ -295,184 +297,11 @@ def _open(raw: bytes, key: bytes, name: str) -> bytes:
     return body
 
 
-# ------------------------------------------------------------------------ expression table --
-class _Unsupported(Exception):
-    """An expression the table cannot rebuild exactly: the approximation is not stored."""
-
-
-def _assumptions(d: Mapping[str, Any]) -> dict[str, bool]:
-    if not all(isinstance(k, str) and isinstance(v, bool) for k, v in d.items()):
-        raise _Unsupported(f"assumptions {d!r}")
-    return dict(d)
-
-
-class _Writer:
-    def __init__(self) -> None:
-        self.nodes: list[list] = []
-        self.index: dict[tuple, int] = {}
-
-    def ref(self, e: Any) -> int:
-        if not isinstance(e, sp.Basic):
-            raise _Unsupported(f"{type(e).__name__} {e!r} is not a SymPy expression")
-        # a Float equals another of a different precision; the type keeps 1 apart from 1.0
-        key = (type(e), e, e._prec) if isinstance(e, sp.Float) else (type(e), e)
-        i = self.index.get(key)
-        if i is None:
-            node = self._node(e)
-            self.nodes.append(node)
-            i = self.index[key] = len(self.nodes) - 1
-        return i
-
-    def refs(self, items: Any) -> list[int] | None:
-        return None if items is None else [self.ref(e) for e in items]
-
-    def _node(self, e: sp.Basic) -> list:
-        if type(e) is sp.Symbol:
-            return ["sym", e.name, _assumptions(e._assumptions_orig)]
-        if type(e) is sp.Dummy:
-            return ["dummy", e.name, e.dummy_index, _assumptions(e._assumptions_orig)]
-        if isinstance(e, sp.Integer):
-            return ["int", int(e)]
-        if isinstance(e, sp.Rational):
-            return ["rat", int(e.p), int(e.q)]
-        if isinstance(e, sp.Float):
-            return ["float", mlib_to_str(e._mpf_, repr_dps(e._prec)), int(e._prec)]
-        name = type(e).__name__
-        if CONSTANTS.get(name) is e:
-            return ["const", name]
-        if isinstance(e, AppliedUndef):
-            f = type(e)
-            return ["fn", f.__name__, _assumptions(f._kwargs), *(self.ref(a) for a in e.args)]
-        if type(e) is sp.ImmutableDenseMatrix:
-            return ["matrix", e.rows, e.cols, *(self.ref(a) for a in e)]
-        if name not in CLASSES or CLASSES[name][0] is not type(e):
-            raise _Unsupported(f"expression type {name}")
-        return [name, *(self.ref(a) for a in e.args)]
-
-
-def _literal(value: Any, kind: type, limit: int = 200) -> Any:
-    if type(value) is not kind or (kind is str and len(value) > limit):
-        raise ValueError(f"unexpected {str(value)[:80]!r}")
-    return value
-
-
-_CONSTRUCTORS = {name: ctor for name, (_, ctor) in CLASSES.items()}
-
-
-def _read_nodes(nodes: Any, vocab: Vocabulary) -> list[sp.Basic]:
-    """The node table rebuilt; each node checked against ``vocab`` before it is built."""
-    if not isinstance(nodes, list) or len(nodes) > _MAX_NODES:
-        raise ValueError("no node table")
-    built: list[sp.Basic] = []
-    n_built = 0
-
-    def refs(items: list) -> list[sp.Basic]:
-        out = []
-        for i in items:
-            if type(i) is not int or not 0 <= i < n_built:
-                raise ValueError(f"bad reference {str(i)[:40]!r}")
-            out.append(built[i])
-        return out
-
-    for node in nodes:
-        if type(node) is not list or not node or type(node[0]) is not str:
-            raise ValueError(f"bad node {str(node)[:80]!r}")
-        tag, rest = node[0], node[1:]
-        ctor = _CONSTRUCTORS.get(tag)
-        if ctor is not None:  # most nodes: a whitelisted class of built arguments
-            args = refs(rest)
-            if tag == "Pow" and len(args) == 2:
-                vocab.power(*args)
-            e = ctor(args)
-        elif tag == "sym":
-            name, kw = rest
-            e = vocab.symbol(name, kw)
-        elif tag == "dummy":
-            name, index, kw = rest
-            e = vocab.dummy(name, index, kw)
-        elif tag == "int":
-            (value,) = rest
-            e = vocab.integer(value)
-        elif tag == "rat":
-            p, q = rest
-            e = vocab.rational(p, q)
-        elif tag == "float":
-            text, prec = rest
-            e = vocab.float(text, prec)
-        elif tag == "const":
-            (name,) = rest
-            e = vocab.constant(name)
-        elif tag == "fn":
-            name, kw, *args = rest
-            e = vocab.function(name, kw)(*refs(args))
-        elif tag == "matrix":
-            rows, cols, *items = rest
-            e = vocab.matrix(rows, cols, refs(items))
-        else:
-            raise ValueError(f"constructor {tag[:80]!r} is not allowed")
-        built.append(e)
-        n_built += 1
-    return built
-
-
-# JSON has no SymPy values (L-P stores omega0 as a symbol) and no tuples (harmonic balance's
-# harmonic set): tagged, so that a cached approximation's options equal a fresh one's.
-def _encode_option(value: Any, table: _Writer) -> Any:
-    if isinstance(value, sp.Basic):
-        return {"expr": table.ref(value)}
-    if isinstance(value, tuple):
-        return {"tuple": [_encode_option(v, table) for v in value]}
-    if isinstance(value, Fraction):
-        return {"fraction": [value.numerator, value.denominator]}
-    if isinstance(value, list):
-        return [_encode_option(v, table) for v in value]
-    if value is None or isinstance(value, bool | int | float | str):
-        return value
-    raise _Unsupported(f"option value {value!r}")
-
-
-def _decode_option(value: Any, built: list[sp.Basic], vocab: Vocabulary, depth: int = 0) -> Any:
-    if depth > 20:
-        raise ValueError("option nested too deeply")
-    if isinstance(value, dict) and len(value) == 1:
-        ((tag, body),) = value.items()
-        if tag == "expr":
-            if type(body) is not int or not 0 <= body < len(built):
-                raise ValueError(f"bad reference {str(body)[:40]!r}")
-            return built[body]
-        if tag == "tuple":
-            return tuple(_decode_option(v, built, vocab, depth + 1) for v in _literal(body, list))
-        if tag == "fraction":
-            p, q = _literal(body, list)
-            if vocab.integer_value(q) <= 0:
-                raise ValueError(f"fraction {p!r}/{q!r}")
-            return Fraction(vocab.integer_value(p), q)
-    if isinstance(value, list):
-        return [_decode_option(v, built, vocab, depth + 1) for v in value]
-    return check_plain(value, vocab, "option")
-
-
-_SINGLE = ("waveform", "tau", "frequency", "amplitude", "backbone")
-_SEVERAL = ("unknowns", "residuals", "slow_flow", "frequency_polynomial", "phase_from")
-
-
+# ------------------------------------------------------------------------------ entries --
 def _entry(approx: Approximation) -> dict[str, Any]:
-    table = _Writer()
-    fields: dict[str, Any] = {
-        name: None if getattr(approx, name) is None else table.ref(getattr(approx, name))
-        for name in _SINGLE
-    }
-    fields.update({name: table.refs(getattr(approx, name)) for name in _SEVERAL})
-    return {
-        "format": FORMAT_VERSION,
-        "entry": _ENTRY_VERSION,
-        "method": approx.method,
-        "options": {k: _encode_option(v, table) for k, v in approx.options.items()},
-        **fields,
-        "fourier": {k: table.ref(v) for k, v in approx.fourier.items()},
-        "steps": [[s.title, s.text, table.refs(s.math)] for s in approx.steps],
-        "nodes": table.nodes,
-    }
+    """The entry body: the node-table description of :mod:`perturb.io.serialize` and the
+    layout version (the HMAC covers both)."""
+    return {**approximation_to_table(approx), "entry": _ENTRY_VERSION}
 
 
 def _approximation(data: Any, osc: Oscillator, where: str = "cache entry") -> Approximation:
@@ -480,47 +309,7 @@ def _approximation(data: Any, osc: Oscillator, where: str = "cache entry") -> Ap
     for a malformed entry, ``KeyError``/``TypeError``) for anything outside the vocabulary."""
     if not isinstance(data, dict) or data.get("entry") != _ENTRY_VERSION:
         raise ValueError("an entry of another layout")
-    vocab = Vocabulary.for_oscillator(osc, where)
-    built = _read_nodes(data["nodes"], vocab)
-
-    def at(i: Any) -> sp.Basic:
-        if type(i) is not int or not 0 <= i < len(built):
-            raise ValueError(f"bad reference {str(i)[:40]!r}")
-        return built[i]
-
-    def one(i: Any) -> sp.Basic | None:
-        return None if i is None else at(i)
-
-    def several(items: Any) -> tuple[sp.Basic, ...] | None:
-        return None if items is None else tuple(at(i) for i in _literal(items, list))
-
-    return Approximation(
-        oscillator=osc,
-        method=_literal(data["method"], str),
-        options=MappingProxyType(
-            {
-                _literal(k, str): _decode_option(v, built, vocab)
-                for k, v in _literal(data["options"], dict).items()
-            }
-        ),
-        unknowns=several(data["unknowns"]) or (),
-        residuals=several(data["residuals"]) or (),
-        slow_flow=several(data["slow_flow"]),
-        frequency_polynomial=several(data["frequency_polynomial"]),
-        phase_from=several(data["phase_from"]),
-        fourier=MappingProxyType(
-            {_literal(k, str): one(i) for k, i in _literal(data["fourier"], dict).items()}
-        ),
-        steps=tuple(
-            Step(
-                _literal(title, str, _MAX_TEXT),
-                tuple(at(i) for i in _literal(math, list)),
-                _literal(text, str, _MAX_TEXT),
-            )
-            for title, text, math in _literal(data["steps"], list)
-        ),
-        **{name: one(data[name]) for name in _SINGLE},
-    )
+    return approximation_from_table(data, osc, where)
 
 
 def _no_constant(name: str) -> Any:
@@ -610,7 +399,7 @@ def cached_derivation(
                 with contextlib.suppress(OSError):
                     os.unlink(fh.name)
                 raise
-    except (OSError, ValueError, TypeError, KeyError, RecursionError, _Unsupported):
+    except (OSError, ValueError, TypeError, KeyError, RecursionError, UnsupportedExpression):
         # a read-only or full disk, or an expression outside the table, costs only time
         # (ParseError, an expression outside the vocabulary, is a ValueError)
         pass
