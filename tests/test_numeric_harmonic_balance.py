@@ -753,3 +753,35 @@ def test_bad_input_raises_clear_errors():
     with pytest.raises(ModelError, match="no harmonic forcing"):
         harmonic_balance_orbit(builtin_model("vanderpol"), 1.0)
     assert isinstance(harmonic_balance_orbit(nsd(), 0.6, harmonics=3), HarmonicBalanceSolution)
+
+
+def test_options_object_and_keywords_are_one_configuration():
+    """The tuning knobs as a HarmonicBalanceOptions or as keywords give the same branch; a
+    keyword replaces the object's field; an unknown knob (or one the single-branch tracer does
+    not use) is refused by name instead of being ignored."""
+    from dataclasses import FrozenInstanceError
+
+    from perturb.numeric.harmonic_balance import HarmonicBalanceOptions, harmonic_balance_branch
+
+    osc = builtin_model("duffing")
+    window = (0.8, 1.6)
+    by_keywords = harmonic_balance_branch(osc, window, harmonics=3, ds_max=0.08)
+    opts = HarmonicBalanceOptions(harmonics=3, ds_max=0.08)
+    by_object = harmonic_balance_branch(osc, window, opts)
+    overridden = harmonic_balance_branch(
+        osc, window, HarmonicBalanceOptions(harmonics=7), harmonics=3, ds_max=0.08
+    )
+    for other in (by_object, overridden):
+        assert np.array_equal(other.omega, by_keywords.omega)
+        assert np.array_equal(other.coefficients, by_keywords.coefficients)
+    # a coarser step gives fewer points: the knob is really used
+    coarse = harmonic_balance_branch(osc, window, opts, ds_max=0.3)
+    assert len(coarse.omega) < len(by_keywords.omega)
+    with pytest.raises(FrozenInstanceError):
+        opts.harmonics = 5  # type: ignore[misc]
+    with pytest.raises(ParameterError, match="harmonic"):
+        harmonic_balance_branch(osc, window, harmonic=3)
+    with pytest.raises(ParameterError, match="mirror"):
+        harmonic_balance_branch(osc, window, mirror=False)
+    with pytest.raises(ParameterError, match="HarmonicBalanceOptions"):
+        harmonic_balance_branch(osc, window, {"harmonics": 3})

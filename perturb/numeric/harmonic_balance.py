@@ -196,6 +196,7 @@ __all__ = [
     "HarmonicBalanceSystem",
     "HarmonicBalanceSolution",
     "HarmonicBalanceBranch",
+    "HarmonicBalanceOptions",
     "harmonic_balance_orbit",
     "harmonic_balance_branch",
     "harmonic_balance_branches",
@@ -211,6 +212,92 @@ Stability = Literal["hill", "hill_full", "none"]
 SeedFunction = Callable[
     ["HarmonicBalanceSystem", tuple[float, float], int], Sequence[tuple[float, np.ndarray]]
 ]
+
+
+@dataclass(frozen=True)
+class HarmonicBalanceOptions:
+    """Tuning knobs of numeric harmonic balance (:func:`harmonic_balance_branch`,
+    :func:`harmonic_balance_branches`, :func:`harmonic_balance_response`).
+
+    Each function also takes the fields as keyword arguments (they replace the fields of
+    ``options``); a function uses the fields it needs (the last four only
+    :func:`harmonic_balance_branches`, and :func:`harmonic_balance_response` with
+    ``all_branches``). Values are checked by the functions (a
+    :class:`~perturb.errors.ParameterError` names a bad one).
+
+    Attributes
+    ----------
+    harmonics, m, odd_only, projection, samples
+        The balanced system: see :class:`HarmonicBalanceSystem`.
+    stability : {'hill', 'hill_full', 'none'}
+        Hill stability at every point: the fast path of the module docstring (PWL forces;
+        the full eigenproblem otherwise), always the full eigenproblem, or none
+        (``max_multiplier`` NaN in the branch, -1 in the response).
+    ds_max : float
+        Largest continuation step, in units where the window width and the current
+        solution's largest coefficient are 1: the output spacing.
+    max_points : int
+        Points per continuation run at most.
+    tol : float
+        Newton tolerance (scaled).
+    seeds_per_branch : int
+        Passed to the ``seeds`` function of :func:`harmonic_balance_branches`: guesses per
+        branch of the approximation.
+    branch_points : bool
+        Locate branch points and switch branches there (stage 3 of
+        :func:`harmonic_balance_branches`).
+    mirror : bool
+        Add mirror images for odd systems (stage 4).
+    max_branches : int
+        Stop looking for more branches once this many are found.
+    """
+
+    harmonics: int = 15
+    m: int = 1
+    odd_only: bool = False
+    projection: Projection = "auto"
+    samples: int | None = None
+    stability: Stability = "hill"
+    ds_max: float = 0.05
+    max_points: int = 5000
+    tol: float = 1e-10
+    seeds_per_branch: int = 3
+    branch_points: bool = True
+    mirror: bool = True
+    max_branches: int = 40
+
+
+#: The fields of :class:`HarmonicBalanceOptions` that shape one branch (the rest choose which
+#: branches :func:`harmonic_balance_branches` looks for).
+_BRANCH_FIELDS = frozenset(
+    ("harmonics", "m", "odd_only", "projection", "samples", "stability", "ds_max")
+    + ("max_points", "tol")
+)
+_ALL_FIELDS = frozenset(HarmonicBalanceOptions.__dataclass_fields__)
+
+
+def _options(
+    options: HarmonicBalanceOptions | None,
+    knobs: dict[str, Any],
+    allowed: frozenset[str],
+    where: str,
+) -> HarmonicBalanceOptions:
+    """``options`` (default: the defaults) with the keyword arguments ``knobs`` of ``where``
+    in place of its fields; only the fields ``allowed`` may be given as keywords."""
+    if options is None:
+        options = HarmonicBalanceOptions()
+    elif not isinstance(options, HarmonicBalanceOptions):
+        raise ParameterError(
+            f"{where}: options = {options!r}: expected a HarmonicBalanceOptions (or keywords)"
+        )
+    unknown = sorted(set(knobs) - allowed)
+    if unknown:
+        raise ParameterError(
+            f"{where}: unknown option(s) {', '.join(unknown)}; "
+            f"expected {', '.join(sorted(allowed))}"
+        )
+    return replace(options, **knobs) if knobs else options
+
 
 #: Grid intervals per highest harmonic for the isolation of crossings.
 _GRID_PER_HARMONIC = 4
@@ -2041,18 +2128,11 @@ def _check_window(window: Sequence[float]) -> tuple[float, float]:
 def harmonic_balance_branch(
     oscillator: Oscillator,
     Omega_window: Sequence[float],
+    options: HarmonicBalanceOptions | None = None,
     *,
-    harmonics: int = 15,
-    m: int = 1,
-    odd_only: bool = False,
-    projection: Projection = "auto",
-    samples: int | None = None,
-    stability: Stability = "hill",
     start: ArrayLike | HarmonicBalanceSolution | None = None,
     direction: int = -1,
-    ds_max: float = 0.05,
-    max_points: int = 5000,
-    tol: float = 1e-10,
+    **knobs: Any,
 ) -> HarmonicBalanceBranch:
     """Continue harmonic-balance solutions through a frequency window.
 
@@ -2072,22 +2152,17 @@ def harmonic_balance_branch(
     oscillator : Oscillator
     Omega_window : (float, float)
         ``0 < low < high``.
-    harmonics, m, odd_only, projection, samples
-        See :class:`HarmonicBalanceSystem`.
-    stability : {'hill', 'hill_full', 'none'}
-        Hill stability at every point: the fast path of the module docstring (PWL forces;
-        the full eigenproblem otherwise), always the full eigenproblem, or none
-        (``max_multiplier`` NaN in the branch, -1 in the response).
+    options : HarmonicBalanceOptions, optional
+        The tuning knobs (``harmonics``, ``stability``, ``ds_max``, ...; default: the
+        defaults); those of one branch only, the branch-search fields are not used here.
     start : array_like or HarmonicBalanceSolution, optional
         Coefficients of a solution (or a guess, corrected by Newton) at the starting end.
     direction : {-1, 1}
         Start at the high end going down (-1) or at the low end going up (1).
-    ds_max : float
-        Largest continuation step, in units where the window width and the current
-        solution's largest coefficient are 1: the output spacing.
-    max_points : int
-    tol : float
-        Newton tolerance (scaled).
+    **knobs
+        Fields of :class:`HarmonicBalanceOptions` that shape one branch (``harmonics``, ``m``,
+        ``odd_only``, ``projection``, ``samples``, ``stability``, ``ds_max``,
+        ``max_points``, ``tol``), replacing those of ``options``.
 
     Returns
     -------
@@ -2100,6 +2175,15 @@ def harmonic_balance_branch(
     PerturbError
         When no starting solution is found.
     """
+    o = _options(options, knobs, _BRANCH_FIELDS, "harmonic_balance_branch")
+    harmonics, m, odd_only, projection, samples = (
+        o.harmonics,
+        o.m,
+        o.odd_only,
+        o.projection,
+        o.samples,
+    )
+    stability, ds_max, max_points, tol = o.stability, o.ds_max, o.max_points, o.tol
     lo, hi = _check_window(Omega_window)
     system = HarmonicBalanceSystem(
         oscillator,
@@ -2424,23 +2508,12 @@ _BRANCH_OFF_STEP = 1.0
 def harmonic_balance_branches(
     oscillator: Oscillator,
     Omega_window: Sequence[float],
+    options: HarmonicBalanceOptions | None = None,
     *,
-    harmonics: int = 15,
-    m: int = 1,
-    odd_only: bool = False,
-    projection: Projection = "auto",
-    samples: int | None = None,
-    stability: Stability = "hill",
     start: ArrayLike | HarmonicBalanceSolution | None = None,
     direction: int = -1,
-    ds_max: float = 0.05,
-    max_points: int = 5000,
-    tol: float = 1e-10,
     seeds: SeedFunction | None = None,
-    seeds_per_branch: int = 3,
-    branch_points: bool = True,
-    mirror: bool = True,
-    max_branches: int = 40,
+    **knobs: Any,
 ) -> tuple[HarmonicBalanceBranch, ...]:
     """Every harmonic-balance branch that continuation reaches from the automatic start, from
     seeds, and by branch switching.
@@ -2488,24 +2561,20 @@ def harmonic_balance_branches(
 
     Parameters
     ----------
-    oscillator, Omega_window, harmonics, m, odd_only, projection, samples, stability
+    oscillator, Omega_window
         See :func:`harmonic_balance_branch`.
-    start, direction, ds_max, max_points, tol
-        See :func:`harmonic_balance_branch` (``start`` and ``direction`` for the first branch
-        only).
+    options : HarmonicBalanceOptions, optional
+        The tuning knobs, the branch-search fields (``seeds_per_branch``,
+        ``branch_points``, ``mirror``, ``max_branches``) included.
+    start, direction
+        See :func:`harmonic_balance_branch` (for the first branch only).
     seeds : callable, optional
         ``seeds(system, window, per_branch)`` returning starting guesses ``(Omega, u)``
         (coefficient vectors of ``system``), e.g. :func:`perturb.seeds.single_harmonic_seeds`
         (an approximation's branches).  They only start Newton on this system's residual.
         Default: none (the linear-segment and equilibrium seeds only).
-    seeds_per_branch : int
-        Passed to ``seeds``: guesses per branch of the approximation.
-    branch_points : bool
-        Locate branch points and switch branches there (stage 3).
-    mirror : bool
-        Add mirror images for odd systems (stage 4).
-    max_branches : int
-        Stop looking for more branches once this many are found.
+    **knobs
+        Any field of :class:`HarmonicBalanceOptions`, replacing that of ``options``.
 
     Returns
     -------
@@ -2520,6 +2589,21 @@ def harmonic_balance_branches(
     PerturbError
         When no starting solution is found for the first branch.
     """
+    o = _options(options, knobs, _ALL_FIELDS, "harmonic_balance_branches")
+    harmonics, m, odd_only, projection, samples = (
+        o.harmonics,
+        o.m,
+        o.odd_only,
+        o.projection,
+        o.samples,
+    )
+    stability, ds_max, max_points, tol = o.stability, o.ds_max, o.max_points, o.tol
+    seeds_per_branch, branch_points, mirror, max_branches = (
+        o.seeds_per_branch,
+        o.branch_points,
+        o.mirror,
+        o.max_branches,
+    )
     for name, value, least in (
         ("seeds_per_branch", seeds_per_branch, 1),
         ("max_branches", max_branches, 1),
@@ -2698,20 +2782,13 @@ def harmonic_balance_branch_through(
 def harmonic_balance_response(
     oscillator: Oscillator,
     Omega_window: Sequence[float],
+    options: HarmonicBalanceOptions | None = None,
     *,
-    harmonics: int = 15,
-    m: int = 1,
-    odd_only: bool = False,
-    projection: Projection = "auto",
-    samples: int | None = None,
-    stability: Stability = "hill",
     start: ArrayLike | HarmonicBalanceSolution | None = None,
     direction: int = -1,
-    ds_max: float = 0.05,
-    max_points: int = 5000,
-    tol: float = 1e-10,
     all_branches: bool = False,
     seeds: SeedFunction | None = None,
+    **knobs: Any,
 ) -> Response:
     """Frequency response by numeric harmonic balance as a :class:`~perturb.response.Response`.
 
@@ -2728,22 +2805,19 @@ def harmonic_balance_response(
     branch-point test function (see there); the branch points are listed in ``notes``
     (:class:`~perturb.response.Response` has no field for them). Otherwise the connected
     branch only, traced without branch-point detection.
+
+    ``options`` (:class:`HarmonicBalanceOptions`) and ``**knobs`` (its fields as keywords)
+    as for :func:`harmonic_balance_branches`; the branch-search fields only matter with
+    ``all_branches``.
     """
+    o = _options(options, knobs, _ALL_FIELDS, "harmonic_balance_response")
     if all_branches:
         found = harmonic_balance_branches(
             oscillator,
             Omega_window,
-            harmonics=harmonics,
-            m=m,
-            odd_only=odd_only,
-            projection=projection,
-            samples=samples,
-            stability=stability,
+            o,
             start=start,
             direction=direction,
-            ds_max=ds_max,
-            max_points=max_points,
-            tol=tol,
             seeds=seeds,
         )
         first = found[0]
@@ -2772,17 +2846,5 @@ def harmonic_balance_response(
             notes=notes,
         )
     return harmonic_balance_branch(
-        oscillator,
-        Omega_window,
-        harmonics=harmonics,
-        m=m,
-        odd_only=odd_only,
-        projection=projection,
-        samples=samples,
-        stability=stability,
-        start=start,
-        direction=direction,
-        ds_max=ds_max,
-        max_points=max_points,
-        tol=tol,
+        oscillator, Omega_window, o, start=start, direction=direction
     ).to_response()
