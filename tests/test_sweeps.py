@@ -527,3 +527,37 @@ def test_unbounded_response_raises():
     osc = Oscillator.parse("x'' + 0.1*x' - x = F*cos(Omega*t)", {"F": 1.0, "Omega": 1.0})
     with pytest.raises(PerturbError):
         frequency_sweep(osc, [1.0], transient_periods=400, **QUIET)
+
+
+def test_options_objects_equal_their_keywords():
+    """The tuning knobs of basins and frequency_sweep as a frozen options object or as
+    keywords are one configuration (a keyword replaces the object's field); a misspelt knob
+    is refused by name, not ignored."""
+    from perturb.simulate.studies import BasinOptions, BifurcationOptions, SweepOptions
+
+    osc = builtin_model("nsd", k=-2, mu=0.1, F=0.0, Omega=1.0)
+    by_keywords = basins(osc, (-5, 5), (-4, 4), 8, max_periods=300, progress=False)
+    opts = BasinOptions(max_periods=300, progress=False)
+    by_object = basins(osc, (-5, 5), (-4, 4), 8, opts)
+    overridden = basins(
+        osc, (-5, 5), (-4, 4), 8, BasinOptions(max_periods=5), max_periods=300, progress=False
+    )
+    for other in (by_object, overridden):
+        np.testing.assert_array_equal(other.labels, by_keywords.labels)
+    # too short to settle: every orbit unresolved, so max_periods really reaches the solver
+    short = basins(osc, (-5, 5), (-4, 4), 8, opts, max_periods=1, check_every=1, refine=False)
+    assert np.all(short.labels == -1)
+    w = [0.8, 1.0]
+    a = frequency_sweep(
+        linear(0.2), w, SweepOptions(tol=None, transient_periods=50, progress=False)
+    )
+    b = frequency_sweep(linear(0.2), w, tol=None, transient_periods=50, progress=False)
+    np.testing.assert_array_equal(a.up.amplitude, b.up.amplitude)
+    with pytest.raises(ParameterError, match="max_period_s"):
+        basins(osc, (-5, 5), (-4, 4), 8, max_period_s=3)
+    with pytest.raises(ParameterError, match="SweepOptions"):
+        frequency_sweep(linear(0.2), w, BasinOptions())
+    with pytest.raises(ParameterError, match="phases"):
+        bifurcation_diagram(osc, "F", [0.0], BifurcationOptions(progress=False), phases=0.5)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        opts.tol = 1.0  # type: ignore[misc]

@@ -51,7 +51,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Any, Literal
 
@@ -66,6 +66,9 @@ from perturb.simulate.flows.base import Flow, FlowResult, ODEFlow
 from perturb.simulate.flows.system import first_order_rhs, frequency_symbol
 
 __all__ = [
+    "BasinOptions",
+    "BifurcationOptions",
+    "SweepOptions",
     "make_flow",
     "SteadyState",
     "SweepBranch",
@@ -84,6 +87,135 @@ __all__ = [
 
 FlowMethod = Literal["auto", "exact", "ode"]
 Direction = Literal["up", "down", "both"]
+
+
+# ------------------------------------------------------------------------------ options --
+@dataclass(frozen=True)
+class SweepOptions:
+    """Tuning knobs of :func:`frequency_sweep` (also accepted as its keyword arguments).
+
+    Attributes
+    ----------
+    transient_periods
+        Largest number of forcing periods discarded per frequency.
+    record_periods
+        Periods recorded after the transient (amplitude, FFT, Poincaré points).
+    tol
+        Periodicity tolerance ending the transient (``None``: always integrate
+        ``transient_periods``); the period is then detected with ``4 tol``, or ``1e-6`` when
+        ``tol`` is None.
+    max_period
+        Largest period (in forcing periods) looked for.
+    samples_per_period
+        Samples per forcing period in the record (``>= 16``).
+    multipliers
+        Compute ``max_multiplier`` from the flow's sensitivity over the orbit period (costs
+        ``m`` periods with sensitivity per frequency); otherwise estimate it from the decay
+        of the transient.
+    method, rtol, atol
+        Flow selection and ODE tolerances (:func:`make_flow`).
+    progress
+        Show a :class:`~perturb.progress.Progress` line (default: on unless
+        ``PERTURB_PROGRESS=0``).
+    """
+
+    transient_periods: int = 400
+    record_periods: int = 8
+    tol: float | None = 1e-8
+    max_period: int = 8
+    samples_per_period: int = 128
+    multipliers: bool = True
+    method: FlowMethod = "auto"
+    rtol: float = 1e-10
+    atol: float = 1e-12
+    progress: bool | None = None
+
+
+@dataclass(frozen=True)
+class BifurcationOptions:
+    r"""Tuning knobs of :func:`bifurcation_diagram` (also accepted as its keyword arguments).
+
+    Attributes
+    ----------
+    transient_periods, record_periods, tol, max_period
+        As in :class:`SweepOptions` (``tol`` ends transients early).
+    phase
+        Section phase :math:`\varphi \in [0, 1)`; runs keep the forcing phase continuous
+        from one value to the next by starting each value at :math:`t = \varphi T`.
+    continuation
+        ``False``: restart every value from the initial conditions.
+    method, rtol, atol, progress
+        Flow selection and ODE tolerances; progress line.
+    """
+
+    transient_periods: int = 400
+    record_periods: int = 32
+    phase: float = 0.0
+    tol: float | None = 1e-9
+    max_period: int = 8
+    continuation: bool = True
+    method: FlowMethod = "auto"
+    rtol: float = 1e-10
+    atol: float = 1e-12
+    progress: bool | None = None
+
+
+@dataclass(frozen=True)
+class BasinOptions:
+    """Tuning knobs of :func:`basins` (also accepted as its keyword arguments).
+
+    Attributes
+    ----------
+    max_periods
+        Periods after which unsettled orbits are labelled ``-1``.
+    check_every
+        Periods per round.
+    tol, match_tol
+        Periodicity tolerance; attractor matching tolerance (both relative to
+        ``1 + max|y|``).
+    max_period
+        Largest attractor period looked for.
+    steps_per_period
+        RK4 steps per period (vectorised mode).
+    escape_radius
+        Orbits with ``max(|x|, |x'|)`` above it are labelled ``-2``.
+    vectorised
+        ``False``: integrate each initial condition with the accurate flow (exact for PWL
+        models with the exact flow; slow).
+    refine, method, progress
+        Refinement of the attractors with the accurate flow; flow selection; progress line.
+    """
+
+    max_periods: int = 600
+    check_every: int = 10
+    tol: float = 1e-7
+    match_tol: float = 1e-3
+    max_period: int = 4
+    steps_per_period: int = 128
+    escape_radius: float = 1e6
+    vectorised: bool = True
+    refine: bool = True
+    method: FlowMethod = "auto"
+    progress: bool | None = None
+
+
+def _options(cls: type, options: Any, knobs: dict[str, Any], where: str) -> Any:
+    """``options`` (default: ``cls()``) with the keyword arguments ``knobs`` of ``where`` in
+    place of its fields; a keyword that is no field of ``cls`` is refused by name."""
+    if options is None:
+        options = cls()
+    elif not isinstance(options, cls):
+        raise ParameterError(
+            f"{where}: options = {options!r}: expected a {cls.__name__} (or its fields as keywords)"
+        )
+    fields = cls.__dataclass_fields__
+    unknown = sorted(set(knobs) - set(fields))
+    if unknown:
+        raise ParameterError(
+            f"{where}: unknown option(s) {', '.join(unknown)}; expected {', '.join(fields)}"
+        )
+    return replace(options, **knobs) if knobs else options
+
 
 _TWO_PI = 2.0 * math.pi
 #: label of an initial condition whose orbit did not settle within the allowed time
@@ -774,19 +906,11 @@ def _check_common(
 def frequency_sweep(
     osc: Oscillator,
     omegas: ArrayLike,
+    options: SweepOptions | None = None,
     *,
     direction: Direction = "up",
-    transient_periods: int = 400,
-    record_periods: int = 8,
     y0: ArrayLike | None = None,
-    tol: float | None = 1e-8,
-    max_period: int = 8,
-    samples_per_period: int = 128,
-    multipliers: bool = True,
-    method: FlowMethod = "auto",
-    rtol: float = 1e-10,
-    atol: float = 1e-12,
-    progress: bool | None = None,
+    **knobs: Any,
 ) -> SweepResult:
     r"""Stepped-sine sweep: the steady response at each :math:`\Omega`, continued in order.
 
@@ -804,31 +928,15 @@ def frequency_sweep(
         Oscillator forced at one frequency parameter (e.g. ``Omega``), all other parameters set.
     omegas
         Frequencies (positive); sorted ascending for ``"up"``, descending for ``"down"``.
+    options
+        The tuning knobs (:class:`SweepOptions`: transient and record lengths, periodicity
+        tolerance, multipliers, flow method and tolerances, progress line).
     direction
         ``"up"``, ``"down"`` or ``"both"``.
-    transient_periods
-        Largest number of forcing periods discarded per frequency.
-    record_periods
-        Periods recorded after the transient (amplitude, FFT, Poincaré points).
     y0
         Initial state ``(x, x')`` at ``t = 0`` of the first frequency (default rest).
-    tol
-        Periodicity tolerance ending the transient (``None``: always integrate
-        ``transient_periods``); the period is then detected with ``4 tol``, or ``1e-6`` when
-        ``tol`` is None.
-    max_period
-        Largest period (in forcing periods) looked for.
-    samples_per_period
-        Samples per forcing period in the record (``>= 16``).
-    multipliers
-        Compute ``max_multiplier`` from the flow's sensitivity over the orbit period (costs
-        ``m`` periods with sensitivity per frequency); otherwise estimate it from the decay
-        of the transient.
-    method, rtol, atol
-        Flow selection and ODE tolerances (:func:`make_flow`).
-    progress
-        Show a :class:`~perturb.progress.Progress` line (default: on unless
-        ``PERTURB_PROGRESS=0``).
+    **knobs
+        Fields of :class:`SweepOptions` as keywords, replacing those of ``options``.
 
     Returns
     -------
@@ -850,6 +958,15 @@ def frequency_sweep(
     plus the flow's error; for the linear oscillator the transient left after :math:`t` is
     :math:`\propto e^{-\mu t/2}`.
     """
+    o = _options(SweepOptions, options, knobs, "frequency_sweep")
+    transient_periods, record_periods, tol, max_period = (
+        o.transient_periods,
+        o.record_periods,
+        o.tol,
+        o.max_period,
+    )
+    samples_per_period, multipliers, progress = o.samples_per_period, o.multipliers, o.progress
+    method, rtol, atol = o.method, o.rtol, o.atol
     if not isinstance(osc, Oscillator):
         raise ParameterError(f"osc = {osc!r}: expected an Oscillator")
     if direction not in ("up", "down", "both"):
@@ -1103,19 +1220,11 @@ def bifurcation_diagram(
     osc: Oscillator,
     parameter: str,
     values: ArrayLike,
+    options: BifurcationOptions | None = None,
     *,
     y0: ArrayLike | None = None,
     initial_conditions: ArrayLike | None = None,
-    transient_periods: int = 400,
-    record_periods: int = 32,
-    phase: float = 0.0,
-    tol: float | None = 1e-9,
-    max_period: int = 8,
-    continuation: bool = True,
-    method: FlowMethod = "auto",
-    rtol: float = 1e-10,
-    atol: float = 1e-12,
-    progress: bool | None = None,
+    **knobs: Any,
 ) -> BifurcationDiagram:
     r"""Stroboscopic :math:`x` of the attractors against any parameter.
 
@@ -1133,18 +1242,23 @@ def bifurcation_diagram(
         Oscillator; ``parameter`` must be one of its parameters (``Omega`` included).
     parameter, values
         The parameter varied and its values (visited in the given order).
+    options
+        The tuning knobs (:class:`BifurcationOptions`: transient and record lengths,
+        section phase, continuation, flow method and tolerances, progress line).
     y0, initial_conditions
         One initial state, or an array (n_runs, 2) of them, at ``t = 0`` (default rest).
-    transient_periods, record_periods, tol, max_period
-        As in :func:`frequency_sweep` (``tol`` ends transients early).
-    phase
-        Section phase :math:`\varphi \in [0, 1)`; runs keep the forcing phase continuous
-        from one value to the next by starting each value at :math:`t = \varphi T`.
-    continuation
-        ``False``: restart every value from the initial conditions.
-    method, rtol, atol, progress
-        Flow selection and ODE tolerances; progress line.
+    **knobs
+        Fields of :class:`BifurcationOptions` as keywords, replacing those of ``options``.
     """
+    o = _options(BifurcationOptions, options, knobs, "bifurcation_diagram")
+    transient_periods, record_periods, tol, max_period = (
+        o.transient_periods,
+        o.record_periods,
+        o.tol,
+        o.max_period,
+    )
+    phase, continuation, progress = o.phase, o.continuation, o.progress
+    method, rtol, atol = o.method, o.rtol, o.atol
     if not isinstance(osc, Oscillator):
         raise ParameterError(f"osc = {osc!r}: expected an Oscillator")
     if not isinstance(parameter, str) or parameter not in osc.params:
@@ -1365,19 +1479,10 @@ def basins(
     x_range: tuple[float, float],
     v_range: tuple[float, float],
     n: int | tuple[int, int],
+    options: BasinOptions | None = None,
     *,
-    max_periods: int = 600,
-    check_every: int = 10,
-    tol: float = 1e-7,
-    match_tol: float = 1e-3,
-    max_period: int = 4,
-    steps_per_period: int = 128,
-    escape_radius: float = 1e6,
     period: float | None = None,
-    vectorised: bool = True,
-    refine: bool = True,
-    method: FlowMethod = "auto",
-    progress: bool | None = None,
+    **knobs: Any,
 ) -> BasinResult:
     r"""Basins of attraction on a grid of initial conditions ``(x, x')`` at ``t = 0``.
 
@@ -1400,26 +1505,14 @@ def basins(
         symmetric grid).
     n
         Points per axis, or ``(nx, nv)``.
-    max_periods
-        Periods after which unsettled orbits are labelled ``-1``.
-    check_every
-        Periods per round.
-    tol, match_tol
-        Periodicity tolerance; attractor matching tolerance (both relative to
-        ``1 + max|y|``).
-    max_period
-        Largest attractor period looked for.
-    steps_per_period
-        RK4 steps per period (vectorised mode).
-    escape_radius
-        Orbits with ``max(|x|, |x'|)`` above it are labelled ``-2``.
+    options
+        The tuning knobs (:class:`BasinOptions`: settling time and tolerances, attractor
+        matching, RK4 steps, escape radius, vectorised or accurate integration, refinement,
+        flow method, progress line).
     period
         Section period; default the forcing period (required for autonomous models).
-    vectorised
-        ``False``: integrate each initial condition with the accurate flow (exact for PWL
-        models with the exact flow; slow).
-    refine, method, progress
-        Refinement of the attractors with the accurate flow; flow selection; progress line.
+    **knobs
+        Fields of :class:`BasinOptions` as keywords, replacing those of ``options``.
 
     Notes
     -----
@@ -1428,6 +1521,10 @@ def basins(
     approaches, so initial conditions within that error of a basin boundary may be
     misassigned (``vectorised=False`` avoids this for PWL models).
     """
+    o = _options(BasinOptions, options, knobs, "basins")
+    max_periods, check_every, tol, match_tol = o.max_periods, o.check_every, o.tol, o.match_tol
+    max_period, steps_per_period, escape_radius = o.max_period, o.steps_per_period, o.escape_radius
+    vectorised, refine, method, progress = o.vectorised, o.refine, o.method, o.progress
     if not isinstance(osc, Oscillator):
         raise ParameterError(f"osc = {osc!r}: expected an Oscillator")
     if isinstance(n, tuple | list):
