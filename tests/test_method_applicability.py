@@ -27,11 +27,11 @@ from perturb.methods.averaging import (
     fourier_components,
     krylov_bogoliubov,
 )
-from perturb.methods.harmonic_balance import solve_residuals
 from perturb.methods.lindstedt import lindstedt_poincare
 from perturb.methods.multiple_scales import modulation_equations
 from perturb.model.parsing import real_symbol
 from perturb.numeric.amplitude import approximation_response as traced
+from perturb.numeric.balance import solve_residuals
 from perturb.solve import frequency_response
 
 # the user's equation of issue 18 item 1: numeric coefficients, no named parameter
