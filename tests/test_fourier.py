@@ -845,7 +845,7 @@ def test_table_path_matches_direct(n: np.ndarray) -> None:
     A = np.linspace(0.0, 3.0, 41)
     b, d = 0.1, 0.9
     fast = F.ramp_coefficients(n, A, b, d)
-    assert fast.size >= F._CIS_TABLE_MIN  # large enough for the table plans
+    assert fast.size >= F.CIS_TABLE_MIN  # large enough for the table plans
     slow = np.array([F.ramp_coefficients(n[:, 0], a, b, d) for a in A]).T
     np.testing.assert_allclose(fast, slow, rtol=0, atol=2e-15 * 3)
     # phi-first layout (A varies along the first axis, n along the second) and a reflected d
@@ -882,7 +882,7 @@ def test_mixed_sides_and_merged_groups_match_elementwise() -> None:
     ]
     for func, args, kwargs in cases:
         big = func(*args, **kwargs)
-        assert big.shape == (600, 40) and big.size >= F._CIS_TABLE_MIN
+        assert big.shape == (600, 40) and big.size >= F.CIS_TABLE_MIN
         for j in range(A.size):
             bj = args[2] if np.ndim(args[2]) == 0 else args[2][j]
             small = func(n[:, 0], A[j], bj, *args[3:], **kwargs)

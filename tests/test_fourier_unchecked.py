@@ -16,9 +16,9 @@ from perturb.errors import FourierError
 from perturb.fourier import coefficients as F
 
 PAIRS = [
-    (F.step_coefficients, F._step_coefficients_unchecked),
-    (F.ramp_coefficients, F._ramp_coefficients_unchecked),
-    (F.dirac_coefficients, F._dirac_coefficients_unchecked),
+    (F.step_coefficients, F.UNCHECKED[F.step_coefficients]),
+    (F.ramp_coefficients, F.UNCHECKED[F.ramp_coefficients]),
+    (F.dirac_coefficients, F.UNCHECKED[F.dirac_coefficients]),
 ]
 
 EPS = np.finfo(float).eps
@@ -75,11 +75,14 @@ def test_public_functions_still_validate() -> None:
     with pytest.raises(FourierError, match="b must be"):
         F.ramp_coefficients(1, 2.0, math.nan, 1.0)
     with pytest.raises(FourierError, match="tangency"):
-        F._dirac_coefficients_unchecked(1, 1.0, 0.0, 1.0)  # a value property, still raised
+        F.UNCHECKED[F.dirac_coefficients](1, 1.0, 0.0, 1.0)  # a value property, still raised
 
 
 def test_unchecked_table_maps_the_public_kernels() -> None:
-    assert {c: u for c, u in PAIRS} == F.UNCHECKED
+    # exactly the three kernels, each to a twin of its own (not to itself: the checks are gone)
+    assert set(F.UNCHECKED) == {F.step_coefficients, F.ramp_coefficients, F.dirac_coefficients}
+    twins = list(F.UNCHECKED.values())
+    assert len(set(twins)) == 3 and not set(twins) & set(F.UNCHECKED)
 
 
 def _ramp_integral_reference(m, phi, c, s):
@@ -90,10 +93,10 @@ def _ramp_integral_reference(m, phi, c, s):
     x = phi * phi
     y = (mf * phi) ** 2
     P = np.zeros_like(phi)
-    for j in range(F._RAMP_SERIES.shape[0] - 1, -1, -1):
+    for j in range(F.RAMP_SERIES.shape[0] - 1, -1, -1):
         Qj = np.zeros_like(phi)
-        for k in range(F._RAMP_SERIES.shape[1] - 1, -1, -1):
-            Qj = Qj * y + F._RAMP_SERIES[j, k]
+        for k in range(F.RAMP_SERIES.shape[1] - 1, -1, -1):
+            Qj = Qj * y + F.RAMP_SERIES[j, k]
         P = P * x + Qj
     closed = np.where(m == 0, s - phi * c, 0.5 * (phi - s * c))
     return np.where(series, phi**3 * P, closed)
@@ -114,10 +117,10 @@ def test_ramp_integral_matches_the_row_by_row_series_bitwise(seed) -> None:
     m, phi = m[keep], phi[keep]
     c, s = np.cos(phi), np.sin(phi)
     np.testing.assert_array_equal(
-        F._ramp_integral(m, phi, c, s), _ramp_integral_reference(m, phi, c, s)
+        F.ramp_integral(m, phi, c, s), _ramp_integral_reference(m, phi, c, s)
     )
     none = phi >= 1.0  # no element needs the series
     np.testing.assert_array_equal(
-        F._ramp_integral(np.ones(none.sum(), int), phi[none], c[none], s[none]),
+        F.ramp_integral(np.ones(none.sum(), int), phi[none], c[none], s[none]),
         _ramp_integral_reference(np.ones(none.sum(), int), phi[none], c[none], s[none]),
     )

@@ -43,10 +43,10 @@ from perturb.model.oscillator import Oscillator, builtin_model
 from perturb.numeric.continuation import BranchPoint, branch_off, continue_curve
 from perturb.numeric.harmonic_balance import (
     HarmonicBalanceSystem,
-    _mirror_branch,
-    _odd_symmetry,
     harmonic_balance_branches,
     harmonic_balance_response,
+    mirror_branch,
+    odd_symmetry,
 )
 from perturb.seeds import single_harmonic_seeds
 from perturb.simulate.exact_response import exact_branches
@@ -415,10 +415,10 @@ def test_mirror_images_are_solutions_and_symmetry_is_detected():
     a bilinear spring, a static load or an odd-only basis."""
     hb = nsd_hb()
     system = hb[0].system
-    S = _odd_symmetry(system, WINDOW)
+    S = odd_symmetry(system, WINDOW)
     assert S is not None
     asym = next(b for b in hb if abs(b.mean).max() > 1.0)
-    image = _mirror_branch(asym, S)
+    image = mirror_branch(asym, S)
     assert image.origin == "mirror"
     np.testing.assert_allclose(image.mean, -asym.mean, atol=1e-14)
     np.testing.assert_allclose(image.amplitude, asym.amplitude, rtol=1e-12)
@@ -427,13 +427,13 @@ def test_mirror_images_are_solutions_and_symmetry_is_detected():
         for u, W in zip(image.coefficients, image.omega, strict=True)
     )
     assert res < 1e-7
-    assert _odd_symmetry(HarmonicBalanceSystem(double_well(), harmonics=5), DW_WINDOW) is not None
+    assert odd_symmetry(HarmonicBalanceSystem(double_well(), harmonics=5), DW_WINDOW) is not None
     bilinear = HarmonicBalanceSystem(builtin_model("bilinear"), harmonics=5)
-    assert _odd_symmetry(bilinear, (0.5, 2.0)) is None
+    assert odd_symmetry(bilinear, (0.5, 2.0)) is None
     loaded = Oscillator.parse("x'' + 0.1*x' + x + x**3 = 0.2 + F*cos(Omega*t)", {"F": 0.5})
-    assert _odd_symmetry(HarmonicBalanceSystem(loaded, harmonics=5), (0.5, 2.0)) is None
+    assert odd_symmetry(HarmonicBalanceSystem(loaded, harmonics=5), (0.5, 2.0)) is None
     odd = HarmonicBalanceSystem(double_well(), harmonics=5, odd_only=True)
-    assert _odd_symmetry(odd, DW_WINDOW) is None
+    assert odd_symmetry(odd, DW_WINDOW) is None
 
 
 def test_branch_points_are_reported_in_the_response_notes():

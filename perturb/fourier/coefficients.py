@@ -265,7 +265,9 @@ def crossing_angle(A: ArrayLike, b: ArrayLike, d: ArrayLike) -> FloatArray:
 # weighted sums of sin(n phi), cos(n phi) for many n
 # ---------------------------------------------------------------------------------------------
 
-_CIS_TABLE_MIN = 1 << 14  # below this many outputs the direct cos/sin is as fast
+#: Outputs from which the kernels evaluate cos/sin(n phi) through trig tables (below it the
+#: direct cos/sin is as fast).
+CIS_TABLE_MIN = 1 << 14
 # Per-call cache of trig tables: {(n0, B, Q): (phi, giant, baby)}; see _cis_tables.
 _TableCache = dict[tuple[int, int, int], tuple[FloatArray, np.ndarray, np.ndarray]]
 
@@ -343,7 +345,7 @@ class _Trig:
         self._cos: FloatArray | None = None
         self._sin: FloatArray | None = None
         layout = self._outer_layout(n.shape, phi.shape)
-        if layout == "n-first" and math.prod(self.shape) >= _CIS_TABLE_MIN:
+        if layout == "n-first" and math.prod(self.shape) >= CIS_TABLE_MIN:
             nf = n.reshape(-1)
             if nf.size > 1 and bool(np.all(np.diff(nf) == 1)):
                 n0, B, Q, _, _ = _split_n(nf)
@@ -369,7 +371,7 @@ class _Trig:
             n, phi, flip = self.n, self.phi, self.flip
             if (
                 self.layout in ("n-first", "phi-first")
-                and math.prod(self.shape) >= _CIS_TABLE_MIN
+                and math.prod(self.shape) >= CIS_TABLE_MIN
                 and n.size >= 16
             ):
                 # arbitrary n (strided, unsorted, repeated): tables + row gather, then transpose
@@ -434,10 +436,12 @@ def _ramp_series_table(order: int = 10) -> np.ndarray:
     return C
 
 
-_RAMP_SERIES = _ramp_series_table()
+#: Coefficients of the double series of :func:`ramp_integral` (rows: powers of ``phi**2``,
+#: columns: powers of ``(m phi)**2``).
+RAMP_SERIES = _ramp_series_table()
 
 
-def _ramp_integral(m: IntArray, phi: FloatArray, c: FloatArray, s: FloatArray) -> FloatArray:
+def ramp_integral(m: IntArray, phi: FloatArray, c: FloatArray, s: FloatArray) -> FloatArray:
     r"""``I_m(phi) = int_0^phi (cos psi - cos phi) cos(m psi) dpsi`` for ``m <= 1`` or
     ``max(m, 1) phi < 1`` (the region where the closed forms cancel catastrophically).
 
@@ -469,11 +473,11 @@ def _ramp_integral(m: IntArray, phi: FloatArray, c: FloatArray, s: FloatArray) -
     # Horner in y for all ten rows j at once, then in x: the same multiply-then-add per element
     # as ten separate row loops (so bit-identical), but 40 array operations instead of 220,
     # which is most of this kernel's cost on the few hundred points of a frequency response
-    rows = _RAMP_SERIES.shape[0]
+    rows = RAMP_SERIES.shape[0]
     Q = np.zeros((rows, sel.size))
-    for k in range(_RAMP_SERIES.shape[1] - 1, -1, -1):
+    for k in range(RAMP_SERIES.shape[1] - 1, -1, -1):
         Q *= y
-        Q += _RAMP_SERIES[:, k, None]
+        Q += RAMP_SERIES[:, k, None]
     P = np.zeros(sel.size)
     for j in range(rows - 1, -1, -1):
         P *= x
@@ -617,7 +621,7 @@ def _assemble(
                     pick(w_ramp)
                     * pick(k_ramp)
                     * sigma
-                    * _ramp_integral(m, ph, pick(g.cos_phi), pick(g.sin_theta))
+                    * ramp_integral(m, ph, pick(g.cos_phi), pick(g.sin_theta))
                 )
                 if has_step:  # keep the step part of these elements
                     mf = m.astype(np.float64)
@@ -746,7 +750,7 @@ def ramp_coefficients(
     (from ``a_n = (2/pi) int_0^theta (A cos psi + b - d) cos n psi dpsi``).  The value is
     ``O(A theta**3)`` for small ``theta`` while the terms are ``O(A n theta)``: the formula above
     loses ``~2 log10(1/(n theta))`` digits, so for ``max(n, 1) theta < 1`` a cancellation-free
-    double series is summed instead (see ``_ramp_integral``), and for ``theta > pi/2`` the
+    double series is summed instead (see ``ramp_integral``), and for ``theta > pi/2`` the
     reflection ``(x - d)H(x - d) = (x - d) + (d - x)H(d - x)`` is used.  Accuracy ~1e-13
     relative wherever the value exceeds ~1e-16 A.
 

@@ -202,6 +202,8 @@ __all__ = [
     "harmonic_balance_branches",
     "harmonic_balance_branch_through",
     "harmonic_balance_response",
+    "mirror_branch",
+    "odd_symmetry",
 ]
 
 Projection = Literal["auto", "exact", "aft"]
@@ -2350,7 +2352,7 @@ def _on_branch(branch: HarmonicBalanceBranch, u: np.ndarray, W: float, rtol: flo
     return False
 
 
-def _odd_symmetry(system: HarmonicBalanceSystem, window: tuple[float, float]) -> np.ndarray | None:
+def odd_symmetry(system: HarmonicBalanceSystem, window: tuple[float, float]) -> np.ndarray | None:
     """The matrix ``S`` of the symmetry ``x(theta) -> -x(theta + pi/m)`` (half a forcing
     period) on the coefficients, if it maps solutions to solutions, else None.
 
@@ -2388,8 +2390,8 @@ def _odd_symmetry(system: HarmonicBalanceSystem, window: tuple[float, float]) ->
     return S
 
 
-def _mirror_branch(branch: HarmonicBalanceBranch, S: np.ndarray) -> HarmonicBalanceBranch:
-    """The image of ``branch`` under the symmetry ``S`` (:func:`_odd_symmetry`): exact, with
+def mirror_branch(branch: HarmonicBalanceBranch, S: np.ndarray) -> HarmonicBalanceBranch:
+    """The image of ``branch`` under the symmetry ``S`` (:func:`odd_symmetry`): exact, with
     no continuation (the Hill exponents and stability of an image are those of the orbit).
     Scaled tangents map by ``S`` too, since the scale of the unknowns is the same number for
     every coefficient."""
@@ -2543,7 +2545,7 @@ def harmonic_balance_branches(
        even harmonics), is stepped along both ways by ``ds_max`` and corrected onto the
        other branch (:func:`perturb.numeric.continuation.branch_off`); a point on no known
        branch starts a new one, traced both ways and searched for branch points in turn.
-    4. Mirror images (``mirror``, odd systems: :func:`_odd_symmetry`, ``origin='mirror'``):
+    4. Mirror images (``mirror``, odd systems: :func:`odd_symmetry`, ``origin='mirror'``):
        each branch that is not its own image under ``x(t) -> -x(t + T/2)`` gets its image,
        exactly and without continuation.
 
@@ -2703,12 +2705,12 @@ def harmonic_balance_branches(
                         found.append(br)
             i += 1
 
-    S = _odd_symmetry(system, window) if mirror else None
+    S = odd_symmetry(system, window) if mirror else None
     if S is not None:
         for br in list(found):
             if len(found) >= max_branches:
                 break
-            image = _mirror_branch(br, S)
+            image = mirror_branch(br, S)
             if not _duplicate(image, found, 0.01, width):
                 found.append(image)
     return tuple(found)
