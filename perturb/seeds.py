@@ -33,7 +33,8 @@ import numpy as np
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
 from perturb.numeric.harmonic_balance import HarmonicBalanceSystem
-from perturb.simulate.flows.base import Flow, FlowFamily
+from perturb.simulate.flows.base import Flow
+from perturb.simulate.flows.factory import FlowFamily
 from perturb.simulate.orbits.search import NODES, default_extent, odd_symmetric
 
 __all__ = [

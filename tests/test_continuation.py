@@ -27,7 +27,7 @@ from perturb.simulate.exact_response import (
     exact_solutions_at,
     switch_branch,
 )
-from perturb.simulate.flows.base import FlowFamily
+from perturb.simulate.flows.factory import FlowFamily
 
 NSD_K3 = {"k": -3.0, "mu": 0.05, "F": 2.0}
 

@@ -24,7 +24,7 @@ from scipy.integrate import solve_ivp
 from perturb.errors import ParameterError
 from perturb.model.oscillator import Oscillator
 from perturb.simulate.exact_response import exact_branches, exact_frequency_response
-from perturb.simulate.flows.base import FlowFamily
+from perturb.simulate.flows.factory import FlowFamily
 from perturb.simulate.orbits.shooting import periodic_orbit
 
 _RTOL = _ATOL = 1e-12

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from perturb import ModelError, ParameterError, builtin_model
-from perturb.simulate.flows.base import Flow, FlowFamily, ODEFlow
+from perturb.simulate.flows.base import Flow, ODEFlow
 from perturb.simulate.flows.exact import ExactPWLFlow
+from perturb.simulate.flows.factory import FlowFamily
 
 
 def test_ode_flow_sensitivity_obeys_liouville_and_finite_differences():
@@ -75,3 +76,67 @@ def test_family_errors():
         FlowFamily(builtin_model("duffing"), exact=True)
     with pytest.raises(ParameterError, match="finite"):
         FlowFamily(builtin_model("nsd")).at(float("nan"))
+
+
+def test_declared_capabilities_of_the_concrete_flows():
+    from perturb.simulate.flows.event_driven import EventFlow
+    from perturb.simulate.flows.piecewise_exact import PWLSystem
+
+    nsd = builtin_model("nsd", k=-2.0, mu=0.05, F=2.0, Omega=0.6)
+    exact = ExactPWLFlow(nsd)
+    assert isinstance(exact.system, PWLSystem) and exact.rhs is None and exact.surfaces == ()
+    assert exact.exact_dense_output and exact.rtol == 0.0 and not exact.autonomous
+    # Liouville: det = exp(-mu T), independently of the flow's own matrix
+    assert exact.sensitivity_determinant(0.0, 2.0) == pytest.approx(np.exp(-0.05 * 2.0))
+    ode = ODEFlow(builtin_model("duffing", mu=0.1, F=0.5, Omega=1.3))
+    assert ode.system is None and callable(ode.rhs.fun) and not ode.exact_dense_output
+    assert ode.sensitivity_determinant(0.0, 1.0) is None and ode.rtol == pytest.approx(1e-11)
+    ev = EventFlow(builtin_model("nsd", k=-2.0, mu=0.05, F=0.0))
+    assert len(ev.surfaces) >= 1 and ev.system is None and ev.rhs is None
+    free = ExactPWLFlow(builtin_model("nsd", k=-2.0, mu=0.05, F=0.0))
+    assert free.autonomous and free.period is None
+    for f in (exact, ode, ev):
+        assert isinstance(f, Flow)
+
+
+def test_structural_flows_still_count_and_get_the_defaults():
+    from perturb.simulate.flows.base import as_flow
+
+    class Rotation:  # x' = v, v' = -x: no Flow base class, only the interface
+        period = None
+
+        def __call__(self, y0, t0, t1, *, sensitivity=False, t_eval=None):
+            c, s = np.cos(t1 - t0), np.sin(t1 - t0)
+            M = np.array([[c, s], [-s, c]])
+            from perturb.simulate.flows.base import FlowResult
+
+            return FlowResult(t0, t1, M @ np.asarray(y0, float), M if sensitivity else None)
+
+        def vector_field(self, t, y):
+            return np.array([y[1], -y[0]])
+
+    rot = Rotation()
+    assert isinstance(rot, Flow)
+    flow = as_flow(rot)
+    assert flow.autonomous and flow.system is None and flow.sensitivity_determinant(0, 1) is None
+    np.testing.assert_allclose(flow([1.0, 0.0], 0.0, np.pi / 2).y, [0.0, -1.0], atol=1e-15)
+    assert as_flow(ODEFlow(builtin_model("duffing", Omega=1.0))) is not None
+    with pytest.raises(ParameterError, match="expected a Flow"):
+        as_flow(object())
+    assert not isinstance(object(), Flow)
+
+
+def test_make_flow_is_the_one_choice():
+    from perturb.simulate.flows.factory import make_flow
+
+    nsd = builtin_model("nsd", k=-2.0, mu=0.05, F=2.0, Omega=0.6)
+    assert isinstance(make_flow(nsd), ExactPWLFlow)
+    assert isinstance(make_flow(nsd, method="ode"), ODEFlow)
+    assert isinstance(make_flow(builtin_model("duffing")), ODEFlow)
+    assert make_flow(nsd, 0.7).period == pytest.approx(2 * np.pi / 0.7, rel=1e-15)
+    with pytest.raises(ModelError, match="not piecewise linear"):
+        make_flow(builtin_model("duffing"), method="exact")
+    with pytest.raises(ParameterError, match="method"):
+        make_flow(nsd, method="rk4")
+    with pytest.raises(ParameterError, match="rtol"):
+        make_flow(nsd, rtol=2.0)

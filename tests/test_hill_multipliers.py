@@ -20,7 +20,7 @@ from scipy.integrate import solve_ivp
 import perturb
 from perturb.numeric.harmonic_balance import HarmonicBalanceSystem, harmonic_balance_orbit
 from perturb.numeric.stability import hill_exponents
-from perturb.simulate.flows.base import FlowFamily
+from perturb.simulate.flows.factory import FlowFamily
 from perturb.simulate.orbits.shooting import periodic_orbit
 
 MU, K, D, F = 0.1, 50.0, 0.5, 4.0

@@ -612,7 +612,7 @@ def test_shooting_never_returns_nan(nsd_flow, x, v):
 def test_two_by_two_newton_direction_matches_lapack():
     # single shooting solves 2x2 systems by Cramer's rule with the exact condition number;
     # oracle: LAPACK (np.linalg.solve), and lstsq for an exactly singular matrix
-    from perturb.simulate.orbits.shooting import _solve
+    from perturb.numeric.roots import newton_direction
 
     rng = np.random.default_rng(7)
     for _ in range(200):
@@ -620,7 +620,11 @@ def test_two_by_two_newton_direction_matches_lapack():
         r = rng.normal(size=2)
         cond = np.linalg.cond(J)
         # both are backward stable: they differ by ~cond * eps
-        np.testing.assert_allclose(_solve(J, r), np.linalg.solve(J, r), rtol=1e-13 * cond, atol=0)
+        np.testing.assert_allclose(
+            newton_direction(J, r), np.linalg.solve(J, r), rtol=1e-13 * cond, atol=0
+        )
     S = np.array([[1.0, 2.0], [2.0, 4.0]])
     r = np.array([1.0, 0.5])
-    np.testing.assert_allclose(_solve(S, r), np.linalg.lstsq(S, r, rcond=None)[0], rtol=1e-12)
+    np.testing.assert_allclose(
+        newton_direction(S, r), np.linalg.lstsq(S, r, rcond=None)[0], rtol=1e-12
+    )

@@ -7,11 +7,17 @@ Poincaré sections and Lyapunov exponents take any object with this interface, s
 piecewise-analytic propagator, the event-driven integrator and a plain ODE solver are
 interchangeable beneath them.
 
-Interface (:class:`Flow`)::
+Interface (:class:`Flow`, the base class every flow derives from)::
 
     flow(y0, t0, t1, *, sensitivity=False, t_eval=None) -> FlowResult
     flow.vector_field(t, y) -> ndarray (2,)
     flow.period -> float | None          # forcing period; None for autonomous systems
+
+plus the capabilities a flow declares (``system``, ``rhs``, ``surfaces``, ``rtol``,
+``exact_dense_output``, ``sensitivity_determinant``; see :class:`Flow`).  Which flow a model
+gets is decided in one place, :mod:`perturb.simulate.flows.factory` (:func:`make_flow`,
+:class:`FlowFamily`); the concrete flows import this module only, never each other or the
+factory.
 
 :class:`ODEFlow` here is the smooth reference: ``solve_ivp`` (DOP853) on the state and its
 variational equations. It is exact to the integration tolerance for smooth systems only; a
@@ -20,18 +26,19 @@ PWL or discontinuous system needs a flow that locates switches (exact or event-d
 
 from __future__ import annotations
 
+import abc
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.integrate import solve_ivp
 
-from perturb.errors import ModelError, ParameterError, PerturbError
-from perturb.model.oscillator import Oscillator, validate_parameter_value
-from perturb.simulate.flows.system import NumericRHS, first_order_rhs, frequency_symbol
+from perturb.errors import ParameterError, PerturbError
+from perturb.model.oscillator import Oscillator
+from perturb.simulate.flows.system import NumericRHS, first_order_rhs
 
-__all__ = ["Flow", "FlowResult", "ODEFlow", "FlowFamily"]
+__all__ = ["Flow", "FlowResult", "ODEFlow", "as_flow"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,12 +68,54 @@ class FlowResult:
     n_events: int = 0
 
 
-@runtime_checkable
-class Flow(Protocol):
-    """What periodic-orbit solvers need from an integrator; see the module docstring."""
+class Flow(abc.ABC):
+    """Base class of the flows: the interface periodic-orbit solvers need, and the
+    capabilities a flow declares (read as attributes, never probed).
 
-    period: float | None
+    Interface: ``flow(y0, t0, t1, *, sensitivity=False, t_eval=None) -> FlowResult`` and
+    ``flow.vector_field(t, y)``; see the module docstring.
 
+    Declared capabilities (class defaults; a concrete flow overrides those it has):
+
+    ``period``
+        Forcing period; None when autonomous (or incommensurate forcing frequencies).
+    ``autonomous``
+        No forcing at all (default: ``period is None``).
+    ``system``
+        The :class:`~perturb.simulate.flows.piecewise_exact.PWLSystem` of an exact flow
+        (closed-form pieces, scalar field ``system.field1``), else None.
+    ``rhs``
+        The compiled :class:`~perturb.simulate.flows.system.NumericRHS` of an integrator that
+        steps the smooth field (ODE flow), else None.
+    ``surfaces``
+        Switching surfaces located by an event-driven flow (empty otherwise); such a flow also
+        has ``simulate(y0, t_span)`` returning a trajectory with its events.
+    ``rtol``
+        Relative tolerance of the integrator; 0.0 for a flow exact to rounding.
+    ``exact_dense_output``
+        True when ``trajectory(y0, t0, t1)`` returns an exact dense trajectory.
+
+    :meth:`sensitivity_determinant` returns the exact determinant of the sensitivity when the
+    flow knows it (Liouville), else None.
+
+    ``isinstance(obj, Flow)`` also holds for an object that merely has ``__call__`` and
+    ``vector_field`` (the structural interface of earlier versions); :func:`as_flow` gives
+    such an object the declared defaults.
+    """
+
+    period: float | None = None
+    system: Any = None
+    rhs: NumericRHS | None = None
+    surfaces: tuple = ()
+    rtol: float = 0.0
+    exact_dense_output: bool = False
+
+    @property
+    def autonomous(self) -> bool:
+        """True for a flow without forcing."""
+        return self.period is None
+
+    @abc.abstractmethod
     def __call__(
         self,
         y0: ArrayLike,
@@ -77,7 +126,72 @@ class Flow(Protocol):
         t_eval: ArrayLike | None = None,
     ) -> FlowResult: ...
 
+    @abc.abstractmethod
     def vector_field(self, t: float, y: ArrayLike) -> np.ndarray: ...
+
+    def sensitivity_determinant(self, t0: float, t1: float) -> float | None:
+        """Exact ``det dy(t1)/dy(t0)`` when known (None: compute it from the matrix)."""
+        return None
+
+    @classmethod
+    def __subclasshook__(cls, other: type) -> bool:
+        if cls is Flow:
+            names = set().union(*(vars(k) for k in other.__mro__))
+            if "__call__" in names and "vector_field" in names:
+                return True
+        return NotImplemented
+
+
+class _ForeignFlow(Flow):
+    """A structural flow (``__call__`` and ``vector_field``, not derived from :class:`Flow`)
+    with the declared capabilities it has, read once here; the rest take the defaults."""
+
+    def __init__(self, flow: Any) -> None:
+        self.flow = flow
+        self.period = getattr(flow, "period", None)
+        for name in ("system", "rhs", "rtol", "surfaces"):
+            if hasattr(flow, name):
+                setattr(self, name, getattr(flow, name))
+        self._autonomous = getattr(flow, "autonomous", None)
+
+    @property
+    def autonomous(self) -> bool:
+        return self.period is None if self._autonomous is None else bool(self._autonomous)
+
+    def __call__(self, y0, t0, t1, *, sensitivity=False, t_eval=None) -> FlowResult:
+        return self.flow(y0, t0, t1, sensitivity=sensitivity, t_eval=t_eval)
+
+    def vector_field(self, t: float, y: ArrayLike) -> np.ndarray:
+        return self.flow.vector_field(t, y)
+
+    def sensitivity_determinant(self, t0: float, t1: float) -> float | None:
+        fn = getattr(self.flow, "sensitivity_determinant", None)
+        return float(fn(t0, t1)) if callable(fn) else None
+
+    def __getattr__(self, name: str) -> Any:  # anything else the wrapped flow offers
+        return getattr(self.__dict__["flow"], name)
+
+    def __repr__(self) -> str:
+        return repr(self.flow)
+
+
+def as_flow(obj: Any) -> Flow:
+    """``obj`` as a :class:`Flow` with its declared capabilities: itself when it derives from
+    :class:`Flow`, a thin wrapper when it only has the structural interface.
+
+    Raises
+    ------
+    ParameterError
+        ``obj`` is not callable or has no ``vector_field`` method.
+    """
+    if Flow in type(obj).__mro__:
+        return obj
+    if not callable(obj) or not callable(getattr(obj, "vector_field", None)):
+        raise ParameterError(
+            f"flow = {obj!r}: expected a Flow (callable with a vector_field method), e.g. "
+            "ExactPWLFlow(osc) or ODEFlow(osc)"
+        )
+    return _ForeignFlow(obj)
 
 
 def _check_span(y0: ArrayLike, t0: float, t1: float) -> np.ndarray:
@@ -89,7 +203,7 @@ def _check_span(y0: ArrayLike, t0: float, t1: float) -> np.ndarray:
     return y
 
 
-class ODEFlow:
+class ODEFlow(Flow):
     """Smooth flow of an oscillator by ``solve_ivp`` with variational equations.
 
     Parameters
@@ -217,237 +331,13 @@ def _step_budget(t0: float, t1: float, period: float | None):
     return event
 
 
-class FlowFamily:
-    """Flows of one oscillator over the values of one parameter, compiled once.
+def __getattr__(name: str) -> Any:
+    # transitional (issue #14): FlowFamily moved to perturb.simulate.flows.factory; the
+    # committed exact_response.py still imports it from here until its owner's commit with the
+    # new import line lands.  Delete this function then: it is the last import of the factory
+    # from base (it keeps the base <-> factory circle alive in tools/import_graph.py).
+    if name == "FlowFamily":
+        from perturb.simulate.flows.factory import FlowFamily
 
-    Continuation and sweeps ask for thousands of flows that differ in one number; rebuilding
-    the canonical PWL form or re-lambdifying per value would dominate their cost. Piecewise-
-    linear oscillators get the exact flow (:class:`~perturb.simulate.flows.exact.ExactPWLFlow`,
-    breakpoints, slopes and offsets compiled as functions of the parameter); other models with
-    switch functions (``sign(x')`` friction, a Heaviside step on a nonlinear force, ...) the
-    event-driven flow (:class:`~perturb.simulate.flows.event_driven.EventFlow`, one template whose
-    compiled modes take the parameter as an argument; ``event`` is True), whose sensitivity
-    carries the saltation matrices at the switches and the sliding projections; smooth
-    models the :class:`ODEFlow`.
-
-    Parameters
-    ----------
-    oscillator
-        All parameters but ``parameter`` need values.
-    parameter
-        Name of the parameter that varies; default: the forcing frequency.
-    exact
-        ``None`` (default) chooses the exact flow when the model is piecewise linear, else
-        the event-driven flow when it has switch functions the event-driven integrator
-        takes, else the ODE flow; ``False`` forces the ODE flow (which steps over switches:
-        its monodromy misses the saltation).
-    """
-
-    def __init__(
-        self,
-        oscillator: Oscillator,
-        parameter: str | None = None,
-        *,
-        exact: bool | None = None,
-        rtol: float = 1e-11,
-        atol: float = 1e-12,
-    ) -> None:
-        osc = oscillator
-        if parameter is None:
-            sym = frequency_symbol(osc)
-            if sym is None:
-                raise ModelError(
-                    f"model {osc.name!r} has no forcing-frequency parameter; name the parameter"
-                )
-            parameter = sym.name
-        if parameter not in osc.params:
-            raise ParameterError(
-                f"parameter {parameter!r} is not in model {osc.name!r}: expected one of "
-                + ", ".join(osc.params)
-            )
-        self.oscillator = osc
-        self.parameter = parameter
-        self.rtol, self.atol = rtol, atol
-        use_exact = osc.is_piecewise_linear if exact is None else bool(exact)
-        if use_exact and not osc.is_piecewise_linear:
-            raise ModelError(f"model {osc.name!r} is not piecewise linear: no exact flow")
-        self.exact = use_exact
-        self._pwl = _compile_pwl(osc, parameter) if use_exact else None
-        # a field with switches (sign(x'), Heaviside of a non-PWL force, ...) that is not
-        # piecewise linear: the event-driven flow, which locates the switches and applies the
-        # saltation matrices and sliding projections to the sensitivity (the ODE flow steps
-        # over the jumps: its monodromy misses them, and sticking makes it chatter)
-        self._event = None
-        self.event = False
-        if not use_exact and exact is None and _has_switches(osc):
-            self._event = _event_template(osc, parameter, rtol, atol)
-            self.event = self._event is not None
-        self._rhs = None if (use_exact or self.event) else _compile_rhs(osc, parameter)
-        self._recent: dict[float, Flow] = {}
-
-    def __repr__(self) -> str:
-        kind = "exact" if self.exact else ("event" if self.event else "ode")
-        return f"FlowFamily({self.oscillator.name}, {self.parameter}, {kind})"
-
-    def at(self, value: float) -> Flow:
-        """The flow at ``parameter = value``."""
-        value = validate_parameter_value(self.parameter, value)
-        if self.exact:
-            from perturb.simulate.flows.exact import ExactPWLFlow
-
-            if self._pwl is None:  # breakpoints could not be ordered symbolically
-                return ExactPWLFlow(self.oscillator.with_params({self.parameter: value}))
-            # continuation asks for the same few parameter values over and over (corrector
-            # iterations, statistics, branch checks): building and validating a system costs
-            # as much as propagating it over a period, so recent flows are kept
-            flow = self._recent.get(value)
-            if flow is None:
-                flow = ExactPWLFlow(self._pwl(value))
-                if len(self._recent) >= _RECENT_FLOWS:
-                    self._recent.pop(next(iter(self._recent)))
-                self._recent[value] = flow
-            return flow
-        if self._event is not None:
-            if self._event == "per value":
-                # the parameter moves a switching surface: one event-driven flow per value
-                from perturb.simulate.flows.event_driven import EventFlow
-
-                flow = self._recent.get(value)
-                if flow is None:
-                    flow = EventFlow(
-                        self.oscillator.with_params({self.parameter: value}),
-                        rtol=self.rtol,
-                        atol=self.atol,
-                    )
-                    if len(self._recent) >= _RECENT_FLOWS:
-                        self._recent.pop(next(iter(self._recent)))
-                    self._recent[value] = flow
-                return flow
-            return self._event.at(value)
-        assert self._rhs is not None
-        return ODEFlow(self.oscillator, rhs=self._rhs(value), rtol=self.rtol, atol=self.atol)
-
-
-_RECENT_FLOWS = 64
-
-
-def _has_switches(osc: Oscillator) -> bool:
-    import sympy as sp
-
-    return bool(osc.g.atoms(sp.Heaviside, sp.sign, sp.Abs, sp.Max, sp.Min, sp.Piecewise))
-
-
-def _event_template(osc: Oscillator, parameter: str, rtol: float, atol: float):
-    """An event-driven flow with ``parameter`` kept as an argument, or None when the model is
-    outside the event-driven integrator's reach (switching arguments that depend on the
-    parameter or on time, Dirac terms): the ODE flow is used then."""
-    from perturb.simulate.flows.event_driven import EventFlow
-
-    if osc.params.get(parameter) is None:
-        osc = osc.with_params({parameter: 1.0})  # a placeholder: at() sets the value
-    try:
-        return EventFlow(osc, rtol=rtol, atol=atol, parameter=parameter)
-    except (ModelError, ParameterError):
-        pass
-    try:
-        EventFlow(osc, rtol=rtol, atol=atol)  # the parameter in a switching argument?
-    except (ModelError, ParameterError):
-        return None
-    return "per value"
-
-
-def _others(osc: Oscillator, parameter: str) -> dict:
-    subs = {s: v for s, v in osc.substitutions().items() if s.name != parameter}
-    return subs
-
-
-def _compile_pwl(osc: Oscillator, parameter: str):
-    """value -> PWLSystem, with the canonical form computed once symbolically in the
-    parameter; None when its breakpoints cannot be ordered without a value."""
-    import sympy as sp
-
-    from perturb.errors import NonsmoothError
-    from perturb.model.parsing import real_symbol
-    from perturb.model.pwl import to_pwl
-    from perturb.simulate.flows.piecewise_exact import PWLSystem
-
-    p = real_symbol(parameter)
-    subs = _others(osc, parameter)
-    try:
-        pwl = to_pwl(osc.restoring_force.xreplace(subs), osc.x)
-    except NonsmoothError:
-        return None
-    exprs = [
-        *pwl.breakpoints,
-        *pwl.slopes,
-        *pwl.offsets,
-        osc.damping.xreplace(subs),
-        osc.forcing.constant.xreplace(subs),
-    ]
-    for h in osc.forcing.harmonics:
-        exprs += [h.amplitude.xreplace(subs), h.frequency.xreplace(subs), h.phase.xreplace(subs)]
-    free = sorted({s.name for e in exprs for s in sp.sympify(e).free_symbols} - {parameter})
-    if free:
-        raise ParameterError(f"model {osc.name!r} needs values for {', '.join(free)}")
-    fn = sp.lambdify(p, exprs, modules="math")
-    m = len(pwl.breakpoints)
-    # the last system built: when the parameter enters only the forcing (the frequency), the
-    # next one shares its validated force arrays
-    last: list[tuple[list[float], PWLSystem]] = []
-
-    def build(value: float) -> PWLSystem:
-        vals = [float(v) for v in fn(value)]
-        bps, rest = vals[:m], vals[m:]
-        slopes, offsets = rest[: m + 1], rest[m + 1 : 2 * m + 2]
-        mu, static = rest[2 * m + 2], rest[2 * m + 3]
-        harm = rest[2 * m + 4 :]
-        forcing = []
-        for j in range(0, len(harm), 3):
-            amp, w, ph = harm[j : j + 3]
-            if amp != 0.0:
-                forcing.append((amp, abs(w), ph if w > 0 else -ph))
-        head = vals[: 2 * m + 4]
-        if last and last[0][0] == head:
-            return last[0][1].with_forcing(forcing)
-        system = PWLSystem(
-            bps, slopes, offsets, damping=mu, forcing=tuple(forcing), static_force=static
-        )
-        last[:] = [(head, system)]
-        return system
-
-    return build
-
-
-def _compile_rhs(osc: Oscillator, parameter: str):
-    """value -> NumericRHS, lambdified once with the parameter as an argument."""
-    import sympy as sp
-
-    from perturb.model.parsing import real_symbol
-
-    p = real_symbol(parameter)
-    subs = _others(osc, parameter)
-    acc = (osc.forcing.expr(osc.t) - osc.g).xreplace(subs)
-    free = sorted(s.name for s in acc.free_symbols - {osc.x, osc.v, osc.t, p})
-    if free:
-        raise ParameterError(f"model {osc.name!r} needs values for {', '.join(free)}")
-    dx = sp.diff(acc, osc.x).replace(sp.DiracDelta, lambda *a: sp.Integer(0))
-    dv = sp.diff(acc, osc.v).replace(sp.DiracDelta, lambda *a: sp.Integer(0))
-    mods = [{"Heaviside": lambda z, h0=0.5: np.heaviside(z, h0)}, "numpy"]
-    acc_fn = sp.lambdify((osc.t, osc.x, osc.v, p), acc, modules=mods)
-    jac_fn = sp.lambdify((osc.t, osc.x, osc.v, p), [dx, dv], modules=mods)
-    base = osc.forcing.base_frequency
-    period_fn = None
-    if base is not None:
-        period_fn = sp.lambdify(p, 2 * sp.pi / sp.Abs(base.xreplace(subs)), modules="math")
-
-    def build(value: float) -> NumericRHS:
-        def fun(t: float, y: np.ndarray) -> np.ndarray:
-            return np.array([y[1], acc_fn(t, y[0], y[1], value)], dtype=float)
-
-        def jac(t: float, y: np.ndarray) -> np.ndarray:
-            a, b = jac_fn(t, y[0], y[1], value)
-            return np.array([[0.0, 1.0], [float(a), float(b)]])
-
-        return NumericRHS(fun=fun, jac=jac, period=None if period_fn is None else period_fn(value))
-
-    return build
+        return FlowFamily
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

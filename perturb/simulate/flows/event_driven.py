@@ -115,7 +115,7 @@ from sympy.logic.boolalg import BooleanFalse, BooleanTrue
 
 from perturb.errors import ModelError, ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator, validate_parameter_value
-from perturb.simulate.flows.base import FlowResult
+from perturb.simulate.flows.base import Flow, FlowResult
 from perturb.simulate.flows.system import first_order_rhs, forcing_period_expr, parameter_values
 
 __all__ = [
@@ -488,8 +488,8 @@ def _check_tol(name: str, value: object) -> float:
     return out
 
 
-class EventFlow:
-    r"""Event-driven flow of a piecewise-smooth oscillator (the :class:`~.flow.Flow` protocol).
+class EventFlow(Flow):
+    r"""Event-driven flow of a piecewise-smooth oscillator (a :class:`~.base.Flow`).
 
     Parameters
     ----------

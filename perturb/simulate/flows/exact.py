@@ -43,7 +43,7 @@ from numpy.typing import ArrayLike
 
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
-from perturb.simulate.flows.base import FlowResult
+from perturb.simulate.flows.base import Flow, FlowResult
 from perturb.simulate.flows.piecewise_exact import PWLSystem, Trajectory, propagate
 from perturb.simulate.flows.system import to_pwl_system
 
@@ -72,7 +72,7 @@ def common_period(frequencies: ArrayLike, *, max_denominator: int = 64) -> float
     return 2.0 * math.pi * den / ref
 
 
-class ExactPWLFlow:
+class ExactPWLFlow(Flow):
     r"""Exact flow (and exact sensitivity) of a piecewise-linear oscillator.
 
     Parameters
@@ -125,10 +125,18 @@ class ExactPWLFlow:
                 f"osc_or_system = {osc_or_system!r}: expected an Oscillator or a PWLSystem"
             )
         self.system: PWLSystem = system
-        self.autonomous: bool = not system.forcing
         self.period: float | None = common_period([w for _, w, _ in system.forcing])
         self._continuous = system.continuous_at()
         self._memo: tuple[tuple[float, float, float, float], Trajectory] | None = None
+
+    #: ``trajectory`` gives the exact dense output (declared capability, see Flow)
+    exact_dense_output = True
+
+    @property
+    def autonomous(self) -> bool:
+        """No forcing term (a forced flow with incommensurate frequencies has no period but
+        is not autonomous)."""
+        return not self.system.forcing
 
     def __repr__(self) -> str:
         return f"ExactPWLFlow({self.name}, period={self.period})"

@@ -63,15 +63,15 @@ from perturb.simulate.flows.base import Flow
 from perturb.simulate.orbits.shooting import (
     UNIT_TOL,
     PeriodicOrbit,
-    _check_flow,
-    _count,
-    _finite,
-    _forcing_period,
-    _make_orbit,
-    _newton,
-    _positive,
-    _reject_equilibrium,
+    check_count,
+    check_finite,
+    check_flow,
+    check_positive,
     is_autonomous,
+    make_orbit,
+    reject_equilibrium,
+    resolve_forcing_period,
+    shooting_newton,
 )
 
 __all__ = ["collocation_orbit", "difference_weights"]
@@ -205,8 +205,8 @@ def collocation_orbit(
     ShootingError
         Newton did not converge.
     """
-    _check_flow(flow)
-    rhs = getattr(flow, "rhs", None)
+    flow = check_flow(flow)
+    rhs = flow.rhs
     if (
         rhs is None
         or not callable(getattr(rhs, "fun", None))
@@ -216,13 +216,13 @@ def collocation_orbit(
             f"flow = {flow!r}: collocation needs the smooth right-hand side and its Jacobian "
             "(flow.rhs.fun, flow.rhs.jac): pass an ODEFlow"
         )
-    N = _count(n_points, "n_points", 8)
+    N = check_count(n_points, "n_points", 8)
     if order not in ORDERS:
         raise ParameterError(f"order = {order!r}: expected one of {ORDERS}")
     if N <= order:
         raise ParameterError(f"n_points = {N}: expected more than order = {order} points")
-    tol = _positive(tol, "tol")
-    max_iter = _count(max_iter, "max_iter", 0)
+    tol = check_positive(tol, "tol")
+    max_iter = check_count(max_iter, "max_iter", 0)
     auto = is_autonomous(flow)
     if auto and period is not None:
         raise ParameterError(
@@ -236,7 +236,7 @@ def collocation_orbit(
             raise ParameterError(
                 "collocation_orbit: autonomous flow: expected period_guess for the unknown period"
             )
-        P0 = _positive(period_guess, "period_guess")
+        P0 = check_positive(period_guess, "period_guess")
         m, t0, T_forcing = 1, 0.0, None
     else:
         if period_guess is not None:
@@ -244,9 +244,9 @@ def collocation_orbit(
                 f"period_guess = {period_guess!r} given for a forced flow: the period is "
                 "m x the forcing period; pass period= to override the forcing period"
             )
-        m = _count(m, "m")
-        t0 = _finite(t0, "t0")
-        T_forcing = _forcing_period(flow, period, "collocation_orbit")
+        m = check_count(m, "m")
+        t0 = check_finite(t0, "t0")
+        T_forcing = resolve_forcing_period(flow, period, "collocation_orbit")
         P0 = m * T_forcing
 
     # -- initial grid values -----------------------------------------------------------------
@@ -327,7 +327,7 @@ def collocation_orbit(
     if auto:
         z0 = np.append(z0, P0)
     what = f"collocation (N = {N}, order {order})"
-    out = _newton(
+    out = shooting_newton(
         evaluate,
         z0,
         tol=tol,
@@ -340,10 +340,10 @@ def collocation_orbit(
     P = float(out.z[-1]) if auto else P0
     y0 = X[0].copy()
     if auto:
-        _reject_equilibrium(flow, y0, P, what, out.rnorm, out.iterations)
+        reject_equilibrium(flow, y0, P, what, out.rnorm, out.iterations)
     # multipliers: one flow pass with the variational equations from the collocation state
     M = np.asarray(flow(y0, t0, t0 + P, sensitivity=True).sensitivity, dtype=float)
-    return _make_orbit(
+    return make_orbit(
         dense=_TrigDense(X, t0, P),
         y0=y0,
         t0=t0,

@@ -28,7 +28,8 @@ import numpy as np
 
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
-from perturb.simulate.flows.base import Flow, FlowFamily
+from perturb.simulate.flows.base import Flow
+from perturb.simulate.flows.factory import FlowFamily
 from perturb.simulate.orbits.shooting import (
     PeriodicOrbit,
     ShootingError,

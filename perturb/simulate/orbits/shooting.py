@@ -77,18 +77,18 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sps
-import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike
 
 from perturb.errors import ParameterError, PerturbError
-from perturb.simulate.flows.base import Flow
-from perturb.simulate.flows.exact import ExactPWLFlow
+from perturb.numeric.roots import NewtonResult, damped_newton
+from perturb.simulate.flows.base import Flow, as_flow
 
 __all__ = [
     "PeriodicOrbit",
     "ShootingError",
     "classify_multipliers",
     "is_autonomous",
+    "monodromy_multipliers",
     "periodic_orbit",
     "limit_cycle",
     "multiple_shooting",
@@ -104,7 +104,7 @@ N_STATS = 1024
 UNIT_TOL = 1e-6
 #: a Newton step is cut to this multiple of max(1, |z|)
 _MAX_STEP = 10.0
-#: smallest line-search step fraction
+#: smallest line-search step fraction (a power of 2: the number of halvings)
 _MIN_ALPHA = 2.0**-12
 
 
@@ -316,7 +316,7 @@ class _FlowDense:
         self.flow = flow
         self.nodes = np.array(nodes, dtype=float).reshape(-1, 2)
         self.times = np.array(times, dtype=float)
-        self.exact = isinstance(flow, ExactPWLFlow)
+        self.exact = flow.exact_dense_output
         self.trajs = (
             [
                 flow.trajectory(self.nodes[i], self.times[i], self.times[i + 1])  # type: ignore[attr-defined]
@@ -441,7 +441,7 @@ def _statistics(dense: Any, t0: float, P: float, harmonic: int) -> tuple[float, 
     return max(abs(xmax), abs(xmin)), first, mean
 
 
-def _eigenvalues(M: np.ndarray, det: float | None = None) -> np.ndarray:
+def monodromy_multipliers(M: np.ndarray, det: float | None = None) -> np.ndarray:
     r"""Eigenvalues of a 2x2 monodromy by decreasing modulus.
 
     With the exact determinant (Liouville: :math:`\det M = e^{\oint \operatorname{tr} J}`,
@@ -469,7 +469,12 @@ def _eigenvalues(M: np.ndarray, det: float | None = None) -> np.ndarray:
     return mu[np.argsort(-np.abs(mu), kind="stable")]
 
 
-def _make_orbit(
+# transitional (issue #14): the committed exact_response.py imports the old private name until
+# its owner's commit with the new import line lands; delete then
+_eigenvalues = monodromy_multipliers
+
+
+def make_orbit(
     *,
     dense: Any,
     y0: np.ndarray,
@@ -486,9 +491,8 @@ def _make_orbit(
     flow: Any = None,
 ) -> PeriodicOrbit:
     autonomous = forcing_period is None
-    det_fn = getattr(flow, "sensitivity_determinant", None)
-    determinant = float(det_fn(t0, t0 + P)) if callable(det_fn) else None
-    mu = _eigenvalues(monodromy, determinant)
+    determinant = None if flow is None else flow.sensitivity_determinant(t0, t0 + P)
+    mu = monodromy_multipliers(monodromy, None if determinant is None else float(determinant))
     stability, max_mu = classify_multipliers(mu, autonomous=autonomous, unit_tol=unit_tol)
     amp, first, mean = _statistics(dense, t0, P, 1 if autonomous else m)
     values = [*y0, P, *monodromy.ravel(), amp, first, mean, residual]
@@ -524,20 +528,15 @@ def _make_orbit(
 # ---------------------------------------------------------------------------------------------
 # input checks
 # ---------------------------------------------------------------------------------------------
-def _check_flow(flow: Any) -> None:
-    if not callable(flow) or not callable(getattr(flow, "vector_field", None)):
-        raise ParameterError(
-            f"flow = {flow!r}: expected a Flow (callable with a vector_field method), e.g. "
-            "ExactPWLFlow(osc) or ODEFlow(osc)"
-        )
+def check_flow(flow: Any) -> Flow:
+    """``flow`` as a :class:`~perturb.simulate.flows.base.Flow` (its declared capabilities);
+    ParameterError when it is not callable with a ``vector_field`` method."""
+    return as_flow(flow)
 
 
 def is_autonomous(flow: Any) -> bool:
-    """True for a flow without forcing (its ``autonomous`` attribute, else ``period is None``)."""
-    auto = getattr(flow, "autonomous", None)
-    if auto is not None:
-        return bool(auto)
-    return getattr(flow, "period", None) is None
+    """True for a flow without forcing (its declared ``autonomous``)."""
+    return as_flow(flow).autonomous
 
 
 def _state(value: ArrayLike, name: str) -> np.ndarray:
@@ -550,7 +549,7 @@ def _state(value: ArrayLike, name: str) -> np.ndarray:
     return y
 
 
-def _positive(value: Any, name: str) -> float:
+def check_positive(value: Any, name: str) -> float:
     try:
         out = float(value)
     except (TypeError, ValueError):
@@ -560,13 +559,13 @@ def _positive(value: Any, name: str) -> float:
     return out
 
 
-def _count(value: Any, name: str, minimum: int = 1) -> int:
+def check_count(value: Any, name: str, minimum: int = 1) -> int:
     if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
         raise ParameterError(f"{name} = {value!r}: expected an integer >= {minimum}")
     return int(value)
 
 
-def _finite(value: Any, name: str) -> float:
+def check_finite(value: Any, name: str) -> float:
     try:
         out = float(value)
     except (TypeError, ValueError):
@@ -576,7 +575,7 @@ def _finite(value: Any, name: str) -> float:
     return out
 
 
-def _forcing_period(flow: Any, period: float | None, who: str) -> float:
+def resolve_forcing_period(flow: Flow, period: float | None, who: str) -> float:
     # a fixed-period problem on an autonomous flow is singular (the trivial multiplier 1)
     if is_autonomous(flow):
         raise ParameterError(
@@ -584,60 +583,23 @@ def _forcing_period(flow: Any, period: float | None, who: str) -> float:
             "unknown; use limit_cycle (or period_guess= with multiple_shooting / collocation)"
         )
     if period is not None:
-        return _positive(period, "period")
-    T = getattr(flow, "period", None)
+        return check_positive(period, "period")
+    T = flow.period
     if T is None:
         raise ParameterError(
             f"{who}: the flow {flow!r} has no common forcing period (incommensurate "
             "frequencies?): pass period= explicitly"
         )
-    return _positive(T, "flow.period")
+    return check_positive(T, "flow.period")
 
 
 # ---------------------------------------------------------------------------------------------
 # safeguarded Newton
 # ---------------------------------------------------------------------------------------------
-@dataclass
-class _NewtonOut:
-    z: np.ndarray
-    r: np.ndarray
-    data: Any
-    iterations: int
-    rnorm: float
-
-
 Evaluator = Callable[[np.ndarray], tuple[np.ndarray, Any, Any]]
 
 
-def _solve(J: Any, rhs: np.ndarray) -> np.ndarray:
-    """Newton direction: sparse LU, dense LU, or least squares (non-square or singular)."""
-    if sps.issparse(J):
-        try:
-            with np.errstate(all="ignore"):
-                return spla.splu(sps.csc_matrix(J)).solve(rhs)
-        except RuntimeError:  # exactly singular: minimum-norm direction from the dense matrix
-            J = J.toarray()
-    J = np.asarray(J, dtype=float)
-    if J.shape == (2, 2):
-        # single shooting: Cramer's rule with the exact 2x2 condition number (singular values
-        # from s1 s2 = |det|, s1^2 + s2^2 = |J|_F^2) costs a fraction of LAPACK's overhead
-        a, b, c, d = (float(z) for z in J.ravel())
-        det = a * d - b * c
-        fro2 = a * a + b * b + c * c + d * d
-        s1 = math.sqrt(0.5 * (fro2 + math.sqrt(max(fro2 * fro2 - 4.0 * det * det, 0.0))))
-        if det != 0.0 and math.isfinite(s1) and s1 * s1 < 1e14 * abs(det):
-            r0, r1 = float(rhs[0]), float(rhs[1])
-            return np.array([(d * r0 - b * r1) / det, (a * r1 - c * r0) / det])
-    if J.shape[0] == J.shape[1]:
-        try:
-            if np.linalg.cond(J) < 1e14:
-                return np.linalg.solve(J, rhs)
-        except np.linalg.LinAlgError:
-            pass
-    return np.linalg.lstsq(J, rhs, rcond=None)[0]
-
-
-def _newton(
+def shooting_newton(
     evaluate: Evaluator,
     z0: np.ndarray,
     *,
@@ -646,67 +608,62 @@ def _newton(
     scale: Callable[[np.ndarray], float],
     what: str,
     admissible: Callable[[np.ndarray], bool] | None = None,
-) -> _NewtonOut:
-    """Damped Newton / Gauss-Newton on ``evaluate(z) -> (r, J, data)``; see module docstring."""
-    try:
-        r, J, data = evaluate(z0)
-    except PerturbError as exc:
+) -> NewtonResult:
+    """The safeguarded Newton of the module docstring on ``evaluate(z) -> (r, J, data)``:
+    :func:`perturb.numeric.roots.damped_newton` with the shooting solvers' rules (step cap
+    ``_MAX_STEP``, halvings down to ``_MIN_ALPHA``, the residual-floor test on the correction),
+    shared by single and multiple shooting and collocation.
+
+    Raises
+    ------
+    ShootingError
+        The flow failed or gave a non-finite residual at ``z0``, a singular Newton system, no
+        decrease along the Newton direction, or no convergence in ``max_iter`` steps.
+    """
+    out = damped_newton(
+        evaluate,
+        z0,
+        tol=tol,
+        max_iter=max_iter,
+        scale=scale,
+        # the correction is negligible although the residual is above tol: the residual floor
+        # of a strongly unstable orbit is ~ eps |M| |y| (rounding amplified by the monodromy),
+        # while z itself is determined to tol
+        step_tol=tol,
+        step_residual_tol=math.sqrt(tol),
+        max_step=_MAX_STEP,
+        max_halvings=round(-math.log2(_MIN_ALPHA)),
+        admissible=admissible,
+        catch=(PerturbError,),  # a trial where the flow fails is a rejected step
+    )
+    if out.converged:
+        return out
+    z, rn, it = out.z, out.rnorm, out.iterations
+    if out.status == "initial_error":
         raise ShootingError(
-            f"{what}: the flow failed at the initial guess {z0.tolist()}: {exc}", math.inf, 0, z0
-        ) from exc
-    if not np.all(np.isfinite(r)):
+            f"{what}: the flow failed at the initial guess {z0.tolist()}: {out.error}",
+            math.inf,
+            0,
+            z0,
+        ) from out.error
+    if out.status == "initial_nonfinite":
         raise ShootingError(
             f"{what}: non-finite residual at the initial guess {z0.tolist()}", math.inf, 0, z0
         )
-    z = z0
-    for it in range(max_iter + 1):
-        rn = float(np.max(np.abs(r)))
-        if rn <= tol * scale(z):
-            return _NewtonOut(z, r, data, it, rn)
-        if it == max_iter:
-            break
-        dz = _solve(J, -r)
-        if not np.all(np.isfinite(dz)):
-            raise ShootingError(
-                f"{what}: singular Newton system at iteration {it} (residual {rn:.3g})", rn, it, z
-            )
-        dn = float(np.max(np.abs(dz)))
-        if dn <= tol * scale(z) and rn <= math.sqrt(tol) * scale(z):
-            # the correction is negligible although the residual is above tol: the residual
-            # floor of a strongly unstable orbit is ~ eps |M| |y| (rounding amplified by the
-            # monodromy), while z itself is determined to tol
-            return _NewtonOut(z, r, data, it, rn)
-        cap = _MAX_STEP * scale(z)
-        if dn > cap:
-            dz = dz * (cap / dn)
-        phi0 = float(np.linalg.norm(r))
-        alpha = 1.0
-        while True:
-            zt = z + alpha * dz
-            accepted = False
-            if admissible is None or admissible(zt):
-                try:
-                    rt, Jt, dt = evaluate(zt)
-                    accepted = (
-                        bool(np.all(np.isfinite(rt)))
-                        and float(np.linalg.norm(rt)) <= (1.0 - 1e-4 * alpha) * phi0
-                    )
-                except PerturbError:
-                    accepted = False  # the trial left the domain of the flow: shorten the step
-            if accepted:
-                break
-            alpha *= 0.5
-            if alpha < _MIN_ALPHA:
-                raise ShootingError(
-                    f"{what}: no decrease of the residual along the Newton direction at "
-                    f"iteration {it + 1} (residual {rn:.3g}, tol {tol:g} x {scale(z):.3g}); "
-                    "the guess is too far from a periodic orbit, the orbit is degenerate, or "
-                    "the flow is not accurate enough for this tol",
-                    rn,
-                    it,
-                    z,
-                )
-        z, r, J, data = zt, rt, Jt, dt
+    if out.status == "singular":
+        raise ShootingError(
+            f"{what}: singular Newton system at iteration {it} (residual {rn:.3g})", rn, it, z
+        )
+    if out.status == "no_decrease":
+        raise ShootingError(
+            f"{what}: no decrease of the residual along the Newton direction at "
+            f"iteration {it + 1} (residual {rn:.3g}, tol {tol:g} x {scale(z):.3g}); "
+            "the guess is too far from a periodic orbit, the orbit is degenerate, or "
+            "the flow is not accurate enough for this tol",
+            rn,
+            it,
+            z,
+        )
     raise ShootingError(
         f"{what} did not converge in {max_iter} iterations: residual {rn:.3g} > tol {tol:g} x "
         f"{scale(z):.3g}",
@@ -775,13 +732,13 @@ def periodic_orbit(
     >>> orb.stability
     'stable'
     """
-    _check_flow(flow)
+    flow = check_flow(flow)
     y = _state(y_guess, "y_guess")
-    m = _count(m, "m")
-    t0 = _finite(t0, "t0")
-    tol = _positive(tol, "tol")
-    max_iter = _count(max_iter, "max_iter", 0)
-    T = _forcing_period(flow, period, "periodic_orbit")
+    m = check_count(m, "m")
+    t0 = check_finite(t0, "t0")
+    tol = check_positive(tol, "tol")
+    max_iter = check_count(max_iter, "max_iter", 0)
+    T = resolve_forcing_period(flow, period, "periodic_orbit")
     P = m * T
     eye = np.eye(2)
 
@@ -790,7 +747,7 @@ def periodic_orbit(
         M = np.asarray(res.sensitivity, dtype=float)
         return res.y - yy, M - eye, M
 
-    out = _newton(
+    out = shooting_newton(
         evaluate,
         y,
         tol=tol,
@@ -800,7 +757,7 @@ def periodic_orbit(
     )
     y0 = out.z.copy()
     dense = _FlowDense(flow, y0[None, :], np.array([t0, t0 + P]))
-    return _make_orbit(
+    return make_orbit(
         dense=dense,
         y0=y0,
         t0=t0,
@@ -819,12 +776,12 @@ def periodic_orbit(
 def _check_autonomous(flow: Any, who: str) -> None:
     if not is_autonomous(flow):
         raise ParameterError(
-            f"{who}: the flow {flow!r} is forced (period {getattr(flow, 'period', None)}): "
+            f"{who}: the flow {flow!r} is forced (period {flow.period}): "
             "limit cycles of autonomous systems only; use periodic_orbit for forced orbits"
         )
 
 
-def _reject_equilibrium(flow: Any, y0: np.ndarray, P: float, what: str, rn: float, it: int):
+def reject_equilibrium(flow: Flow, y0: np.ndarray, P: float, what: str, rn: float, it: int):
     f = np.asarray(flow.vector_field(0.0, y0), dtype=float)
     if float(np.max(np.abs(f))) <= 1e-8 * _state_scale(y0):
         raise ShootingError(
@@ -909,12 +866,12 @@ def limit_cycle(
         periods and Newton restarts from the maximum of ``x`` and the period measured on the
         settled transient (stable cycles only: an unstable one repels the transient).
     """
-    _check_flow(flow)
+    flow = check_flow(flow)
     _check_autonomous(flow, "limit_cycle")
     y = _state(y_guess, "y_guess")
-    T0 = _positive(period_guess, "period_guess")
-    tol = _positive(tol, "tol")
-    max_iter = _count(max_iter, "max_iter", 0)
+    T0 = check_positive(period_guess, "period_guess")
+    tol = check_positive(tol, "tol")
+    max_iter = check_count(max_iter, "max_iter", 0)
     if phase not in ("velocity", "anchor"):
         raise ParameterError(f"phase = {phase!r}: expected 'velocity' or 'anchor'")
     eye = np.eye(2)
@@ -945,7 +902,7 @@ def limit_cycle(
         z0 = np.array([T0])
 
     def solve(z_start: np.ndarray) -> tuple[Any, np.ndarray, float]:
-        out = _newton(
+        out = shooting_newton(
             evaluate,
             z_start,
             tol=tol,
@@ -962,7 +919,7 @@ def limit_cycle(
         )
         y0 = out.z[:2].copy() if phase == "velocity" else y.copy()
         P = float(out.z[-1])
-        _reject_equilibrium(flow, y0, P, what, out.rnorm, out.iterations)
+        reject_equilibrium(flow, y0, P, what, out.rnorm, out.iterations)
         return out, y0, P
 
     try:
@@ -983,7 +940,7 @@ def limit_cycle(
         except ShootingError:
             raise first from None
     dense = _FlowDense(flow, y0[None, :], np.array([0.0, P]))
-    return _make_orbit(
+    return make_orbit(
         dense=dense,
         y0=y0,
         t0=0.0,
@@ -1041,7 +998,7 @@ def multiple_shooting(
     ParameterError, ShootingError
         As in :func:`periodic_orbit`.
     """
-    _check_flow(flow)
+    flow = check_flow(flow)
     try:
         Y = np.array(guesses, dtype=float)
     except (TypeError, ValueError):
@@ -1051,8 +1008,8 @@ def multiple_shooting(
     if not np.all(np.isfinite(Y)):
         raise ParameterError(f"guesses = {Y.tolist()!r}: expected finite values")
     N = Y.shape[0]
-    tol = _positive(tol, "tol")
-    max_iter = _count(max_iter, "max_iter", 0)
+    tol = check_positive(tol, "tol")
+    max_iter = check_count(max_iter, "max_iter", 0)
     auto = is_autonomous(flow)
     if auto and period is not None:
         raise ParameterError(
@@ -1064,7 +1021,7 @@ def multiple_shooting(
             raise ParameterError(
                 "multiple_shooting: autonomous flow: expected period_guess for the unknown period"
             )
-        T0 = _positive(period_guess, "period_guess")
+        T0 = check_positive(period_guess, "period_guess")
         m = 1
         t0 = 0.0
         T_forcing = None
@@ -1074,9 +1031,9 @@ def multiple_shooting(
                 f"period_guess = {period_guess!r} given for a forced flow: the period is "
                 "m x the forcing period; pass period= to override the forcing period"
             )
-        m = _count(m, "m")
-        t0 = _finite(t0, "t0")
-        T_forcing = _forcing_period(flow, period, "multiple_shooting")
+        m = check_count(m, "m")
+        t0 = check_finite(t0, "t0")
+        T_forcing = resolve_forcing_period(flow, period, "multiple_shooting")
         T0 = m * T_forcing
     n = 2 * N
     # static sparsity: -I blocks on the cyclic super-diagonal
@@ -1117,7 +1074,7 @@ def multiple_shooting(
 
     z0 = np.append(Y.ravel(), T0) if auto else Y.ravel().copy()
     what = f"multiple shooting ({N} nodes)"
-    out = _newton(
+    out = shooting_newton(
         evaluate,
         z0,
         tol=tol,
@@ -1129,14 +1086,14 @@ def multiple_shooting(
     nodes = out.z[:n].reshape(N, 2).copy()
     P = float(out.z[-1]) if auto else T0
     if auto:
-        _reject_equilibrium(flow, nodes[0], P, what, out.rnorm, out.iterations)
+        reject_equilibrium(flow, nodes[0], P, what, out.rnorm, out.iterations)
     M = np.eye(2)
     for Mi in out.data:
         M = Mi @ M
     times = t0 + P * np.arange(N + 1) / N
     times[-1] = t0 + P
     dense = _FlowDense(flow, nodes, times)
-    return _make_orbit(
+    return make_orbit(
         dense=dense,
         y0=nodes[0].copy(),
         t0=t0,
