@@ -680,8 +680,3 @@ def residual_solutions_at(
         dict(traced.params),
         notes=tuple(notes),
     )
-
-
-# transitional: perturb/solve.py imports these private names until it calls
-# residual_solutions_at (its owner switches it); remove then
-_Waveform = Waveform
