@@ -18,7 +18,12 @@ contract (docs/architecture.md, "the method contract"):
 - ``backbone``: optional frequency-amplitude relation ``omega(a)`` of the free undamped
   system (Lindstedt–Poincaré, multiple scales, averaging), in the amplitude symbol;
 - ``fourier``: the Fourier coefficients the method used, by label;
-- ``steps``: the derivation as (title, expression or text) pairs.
+- ``steps``: the derivation as (title, expression or text) pairs;
+- ``notes``: what the method says about this approximation that the numbers do not (e.g. a
+  zero-mean ansatz on a force with an even polynomial part), written by the method when it
+  derives it (:mod:`perturb.methods.caveats`); every response computed from the
+  approximation repeats them in its ``notes``.  Not part of the saved JSON or the
+  derivation cache (an approximation with notes is recomputed rather than cached).
 """
 
 from __future__ import annotations
@@ -70,6 +75,7 @@ class Approximation:
     backbone: sp.Expr | None = None
     fourier: Mapping[str, sp.Expr] = field(default_factory=lambda: MappingProxyType({}))
     steps: tuple[Step, ...] = ()
+    notes: tuple[str, ...] = ()
 
     @property
     def label(self) -> str:

@@ -74,6 +74,7 @@ from perturb.fourier.symbols import (
 )
 from perturb.fourier.trig import fold_mirror_angles, harmonics
 from perturb.methods.applicability import expression_argument, require_centred
+from perturb.methods.caveats import states_caveats
 from perturb.model.oscillator import Oscillator
 from perturb.model.parsing import real_symbol
 from perturb.model.pwl import is_nonsmooth, to_pwl
@@ -528,6 +529,7 @@ def frequency_polynomial_coefficients(
     return tuple(coeffs)
 
 
+@states_caveats
 def krylov_bogoliubov(
     oscillator: Oscillator, *, generating_frequency: sp.Expr | float | None = None
 ) -> Approximation:
@@ -730,6 +732,7 @@ def response_frequency_symbol(osc: Oscillator) -> sp.Symbol:
     return sp.Symbol(name, positive=True)
 
 
+@states_caveats
 def van_der_pol_averaging(
     oscillator: Oscillator, *, generating_frequency: sp.Expr | float | None = None
 ) -> Approximation:

@@ -69,6 +69,7 @@ from perturb.methods.averaging import (
     frequency_polynomial_coefficients,
     response_frequency_symbol,
 )
+from perturb.methods.caveats import states_caveats
 from perturb.model.oscillator import Oscillator
 from perturb.model.parsing import real_symbol
 from perturb.model.pwl import is_nonsmooth
@@ -82,6 +83,7 @@ __all__ = [
 ]
 
 
+@states_caveats
 def single_harmonic_balance(oscillator: Oscillator) -> Approximation:
     """Derive the single-harmonic balance equations of ``oscillator``.
 
@@ -262,6 +264,7 @@ def _forcing_frequency(osc: Oscillator) -> sp.Symbol:
     return Omega
 
 
+@states_caveats
 def harmonic_balance(
     oscillator: Oscillator,
     harmonics: Sequence[int | Fraction | str] = (1,),

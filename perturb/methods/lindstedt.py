@@ -62,6 +62,7 @@ import sympy as sp
 from perturb.approximation import Approximation
 from perturb.errors import ModelError, ParameterError
 from perturb.methods.applicability import check_order, require_centred
+from perturb.methods.caveats import states_caveats
 from perturb.methods.series import (
     AMPLITUDES,
     ONE,
@@ -121,6 +122,7 @@ def _require_free(osc: Oscillator, method: str) -> None:
         )
 
 
+@states_caveats
 def lindstedt_poincare(
     oscillator: Oscillator,
     order: int = 2,

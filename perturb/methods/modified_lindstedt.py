@@ -80,6 +80,7 @@ from perturb.approximation import Approximation, Step
 from perturb.errors import ModelError, ParameterError
 from perturb.fourier.symbols import DiracCoefficient, RampCoefficient, StepCoefficient
 from perturb.methods.applicability import check_order, require_centred
+from perturb.methods.caveats import states_caveats
 from perturb.methods.series import (
     ONE,
     PWL_MAX_ORDER,
@@ -162,6 +163,7 @@ def _readable_difference(A: sp.Symbol, W: sp.Expr, f1: sp.Expr) -> sp.Expr:
     return sp.Add(*terms, evaluate=False)
 
 
+@states_caveats
 def modified_lindstedt(
     oscillator: Oscillator,
     order: int = 1,

@@ -121,6 +121,7 @@ from perturb.errors import ModelError, ParameterError, PerturbError
 from perturb.fourier.symbols import NUMERIC_IMPLEMENTATIONS, closed_form, series_coefficient
 from perturb.fourier.trig import fold_mirror_angles
 from perturb.methods.applicability import check_order, expression_argument, require_centred
+from perturb.methods.caveats import states_caveats
 from perturb.model.oscillator import Oscillator
 from perturb.model.parsing import real_symbol
 from perturb.model.pwl import is_nonsmooth
@@ -1527,6 +1528,7 @@ def _eliminate_phase(
 
 
 # ----------------------------------------------------------------------- approximation --
+@states_caveats
 def _to_approximation(mod: ModulationEquations) -> Approximation:
     osc = mod.oscillator
     a, phase = mod.amplitude, mod.phase

@@ -683,13 +683,13 @@ def response_notes(
 
     - no branch at all: why, and what to try instead;
     - a conservative (undamped) forced model: stability is marginal and undecided;
-    - a force with an even polynomial part under a first-order zero-mean method.
+    - the approximation's own ``notes``, which its method wrote when it derived it (e.g. a
+      force with an even polynomial part under a first-order zero-mean method,
+      :mod:`perturb.methods.caveats`): copied, this layer writes no method-specific note.
 
     Used by :func:`approximation_response`, :func:`solutions_at` and
     :func:`perturb.numeric.residual.residual_response`.
     """
-    from perturb.methods.applicability import APPLIES_OFF_CENTRE, even_part
-
     notes: list[str] = []
     lo, hi = window
     if not branches:
@@ -708,20 +708,7 @@ def response_notes(
             "(e.g. --param mu=0.01) to decide stability, or compute the backbone (the free "
             "undamped response)"
         )
-    zero_mean = not approx.options.get("bias", False) and (
-        approx.method in ("kb", "vdp", "hb", "hb1") or approx.options.get("order", 1) == 1
-    )
-    try:
-        kinds = even_part(osc) if zero_mean else frozenset()
-    except PerturbError:  # pragma: no cover - the method already accepted the model
-        kinds = frozenset()
-    if "polynomial" in kinds:
-        notes.append(
-            f"the force of model {osc.name!r} has an even polynomial part: {approx.label} (an "
-            "orbit centred on x = 0, to first order) leaves out the mean it causes and its "
-            "effect on the frequency (second order in the amplitude); for a strong even part "
-            f"use {APPLIES_OFF_CENTRE}"
-        )
+    notes.extend(approx.notes)
     return tuple(notes)
 
 
