@@ -19,14 +19,14 @@ Bounded work
     each engine accepts; :func:`check_order` enforces it.
 
 Caller strings
-    :func:`expression_argument` turns a caller's value into a SymPy expression: strings only
-    through the safe parser :func:`perturb.model.parsing.parse_expression` (never ``sympify``).
+    :func:`expression_argument` (defined in :mod:`perturb.model.parsing`, re-exported here)
+    turns a caller's value into a SymPy expression: strings only through the safe parser
+    :func:`perturb.model.parsing.parse_expression` (never ``sympify``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from fractions import Fraction
 from types import MappingProxyType
 from typing import Any
 
@@ -35,6 +35,7 @@ import sympy as sp
 
 from perturb.errors import ModelError, ParameterError
 from perturb.model.oscillator import Oscillator
+from perturb.model.parsing import expression_argument  # re-exported: the engines' import
 from perturb.model.pwl import is_nonsmooth
 
 __all__ = [
@@ -107,46 +108,6 @@ def check_order(method: str, order: Any, what: str = "order") -> int:
             "more accurate response use numeric harmonic balance ('hb') or 'exact'"
         )
     return int(order)
-
-
-def expression_argument(value: Any, what: str, *, allow_derivatives: bool = False) -> sp.Expr:
-    """A caller's value as a SymPy expression, without ``sympify`` on text.
-
-    Parameters
-    ----------
-    value
-        A SymPy expression, a number (int, float, Fraction) or a string; strings go through
-        :func:`perturb.model.parsing.parse_expression`.
-    what
-        The argument's name, for the message.
-    allow_derivatives
-        Whether a string may contain ``x'``.
-
-    Raises
-    ------
-    ParseError
-        For a string the safe parser refuses.
-    ParameterError
-        For any other type.
-    """
-    from perturb.model.parsing import parse_expression
-
-    if isinstance(value, str):
-        return parse_expression(value, allow_derivatives=allow_derivatives)
-    if isinstance(value, sp.Basic):
-        return value
-    if isinstance(value, bool):
-        raise ParameterError(f"{what} = {value!r}: expected a number or an expression")
-    if isinstance(value, int | np.integer):
-        return sp.Integer(int(value))
-    if isinstance(value, Fraction):
-        return sp.Rational(value.numerator, value.denominator)
-    if isinstance(value, float | np.floating):
-        return sp.Float(float(value))
-    raise ParameterError(
-        f"{what} = {value!r} (type {type(value).__name__}): expected a SymPy expression, a "
-        "number or a string (parsed by perturb.model.parsing.parse_expression)"
-    )
 
 
 def _scale(expr: sp.Expr) -> float:
