@@ -115,8 +115,9 @@ def time_history(
         v = np.interp(t_eval, traj.t, traj.v)
         # the step actually taken: simulate_lcp shortens it on a stiff contact
         return TimeHistory(t_eval, x, v, f"lcp(h={traj.h:.3g})", 0)
-    from perturb.simulate.flows.base import ODEFlow
+    from perturb.simulate.flows.factory import make_flow
 
-    res = ODEFlow(osc, Omega)(y0, t0, t1, t_eval=t_eval)
+    # the ODE flow at its own default tolerances (the flow factory's are looser)
+    res = make_flow(osc, Omega, method="ode", rtol=1e-11, atol=1e-12)(y0, t0, t1, t_eval=t_eval)
     assert res.ys is not None and res.t is not None
     return TimeHistory(res.t, res.ys[:, 0], res.ys[:, 1], "ode", 0)
