@@ -98,9 +98,9 @@ def _cases() -> list[Case]:
         for model in ("duffing", "vanderpol", "nsd"):
             cases.append(Case(f"{method}-{model}", method, ("builtin", model, {})))
     cases += [
-        Case("hb-duffing-1", "hb", ("builtin", "duffing", {}), {"harmonics": (1,)}),
-        Case("hb-duffing-1,3", "hb", ("builtin", "duffing", {}), {"harmonics": (1, 3)}),
-        Case("hb-nsd-bias", "hb", ("builtin", "nsd", {}), {"bias": True}),
+        Case("hb-duffing-1", "shb", ("builtin", "duffing", {}), {"harmonics": (1,)}),
+        Case("hb-duffing-1,3", "shb", ("builtin", "duffing", {}), {"harmonics": (1, 3)}),
+        Case("hb-nsd-bias", "shb", ("builtin", "nsd", {}), {"bias": True}),
     ]
     return cases
 

@@ -47,6 +47,7 @@ from typing import Any
 
 import numpy as np
 
+from perturb import checks
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
 from perturb.response import Branch, Response
@@ -57,6 +58,7 @@ __all__ = [
     "AutoChoice",
     "LADDER",
     "check_rtol",
+    "derive_candidate",
     "spot_frequencies",
     "exact_spot_orbits",
     "candidate_spot_errors",
@@ -264,30 +266,17 @@ def _settings_text(c: Candidate) -> str:
 
 
 def check_rtol(rtol: Any) -> float:
-    """``rtol`` as a float in ``(0, 1)``.
+    """``rtol`` as a float in ``(0, 1)`` (the registry's check of the option ``rtol`` of
+    ``method="auto"``, :func:`perturb.methods.registry.check_rtol`).
 
     Raises
     ------
     ParameterError
         Naming the bad value.
     """
-    try:
-        value = float(rtol)
-    except (TypeError, ValueError):
-        value = math.nan
-    if isinstance(rtol, bool) or not (0.0 < value < 1.0):
-        raise ParameterError(f"rtol = {rtol!r}: expected a relative tolerance in (0, 1)")
-    return value
+    from perturb.methods.registry import check_rtol as check
 
-
-def _check_window(window: Sequence[float]) -> tuple[float, float]:
-    try:
-        lo, hi = (float(w) for w in window)
-    except (TypeError, ValueError):
-        raise ParameterError(f"Omega = {window!r}: expected (low, high)") from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 < lo < hi):
-        raise ParameterError(f"Omega = {window!r}: expected 0 < low < high")
-    return lo, hi
+    return check(rtol)
 
 
 def spot_frequencies(
@@ -300,7 +289,7 @@ def spot_frequencies(
     farthest point from every fold within its part.  A model ``hb1`` cannot treat keeps the
     plain midpoints.
     """
-    lo, hi = _check_window(window)
+    lo, hi = checks.window(window)
     if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 50:
         raise ParameterError(f"n = {n!r}: expected an integer number of spot checks in [1, 50]")
     edges = np.linspace(lo, hi, n + 1)
@@ -376,12 +365,18 @@ def _hausdorff(found: Sequence[float], exact: Sequence[float], two_sided: bool) 
     return err
 
 
-def _derive(c: Candidate, oscillator: Oscillator):
-    from perturb.io.cache import cached_derivation
-    from perturb.methods import METHODS
+def derive_candidate(c: Candidate, oscillator: Oscillator):
+    """The approximation of a symbolic rung ``c`` for ``oscillator`` (through the one
+    dispatcher, :func:`perturb.solve.derive`, with the derivation cache).
 
-    opts = {} if c.order is None else {"order": c.order}
-    return cached_derivation(c.method, METHODS[c.method], oscillator, **opts)
+    Raises
+    ------
+    ParameterError
+        When ``c.method`` is not a symbolic method.
+    """
+    from perturb.solve import derive
+
+    return derive(oscillator, c.method, use_cache=True, order=c.order)
 
 
 def _is_polynomial(approx: Any) -> bool:
@@ -442,7 +437,7 @@ def candidate_spot_errors(
                 default=0.0,
             )
             return CandidateResult(candidate, errs, est, time.process_time() - t0)
-        approx = _derive(candidate, oscillator)
+        approx = derive_candidate(candidate, oscillator)
         H_ref = 3 if candidate.order in (None, 1) else 5
         ref = [_hb_amplitudes(oscillator, H_ref, w, o) for w, o in zip(ws, orbits, strict=True)]
         if _is_polynomial(approx):
@@ -564,7 +559,7 @@ def _choose(
     ``before`` are results of cheaper rungs already rejected (reported, not re-run)."""
     known = {} if known is None else known
     rtol = check_rtol(rtol)
-    lo, hi = _check_window(window)
+    lo, hi = checks.window(window)
     if spots is None:
         spots = spot_frequencies(oscillator, (lo, hi), n_spots)
     try:
@@ -724,14 +719,9 @@ def _full_response(
         return _hb_multistart(oscillator, int(c.harmonics or 15), window, orbits)
     if c.method == "exact":
         return frequency_response(oscillator, "exact", window)
-    approx = _derive(c, oscillator)
-    if _is_polynomial(approx):
-        from perturb.numeric.amplitude import approximation_response as traced
+    from perturb.solve import trace_approximation
 
-        return traced(approx, window, points=points)
-    from perturb.numeric.residual import residual_response
-
-    return residual_response(approx, window)
+    return trace_approximation(derive_candidate(c, oscillator), window, points=points)
 
 
 def _coverage_notes(resp: Response, choice: AutoChoice) -> tuple[str, ...]:

@@ -1,14 +1,29 @@
-"""The front doors of the pipeline for an :class:`~perturb.model.oscillator.Oscillator`.
+"""The one dispatcher: ``frequency_response(osc, method, Omega)`` for every method.
 
-``frequency_response(osc, method=..., Omega=...)`` answers with any approximation method
-(``"hb1"``, ...) or with ``"exact"`` (shooting + continuation on the exact flow); the other
-functions are re-exported from the layers that own them.
+``frequency_response(osc, method=..., Omega=...)`` answers with any method of the registry
+(:mod:`perturb.methods.registry`: the symbolic approximations ``"hb1"``, ``"shb"``, ``"kb"``,
+``"vdp"``, ``"ms"``, ``"lp"``, ``"mlp"``, numeric harmonic balance ``"hb"``, the exact
+reference ``"exact"`` and the automatic choice ``"auto"``). The registry says which options a
+method takes and checks their values; this module routes the request:
+
+- symbolic: :func:`derive` (the engine, optionally through the derivation cache), then
+  :func:`trace_approximation` (amplitude parametrisation or residual continuation);
+- numeric ``"hb"``: :func:`perturb.numeric.harmonic_balance.harmonic_balance_response`;
+- reference ``"exact"``: :mod:`perturb.simulate.exact_response`, started also from
+  approximations (:mod:`perturb.seeds`);
+- ``"auto"``: :func:`perturb.auto.auto_frequency_response`, resolved by name (auto imports
+  this module, never the reverse).
+
+``frequencies=`` works for every method but ``"auto"``: every solution at exactly those
+frequencies (traced over a covering window, then each crossing solved again at the exact
+frequency).
 
 Limits
 ------
 Requests whose cost grows without bound are refused before any work starts, with a message
-that names the value and the limit. The limits live here, in one place, for the Python API,
-the command line and the scenes:
+that names the value and the limit. The limits are the registry's
+(:mod:`perturb.methods.registry`), re-exported here, for the Python API, the command line
+and the scenes:
 
 :data:`MAX_HARMONICS`
     Numeric HB with ``H`` harmonics solves ``(2H + 1)``-square systems and a
@@ -22,24 +37,44 @@ the command line and the scenes:
     Lindstedt-Poincare order 10 1.4 s (``order = 50`` ran past 120 s).
 :data:`MAX_POINTS`
     Points of an amplitude-parametrised curve and of an ``start:stop:count`` grid.
+:data:`MAX_FREQUENCIES`
+    Listed frequencies (``frequencies=``; each one is a solve).
+
+Importing this module loads neither SymPy nor SciPy: each route imports its solver when
+it runs.
 """
 
 from __future__ import annotations
 
-import inspect
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from perturb import checks
 from perturb.errors import ParameterError
-from perturb.methods import METHODS
-from perturb.methods.applicability import ORDER_LIMITS
-from perturb.model.oscillator import Oscillator
-from perturb.response import Branch, Response
+from perturb.methods import registry
+from perturb.methods.registry import (
+    ALIASES,
+    MAX_FREQUENCIES,
+    MAX_HARMONICS,
+    MAX_ORDER,
+    MAX_POINTS,
+    RESIDUAL_OPTIONS,
+    check_harmonics,
+    check_order,
+    check_points,
+)
+
+if TYPE_CHECKING:
+    from perturb.approximation import Approximation
+    from perturb.model.oscillator import Oscillator
+    from perturb.response import Response
 
 __all__ = [
     "frequency_response",
     "periodic_orbits",
+    "derive",
+    "trace_approximation",
     "ALIASES",
     "MAX_HARMONICS",
     "MAX_ORDER",
@@ -50,91 +85,8 @@ __all__ = [
     "check_points",
 ]
 
-
-#: Names the command line also accepts (issue 5 spells them this way).
-ALIASES = {"mms": "ms", "avg": "kb"}
-
-#: Largest number of harmonics of numeric harmonic balance (see the module docstring).
-MAX_HARMONICS = 255
-#: Largest expansion order of any symbolic method; each method's own limit is
-#: :data:`perturb.methods.applicability.ORDER_LIMITS` (the one table of measured limits).
-_EXPANSION_METHODS = ("lp", "mlp", "ms")  # ORDER_LIMITS["hb"] counts harmonics, not an order
-MAX_ORDER = max(ORDER_LIMITS[m] for m in _EXPANSION_METHODS)
-#: Largest number of points of a traced curve.
-MAX_POINTS = 100_000
-#: Largest number of listed frequencies (``frequencies=``; each one is a solve).
-MAX_FREQUENCIES = 10_000
-
-
-def _integer(name: str, value: Any, low: int, high: int, why: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | float) or value != int(value):
-        raise ParameterError(f"{name} = {value!r}: expected a whole number from {low} to {high}")
-    value = int(value)
-    if value < low:
-        raise ParameterError(f"{name} = {value}: expected at least {low}")
-    if value > high:
-        raise ParameterError(f"{name} = {value}: expected at most {high} ({why})")
-    return value
-
-
-def check_harmonics(harmonics: Any, name: str = "harmonics") -> int:
-    """``harmonics`` as an int in ``1..MAX_HARMONICS``.
-
-    Raises
-    ------
-    ParameterError
-        Naming the value and the limit.
-    """
-    return _integer(
-        name, harmonics, 1, MAX_HARMONICS, "time grows as harmonics**3: 50 s for one branch at 255"
-    )
-
-
-def check_order(order: Any, name: str = "order", method: str | None = None) -> int:
-    """``order`` as an int from 1 to the method's limit.
-
-    The limit is ``ORDER_LIMITS[method]`` (:mod:`perturb.methods.applicability`) for a method
-    that has one, else :data:`MAX_ORDER`.
-
-    Raises
-    ------
-    ParameterError
-        Naming the value and the limit.
-    """
-    method = ALIASES.get(method, method) if method is not None else None
-    expansion = method in _EXPANSION_METHODS
-    limit = ORDER_LIMITS[method] if expansion else MAX_ORDER
-    what = f"the largest order of {method!r}" if expansion else "symbolic work"
-    return _integer(name, order, 1, limit, f"{what}: symbolic work grows ~4x per order")
-
-
-def check_points(points: Any, name: str = "points") -> int:
-    """``points`` as an int in ``2..MAX_POINTS``.
-
-    Raises
-    ------
-    ParameterError
-        Naming the value and the limit.
-    """
-    return _integer(name, points, 2, MAX_POINTS, "curve resolution")
-
-
-def _check_frequencies(frequencies: Any) -> list[float]:
-    try:
-        values = [float(w) for w in frequencies]
-    except (TypeError, ValueError):
-        raise ParameterError(
-            f"frequencies = {frequencies!r}: expected a sequence of positive numbers"
-        ) from None
-    if not values or not all(math.isfinite(w) and w > 0 for w in values):
-        raise ParameterError(
-            f"frequencies = {values!r}: expected positive finite forcing frequencies"
-        )
-    if len(values) > MAX_FREQUENCIES:
-        raise ParameterError(
-            f"frequencies: {len(values)} values, expected at most {MAX_FREQUENCIES}"
-        )
-    return values
+#: Harmonics of numeric HB when none are given.
+DEFAULT_HARMONICS = 15
 
 
 def frequency_response(
@@ -143,8 +95,6 @@ def frequency_response(
     Omega: Sequence[float] = (0.2, 2.0),
     *,
     frequencies: Sequence[float] | None = None,
-    order: int | None = None,
-    harmonics: int | None = None,
     **options: Any,
 ) -> Response:
     """The frequency response of ``oscillator`` by ``method``.
@@ -152,42 +102,42 @@ def frequency_response(
     Parameters
     ----------
     method
-        ``"exact"`` (continuation of exact periodic orbits), ``"hb"`` (numeric multi-harmonic
-        balance, ``harmonics`` harmonics, exact Galerkin projection for PWL forces, every
-        branch by default), ``"auto"`` (the cheapest method that meets ``rtol`` at exact spot
-        checks, :func:`perturb.auto.auto_frequency_response`; the choice, its estimate
-        and the spot-check errors are the first ``notes`` of the response) or a
-        symbolic method of :data:`perturb.methods.METHODS` (``"mms"`` and ``"avg"`` are
-        accepted for ``"ms"`` and ``"kb"``).
+        A name (or alias) of :data:`perturb.methods.registry.REGISTRY`: ``"exact"``
+        (continuation of exact periodic orbits), ``"hb"`` (numeric multi-harmonic balance,
+        ``harmonics`` harmonics, exact Galerkin projection for PWL forces, every branch by
+        default), ``"auto"`` (the cheapest method that meets ``rtol`` at exact spot checks,
+        :func:`perturb.auto.auto_frequency_response`; the choice, its estimate and the
+        spot-check errors are the first ``notes`` of the response) or a symbolic method
+        (``"hb1"``, ``"shb"``, ``"kb"`` (alias ``"avg"``), ``"vdp"``, ``"ms"`` (alias
+        ``"mms"``), ``"lp"``, ``"mlp"``).
     Omega
         ``(low, high)``.
     frequencies
         Exact frequencies to report instead of a traced curve: every solution found at
-        each of them, and no other frequency. With ``"hb"`` and residual-traced
-        approximations the branches are traced over a window covering the frequencies and
-        each crossing of a branch with a requested frequency is solved again at exactly
-        that frequency.
-    order
-        Expansion order of the symbolic method (``mlp``, ``ms``, ``lp``), at most
-        :data:`MAX_ORDER`.
-    harmonics
-        Harmonics of ``"hb"`` (default 15; at most :data:`MAX_HARMONICS`), or of the Fourier
-        series of ``lp`` / ``mlp``. Any other method refuses it.
+        each of them, and no other frequency (every method but ``"auto"``). With ``"hb"``
+        and residual-traced approximations the branches are traced over a window covering
+        the frequencies and each crossing of a branch with a requested frequency is solved
+        again at exactly that frequency.
     options
-        Passed to the solver. With ``"hb"``: ``all_branches`` (default ``True``; ``False``
-        traces only the branch connected to the window's high end) and the options of
-        :func:`perturb.numeric.harmonic_balance.harmonic_balance_response` (``seeds``
-        defaults to :func:`perturb.seeds.single_harmonic_seeds`). With ``"exact"``:
-        ``approximation`` and ``approximation_seeds`` (see :func:`_exact`) and the options of
-        :func:`perturb.simulate.exact_response.exact_branches`. With ``"auto"``:
-        ``rtol`` (relative amplitude tolerance in ``(0, 1)``, default ``1e-3``), ``spots`` /
-        ``n_spots`` (spot-check frequencies), ``points``.
+        The method's options, and only those (:attr:`MethodSpec.options
+        <perturb.methods.registry.MethodSpec.options>`), e.g. ``order`` (expansion order of
+        ``mlp``, ``ms``, ``lp``, at most :data:`MAX_ORDER`), ``harmonics`` (of ``"hb"``,
+        default 15, at most :data:`MAX_HARMONICS`; of the Fourier series of ``lp`` / ``mlp``;
+        the harmonic set of ``"shb"``), ``points``, ``stability``. With ``"hb"``:
+        ``all_branches`` (default ``True``; ``False`` traces only the branch connected to
+        the window's high end), ``seeds`` (default :func:`perturb.seeds.single_harmonic_seeds`)
+        and the options of :func:`perturb.numeric.harmonic_balance.harmonic_balance_response`.
+        With ``"exact"``: ``approximation`` and ``approximation_seeds`` (see :func:`_exact`)
+        and the options of :func:`perturb.simulate.exact_response.exact_branches`. With
+        ``"auto"``: ``rtol`` (relative amplitude tolerance in ``(0, 1)``, default
+        ``1e-3``), ``spots`` / ``n_spots`` (spot-check frequencies), ``points``.
 
     Raises
     ------
     ParameterError
-        Unknown method, an option the method does not take, or a value beyond the limits
-        of the module docstring (each message names the value and the limit).
+        Unknown method, an option the method does not take (the message lists what it
+        accepts), or a value beyond the limits of the module docstring (each message names
+        the value and the limit).
 
     Notes
     -----
@@ -196,76 +146,173 @@ def frequency_response(
     L-P, for instance) by seeding and continuation of its residuals
     (:func:`perturb.numeric.residual.residual_response`).
     """
-    if not isinstance(method, str):
-        raise ParameterError(f"method = {method!r}: expected a method name")
-    method = ALIASES.get(method, method)
-    if harmonics is not None:
-        harmonics = check_harmonics(harmonics)
-    if order is not None:
-        order = check_order(order, method=method)
+    spec = registry.spec(method)
+    if frequencies is not None:
+        if "frequencies" not in spec.capabilities:
+            raise ParameterError(
+                f"method {spec.name!r} chooses order and harmonics itself over a window "
+                "Omega=(lo, hi): give no frequencies="
+            )
+        frequencies = checks.frequencies(frequencies, MAX_FREQUENCIES)
+    if spec.kind == "symbolic":
+        derive_options, solve_options = spec.split(options)
+        approx = _derive(oscillator, spec, derive_options, use_cache=False)
+        return trace_approximation(approx, Omega, frequencies=frequencies, **solve_options)
+    options = spec.validate(options)
+    if spec.kind == "auto":
+        rtol = options.pop("rtol", 1e-3)
+        return spec.resolve()(oscillator, Omega, rtol, **options)[0]
+    if spec.kind == "reference":
+        return _exact(oscillator, Omega, frequencies, options)
+    return _harmonic_balance(oscillator, Omega, frequencies, options)
+
+
+def derive(
+    oscillator: Oscillator, method: str, *, use_cache: bool = False, **options: Any
+) -> Approximation:
+    """The approximation of ``oscillator`` by the symbolic ``method`` (a registry name).
+
+    Parameters
+    ----------
+    use_cache
+        Read and write the derivation cache (:func:`perturb.io.cache.cached_derivation`,
+        which also honours ``PERTURB_CACHE=0``); the result is the same either way.
+    options
+        The method's derivation options (``order``, ``harmonics``, ``bias``, ...); ``None``
+        values count as not given.
+
+    Raises
+    ------
+    ParameterError
+        For a method that is not symbolic, or an option it does not take.
+    """
+    spec = registry.spec(method)
+    if spec.kind != "symbolic":
+        raise ParameterError(
+            f"method {spec.name!r} ({spec.title}) is a solver, not a derivation: expected one "
+            f"of {', '.join(registry.symbolic_names())}"
+        )
+    derive_options = spec.validate(options, stage="derive")
+    return _derive(oscillator, spec, derive_options, use_cache=use_cache)
+
+
+def _derive(
+    oscillator: Oscillator, spec: registry.MethodSpec, options: dict[str, Any], use_cache: bool
+) -> Approximation:
+    if use_cache:
+        from perturb.io.cache import cached_derivation
+
+        return cached_derivation(spec.name, spec.resolve(), oscillator, **options)
+    return spec.resolve()(oscillator, **options)
+
+
+def _residual_traced(approximation: Approximation) -> bool:
+    """Whether an approximation is traced by residual continuation: its amplitude equation is
+    not a polynomial of degree <= 2 in ``Omega**2``, or it has no slow flow."""
+    poly = approximation.frequency_polynomial
+    return poly is None or len(poly) > 3 or approximation.slow_flow is None
+
+
+def trace_approximation(
+    approximation: Approximation,
+    Omega: Sequence[float] = (0.2, 2.0),
+    *,
+    frequencies: Sequence[float] | None = None,
+    **options: Any,
+) -> Response:
+    """The frequency response of a derived approximation.
+
+    Amplitude parametrisation (:func:`perturb.numeric.amplitude.approximation_response`, at
+    listed frequencies :func:`~perturb.numeric.amplitude.solutions_at`) when the amplitude
+    equation is a polynomial of degree <= 2 in ``Omega**2``; otherwise residual continuation
+    (:func:`perturb.numeric.residual.residual_response`, at listed frequencies
+    :func:`~perturb.numeric.residual.residual_solutions_at`).
+
+    Parameters
+    ----------
+    options
+        ``points`` (of an amplitude-parametrised curve; a residual-traced curve's resolution
+        is set by its continuation step, so it is not needed there), ``stability``,
+        ``amplitude_range`` and, for residual-traced approximations, the options of
+        :func:`~perturb.numeric.residual.residual_response`.
+
+    Raises
+    ------
+    ParameterError
+        For an option that does not apply to how this approximation is traced.
+    """
+    allowed = {"points", "stability", "amplitude_range", *RESIDUAL_OPTIONS}
+    unknown = sorted(set(options) - allowed)
+    if unknown:
+        raise ParameterError(
+            f"{', '.join(unknown)}: not options of tracing an approximation (expected: "
+            f"{', '.join(sorted(allowed))})"
+        )
     if "points" in options:
         options["points"] = check_points(options["points"])
     if frequencies is not None:
-        frequencies = _check_frequencies(frequencies)
-    known = ("auto", "exact", *METHODS)
-    if method not in known:
-        raise ParameterError(
-            f"method = {method!r}: expected 'auto', 'exact', 'hb' or one of "
-            f"{', '.join(METHODS)} (aliases {', '.join(ALIASES)})"
-        )
-    if method == "auto":
-        from perturb.auto import auto_frequency_response, check_rtol
-
-        rtol = check_rtol(options.pop("rtol", 1e-3))
-        if frequencies is not None or order is not None or harmonics is not None:
+        frequencies = checks.frequencies(frequencies, MAX_FREQUENCIES)
+        if "points" in options:
             raise ParameterError(
-                "method 'auto' chooses order and harmonics itself over a window Omega=(lo, hi): "
-                "give neither frequencies=, order= nor harmonics="
+                "points sets the resolution of a traced curve: give it without frequencies="
             )
-        return auto_frequency_response(oscillator, Omega, rtol, **options)[0]
-    if method == "exact":
-        _refuse(method, order=order, harmonics=harmonics)
-        return _exact(oscillator, Omega, frequencies, options)
-    if method == "hb" and order is None:
-        from perturb import seeds
-        from perturb.numeric.harmonic_balance import harmonic_balance_response
+    if _residual_traced(approximation):
+        from perturb.numeric.residual import residual_response, residual_solutions_at
 
-        options.setdefault("all_branches", True)
-        # every branch: Newton started also from the single-harmonic balance branches
-        options.setdefault("seeds", seeds.single_harmonic_seeds)
-        H = 15 if harmonics is None else harmonics
-        if frequencies is not None:
-            return _hb_solutions_at(oscillator, frequencies, H, options)
-        return harmonic_balance_response(oscillator, Omega, harmonics=H, **options)
-    from perturb.numeric.amplitude import approximation_response as traced
-    from perturb.numeric.amplitude import solutions_at
-    from perturb.numeric.residual import residual_response
-
-    fn = METHODS[method]
-    takes = inspect.signature(fn).parameters
-    method_options: dict[str, Any] = {}
-    if order is not None:
-        if "order" not in takes:
-            raise ParameterError(f"order = {order!r}: method {method!r} has no expansion order")
-        method_options["order"] = order
-    if harmonics is not None:
-        if "harmonics" not in takes or method == "hb":
+        if len(approximation.unknowns) == 1:
+            # a free oscillation: no forcing, so no phase and no response to trace
             raise ParameterError(
-                f"harmonics = {harmonics!r}: method {method!r} takes no number of harmonics "
-                "(numeric harmonic balance does: method='hb')"
+                f"{approximation.method}: one unknown ({approximation.unknowns[0]}), a free "
+                "oscillation's frequency-amplitude relation (a backbone), not a forced "
+                "response: the tracers need an amplitude and a phase. Draw it with a scene "
+                "[ask] kind = 'backbone', or use 'mlp' for the forced response"
             )
-        method_options["harmonics"] = harmonics
-    approx = fn(oscillator, **method_options)
-    poly = approx.frequency_polynomial
-    if poly is None or len(poly) > 3 or approx.slow_flow is None:
+        if len(approximation.unknowns) > 2:
+            # residual continuation follows an amplitude and a phase (polar unknowns)
+            names = ", ".join(str(u) for u in approximation.unknowns)
+            raise ParameterError(
+                f"{approximation.method}: {len(approximation.unknowns)} unknowns ({names}); "
+                "the tracers solve approximations in an amplitude and a phase only. For a "
+                "harmonic set or a mean term use numeric harmonic balance, method 'hb' (a "
+                "number of harmonics, the mean among its unknowns)"
+            )
+
         # the curve's resolution is set by the continuation step, not by a point count
         options.pop("points", None)
         if frequencies is not None:
-            return _residual_solutions_at(approx, frequencies, options)
-        return residual_response(approx, Omega, **options)
+            return residual_solutions_at(approximation, frequencies, **options)
+        return residual_response(approximation, Omega, **options)
+    given = sorted(set(options) & set(RESIDUAL_OPTIONS))
+    if given:
+        raise ParameterError(
+            f"{', '.join(given)}: options of residual continuation; {approximation.method!r} "
+            "is traced by amplitude parametrisation (its amplitude equation is a polynomial "
+            "in Omega**2)"
+        )
+    from perturb.numeric.amplitude import approximation_response, solutions_at
+
     if frequencies is not None:
-        return solutions_at(approx, frequencies, **options)
-    return traced(approx, Omega, **options)
+        return solutions_at(approximation, frequencies, **options)
+    return approximation_response(approximation, Omega, **options)
+
+
+def _harmonic_balance(
+    oscillator: Oscillator,
+    Omega: Sequence[float],
+    frequencies: list[float] | None,
+    options: dict[str, Any],
+) -> Response:
+    """Method ``"hb"``: numeric harmonic balance over a window or at listed frequencies."""
+    from perturb import seeds
+    from perturb.numeric.harmonic_balance import harmonic_balance_response
+
+    options.setdefault("all_branches", True)
+    # every branch: Newton started also from the single-harmonic balance branches
+    options.setdefault("seeds", seeds.single_harmonic_seeds)
+    H = options.pop("harmonics", DEFAULT_HARMONICS)
+    if frequencies is not None:
+        return _hb_solutions_at(oscillator, frequencies, H, options)
+    return harmonic_balance_response(oscillator, Omega, harmonics=H, **options)
 
 
 def periodic_orbits(
@@ -362,12 +409,6 @@ def _exact(
     return exact_frequency_response(oscillator, Omega, **options)
 
 
-def _refuse(method: str, **given: Any) -> None:
-    for name, value in given.items():
-        if value is not None:
-            raise ParameterError(f"{name} = {value!r}: method {method!r} takes no {name}")
-
-
 def _covering_window(targets: Sequence[float]) -> tuple[float, float]:
     """A window a little wider than the requested frequencies, so that a branch crossing
     the extreme ones is traced through them, not stopped on them."""
@@ -402,6 +443,7 @@ def _hb_solutions_at(
         harmonic_balance_branches,
         harmonic_balance_orbit,
     )
+    from perturb.response import Branch, Response
 
     opts = dict(options)
     all_branches = bool(opts.pop("all_branches", True))
@@ -463,108 +505,5 @@ def _hb_solutions_at(
         first.method,
         first.system.oscillator.name,
         dict(first.params),
-        notes=tuple(notes),
-    )
-
-
-def _residual_solutions_at(approx, targets: list[float], options: dict[str, Any]) -> Response:
-    """Every solution of a residual-traced approximation at exactly ``targets``: the
-    branches over a window covering them
-    (:func:`perturb.numeric.residual.residual_response`), each crossing solved
-    again at its frequency by Newton on the residuals.
-
-    The residuals' unknowns along a traced branch are not kept by the tracer, so Newton
-    starts at each frequency from the tracer's own seeding grid (amplitudes times phases,
-    denser than the tracer's); every crossing of a traced branch with a requested frequency
-    must then be matched by one of the solutions (within 2 % in ``amplitude``), else a note
-    says which was missed.
-    """
-    import numpy as np
-
-    from perturb.numeric.residual import (
-        ResidualSystem,
-        _branch,
-        _newton_many,
-        _phase_and_freq,
-        _polar,
-        _unique,
-        _Waveform,
-        residual_response,
-    )
-
-    window = _covering_window(targets)
-    traced = residual_response(approx, window, **options)
-    stability = options.get("stability", "hill")
-    max_correction = float(options.get("max_correction", 1.0))
-    a_lo, a_hi = (float(a) for a in options.get("amplitude_range", (1e-2, 1e2)))
-    polar = _polar(approx)
-    sys_ = ResidualSystem(polar)
-    n, amp = sys_.n, sys_.amplitude_index
-    wanted = np.array(sorted(set(targets)))
-    axes = [
-        np.geomspace(a_lo, a_hi, 48) if i == amp else np.linspace(-np.pi, np.pi, 12, endpoint=False)
-        for i in range(n)
-    ]
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, n)
-    U, W = _newton_many(sys_, np.tile(grid, (wanted.size, 1)), np.repeat(wanted, grid.shape[0]))
-    pos = U[:, amp] > 0
-    U, W = U[pos], W[pos]
-    if n > 1:
-        other = [i for i in range(n) if i != amp]
-        U[:, other] = np.angle(np.exp(1j * U[:, other]))
-    U, W = _unique(U, W, amp)
-    order = np.lexsort((U[:, amp], W))
-    U, W = U[order], W[order]
-    notes = [
-        f"{W.size} solutions at {wanted.size} frequencies by Newton from a grid at each, "
-        f"checked against the branches traced over Omega = {window[0]:.6g}..{window[1]:.6g}"
-    ]
-    branches: list[Branch] = []
-    if W.size:
-        wave = _Waveform(polar, polar.amplitude or sys_.unknowns[amp], *_phase_and_freq(polar))
-        b = _branch(polar, sys_, wave, U, W, stability)
-        ok = b.amplitude <= (1.0 + max_correction) * b.first_harmonic_amplitude
-        if not np.all(ok):
-            notes.append(
-                f"{int(np.count_nonzero(~ok))} solutions left out where the waveform's "
-                f"correction exceeds {max_correction:g} times its first harmonic"
-            )
-        # one branch per frequency rank: the k-th smallest amplitude at each frequency
-        rank = np.zeros(W.size, int)
-        keep = np.nonzero(ok)[0]
-        for w in wanted:
-            idx = keep[W[keep] == w]
-            rank[idx] = np.arange(idx.size)
-        for r in range(int(rank[keep].max()) + 1 if keep.size else 0):
-            sel = keep[rank[keep] == r]
-            branches.append(
-                Branch(
-                    omega=b.omega[sel],
-                    amplitude=b.amplitude[sel],
-                    first_harmonic_amplitude=b.first_harmonic_amplitude[sel],
-                    mean=b.mean[sel],
-                    stable=b.stable[sel],
-                    max_multiplier=b.max_multiplier[sel],
-                )
-            )
-    got: dict[float, list[float]] = {float(w): [] for w in wanted}
-    for br in branches:
-        for ww, a in zip(br.omega, br.amplitude, strict=True):
-            got[float(ww)].append(float(a))
-    for bi, br in enumerate(traced.branches):
-        for w, j in _crossings(br.omega, list(wanted)):
-            w0, w1 = float(br.omega[j]), float(br.omega[j + 1])
-            t = 0.0 if w1 == w0 else (w - w0) / (w1 - w0)
-            a = (1 - t) * float(br.amplitude[j]) + t * float(br.amplitude[j + 1])
-            if not any(abs(v - a) <= 0.02 * abs(a) for v in got[float(w)]):
-                notes.append(
-                    f"traced branch {bi} crosses Omega = {w!r} near amplitude {a:.6g}, but "
-                    "Newton from the grid found no solution there"
-                )
-    return Response(
-        tuple(branches),
-        traced.method,
-        traced.model,
-        dict(traced.params),
         notes=tuple(notes),
     )

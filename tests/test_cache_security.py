@@ -372,9 +372,9 @@ def test_plain_expression_text_without_a_model():
 # ------------------------------------------------------- every engine reads back exactly --
 ENGINE_CASES = [
     ("nsd", "hb1", {}),
-    ("nsd", "hb", {"harmonics": (1,), "bias": True}),
-    ("duffing", "hb", {"harmonics": (1, 3)}),
-    ("duffing", "hb", {"harmonics": ("1/3", 1)}),
+    ("nsd", "shb", {"harmonics": (1,), "bias": True}),
+    ("duffing", "shb", {"harmonics": (1, 3)}),
+    ("duffing", "shb", {"harmonics": ("1/3", 1)}),
     ("nsd", "kb", {}),
     ("vanderpol", "vdp", {}),
     ("nsd", "ms", {"order": 1}),

@@ -224,7 +224,7 @@ def test_second_order_mlp_sums_over_the_coefficient_index():
 
 
 @pytest.mark.parametrize(
-    ("method", "model"), [("kb", "deadzone"), ("hb1", "nsd"), ("hb", "saturation")]
+    ("method", "model"), [("kb", "deadzone"), ("hb1", "nsd"), ("shb", "saturation")]
 )
 def test_folded_closed_forms_equal_the_coefficient_functions(method, model):
     """The closed forms printed with one crossing angle (theta_1 = pi - theta_2 folded in)

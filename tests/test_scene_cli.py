@@ -286,7 +286,7 @@ def test_run_on_a_sweep_scene_writes_the_map(tmp_path):
 
 def test_frc_order_for_a_method_without_one_is_a_clear_error(capsys):
     assert main(["frc", "nsd", "--method", "hb1", "--order", "2"]) == 2
-    assert "has no expansion order" in capsys.readouterr().err
+    assert "'hb1' takes no order" in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------------------------------------

@@ -326,7 +326,10 @@ def test_dask_local_cluster_identical_to_serial(dask_client):
 
 
 def test_cli_scheduler_option_uses_the_cluster(dask_client, tmp_path):
-    from perturb.apps.grid_cli import main
+    from perturb.apps.cli import main as cli_main
+
+    def main(argv):
+        return cli_main(["sweep", *argv])
 
     out = tmp_path / "m.nc"
     argv = [str(ROOT / "scenes" / "peak_map.toml"), "--param", "mu=0.1,0.3", "--param", "k=1"]
@@ -465,7 +468,10 @@ def test_killed_sweep_resumes_with_the_same_result(tmp_path, executor):
 
 # -------------------------------------------------------------------------------- CLI --
 def test_cli_sweep_writes_map_and_png(tmp_path, capsys):
-    from perturb.apps.grid_cli import main
+    from perturb.apps.cli import main as cli_main
+
+    def main(argv):
+        return cli_main(["sweep", *argv])
 
     out = tmp_path / "map.nc"
     code = main(
@@ -506,7 +512,10 @@ def test_cli_sweep_writes_map_and_png(tmp_path, capsys):
     ],
 )
 def test_cli_errors(tmp_path, capsys, argv, fragment):
-    from perturb.apps.grid_cli import main
+    from perturb.apps.cli import main as cli_main
+
+    def main(argv):
+        return cli_main(["sweep", *argv])
 
     code = main([str(ROOT / "scenes" / "peak_map.toml"), "--out", str(tmp_path / "m.nc"), *argv])
     assert code == 2

@@ -32,6 +32,7 @@ LAYERS: dict[str, int] = {
     "perturb.errors": 0,
     "perturb.progress": 0,
     "perturb.atomic": 0,
+    "perturb.checks": 0,
     "perturb.model": 1,
     "perturb.fourier": 1,
     "perturb.printing": 1,

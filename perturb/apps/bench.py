@@ -590,12 +590,12 @@ def _lc_approx(prob: Problem, s: Setting, grid: np.ndarray) -> tuple[np.ndarray,
     import sympy as sp
     from scipy.optimize import brentq
 
-    from perturb.methods import METHODS
     from perturb.model.oscillator import builtin_model
     from perturb.numeric.compile import lambdify
+    from perturb.solve import derive
 
     osc = builtin_model(prob.model, **{**prob.params, prob.parameter: None})
-    approx = METHODS[s.method](osc, **s.kwargs)
+    approx = derive(osc, s.method, **s.kwargs)
     flow = list(approx.slow_flow or ())
     if len(flow) != 2 or len(approx.unknowns) != 2:
         raise ValueError(f"{approx.label}: expected a slow flow in two unknowns")

@@ -38,6 +38,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 from perturb import __version__
+from perturb.checks import parse_number
 from perturb.errors import ParameterError, PerturbError
 
 __all__ = [
@@ -93,34 +94,6 @@ class _Parser(argparse.ArgumentParser):
         raise _UsageError(f"{message} (see: {self.prog} --help)")
 
 
-def _number(flag: str, text: str, shown: str | None = None) -> float:
-    """``text`` as a finite float that is not an underflow of a nonzero literal to 0 or to a
-    subnormal value (``1e-5000`` would silently become 0).
-
-    Raises
-    ------
-    ParameterError
-        Naming the flag and the text.
-    """
-    text = text.strip()
-    shown = shown or f"{flag} {text!r}"
-    try:
-        value = float(text)
-    except ValueError:
-        raise ParameterError(f"{shown}: expected a number") from None
-    if not math.isfinite(value):
-        raise ParameterError(f"{shown}: expected a finite number")
-    mantissa = re.split(r"[eE]", text)[0]
-    if value == 0.0 and re.search(r"[1-9]", mantissa):
-        raise ParameterError(
-            f"{shown}: underflows to 0 in double precision; expected 0 or a number of "
-            f"magnitude >= {sys.float_info.min:.3g}"
-        )
-    if value != 0.0 and abs(value) < sys.float_info.min:
-        raise ParameterError(f"{shown}: below the smallest normal double {sys.float_info.min:.3g}")
-    return value
-
-
 def _bounded_int(flag: str, value: int, low: int, high: int, why: str = "") -> int:
     if value < low:
         raise ParameterError(f"{flag} {value}: expected at least {low}")
@@ -146,13 +119,13 @@ def parse_param(text: str) -> tuple[str, float]:
         float(value)
     except ValueError:
         raise ParameterError(f"--param {text!r}: value {value!r} is not a number") from None
-    return name, _number("--param", value, shown=f"--param {text!r}")
+    return name, parse_number(value, f"--param {text!r}")
 
 
 def _finite(flag: str):
     def convert(text: str) -> float:
         try:
-            return _number(flag, text)
+            return parse_number(text, flag)
         except ParameterError as exc:
             raise argparse.ArgumentTypeError(str(exc)) from None
 
@@ -224,7 +197,7 @@ def parse_omega(text: str) -> tuple[str, list[float]]:
     ParameterError
         Naming the bad text.
     """
-    from perturb.solve import MAX_FREQUENCIES
+    from perturb.methods.registry import MAX_FREQUENCIES
 
     text = text.strip()
     usage = f"--omega {text!r}: expected start:stop, start:stop:count or a list like 0.6,0.9"
@@ -233,8 +206,8 @@ def parse_omega(text: str) -> tuple[str, list[float]]:
         [float(p) for p in parts] if ":" in text else [float(w) for w in text.split(",")]
     except ValueError:
         raise ParameterError(usage) from None
-    numbers = [_number("--omega", p) for p in parts] if ":" in text else []
-    values = [_number("--omega", w) for w in text.split(",")] if ":" not in text else []
+    numbers = [parse_number(p, "--omega") for p in parts] if ":" in text else []
+    values = [parse_number(w, "--omega") for w in text.split(",")] if ":" not in text else []
     if ":" in text:
         if len(parts) not in (2, 3):
             raise ParameterError(usage)
@@ -348,44 +321,36 @@ def _frc_summary(resp, kind: str) -> str:
 
 
 def _cmd_frc(args: argparse.Namespace) -> int:
-    from perturb.methods import METHODS
-    from perturb.solve import (
-        ALIASES,
-        check_harmonics,
-        check_order,
-        check_points,
-        frequency_response,
-    )
+    from perturb.methods.registry import check_points, spec
 
     _check_outputs(out=args.out, plot=args.plot)
-    method = ALIASES.get(args.method, args.method)
-    if method not in ("exact", "auto") and method not in METHODS:
-        names = ["auto", "exact", *ALIASES, *METHODS]
-        raise PerturbError(f"--method {args.method!r}: expected one of {', '.join(names)}")
+    method = spec(args.method, what="--method")
     if args.compare not in (None, "exact"):
         raise PerturbError(f"--compare {args.compare!r}: expected exact")
-    # limits before the model: a refused request costs nothing
-    if args.harmonics is not None:
-        check_harmonics(args.harmonics, "--harmonics")
-    if args.order is not None:
-        check_order(args.order, "--order", method)
+    # the method's options and limits (the registry's) before the model: a refused request
+    # costs nothing
+    given = {"harmonics": args.harmonics, "order": args.order}
+    if method.kind == "auto" and (args.order is not None or args.harmonics is not None):
+        raise ParameterError(
+            "--method auto chooses the order and the harmonics itself: "
+            "give neither --order nor --harmonics"
+        )
+    options = method.validate(given, prefix="--")
     check_points(args.points, "--points")
     kind, omegas = parse_omega(args.omega)
-    if args.one_branch and method != "hb":
+    if args.one_branch:
+        if "all_branches" not in method.options:
+            raise ParameterError(
+                f"--one-branch applies to --method hb (every other method returns what it "
+                f"finds); got --method {args.method}"
+            )
+        options["all_branches"] = False
+    elif "all_branches" in method.options:
+        options["all_branches"] = True
+    if method.kind == "auto" and kind != "range":
         raise ParameterError(
-            f"--one-branch applies to --method hb (every other method returns what it finds); "
-            f"got --method {args.method}"
+            f"--method auto traces a window: give --omega start:stop, not {args.omega!r}"
         )
-    if method == "auto":
-        if args.order is not None or args.harmonics is not None:
-            raise ParameterError(
-                "--method auto chooses the order and the harmonics itself: "
-                "give neither --order nor --harmonics"
-            )
-        if kind != "range":
-            raise ParameterError(
-                f"--method auto traces a window: give --omega start:stop, not {args.omega!r}"
-            )
     params = dict(parse_param(p) for p in args.param or ())
     osc = _model_from_arg(args.model, params)
     swept = str(getattr(osc.forcing, "base_frequency", ""))
@@ -394,22 +359,17 @@ def _cmd_frc(args: argparse.Namespace) -> int:
             f"--param {swept}={params[swept]:g}: {swept} is the forcing frequency that frc "
             f"varies; give its values with --omega (e.g. --omega {params[swept]:g})"
         )
-    extra: dict = {}
-    if args.harmonics is not None:
-        extra["harmonics"] = args.harmonics
-    if args.order is not None:
-        extra["order"] = args.order
-    if method == "hb" and args.order is None:
-        extra["all_branches"] = not args.one_branch
-    if method == "auto":
+    from perturb.solve import frequency_response
+
+    if method.kind == "auto":
         print("[perturb] choosing a method (exact spot checks) ...", file=sys.stderr)
-        resp = frequency_response(osc, "auto", omegas, points=args.points)
-    elif kind == "range" and method in ("exact", "hb"):
-        resp = frequency_response(osc, method, omegas, **extra)
-    elif kind == "range":
-        resp = frequency_response(osc, method, omegas, points=args.points, **extra)
+    if kind == "range":
+        # the curve's resolution, for the methods that trace by amplitude parametrisation
+        if "points" in method.options:
+            options["points"] = args.points
+        resp = frequency_response(osc, method.name, omegas, **options)
     else:
-        resp = frequency_response(osc, method, frequencies=omegas, **extra)
+        resp = frequency_response(osc, method.name, frequencies=omegas, **options)
     quiet_csv = args.out is None and args.plot
     rel = comparison = ref = None
     if args.compare == "exact":
@@ -455,7 +415,7 @@ def _pair(flag: str, text: str) -> list[float]:
         raise ParameterError(f"{flag} {text!r}: expected two numbers like 0.3,0.1") from None
     if len(parts) != 2:
         raise ParameterError(f"{flag} {text!r}: expected two finite numbers like 0.3,0.1")
-    return [_number(flag, p) for p in parts]
+    return [parse_number(p, flag) for p in parts]
 
 
 def _forcing_frequency(osc) -> float:
@@ -540,27 +500,24 @@ def _cmd_periodic(args: argparse.Namespace) -> int:
 
 
 def _cmd_derive(args: argparse.Namespace) -> int:
-    import inspect
     import json
 
-    from perturb.io.cache import cached_derivation
     from perturb.io.serialize import approximation_to_dict
-    from perturb.methods import METHODS
+    from perturb.methods.registry import spec, symbolic_names
     from perturb.report.latex import latex_document
-    from perturb.solve import check_order
+    from perturb.solve import derive
 
     _check_outputs(latex=args.latex, json=args.json)
-    if args.method not in METHODS:
-        raise PerturbError(f"method {args.method!r}: expected one of {', '.join(METHODS)}")
-    fn = METHODS[args.method]
-    options = {}
-    if args.order is not None:
-        if "order" not in inspect.signature(fn).parameters:
-            raise PerturbError(f"method {args.method!r} has no --order option")
-        options["order"] = check_order(args.order, "--order", args.method)
+    method = spec(args.method, what="method")
+    if method.kind != "symbolic":
+        raise PerturbError(
+            f"method {args.method!r} is a solver ({method.title}), not a derivation: expected "
+            f"one of {', '.join(symbolic_names())}"
+        )
+    options = method.validate({"order": args.order}, prefix="--", stage="derive")
     params = dict(parse_param(p) for p in args.param or ())
     osc = _model_from_arg(args.model, params)
-    approx = cached_derivation(args.method, fn, osc, use_cache=not args.no_cache, **options)
+    approx = derive(osc, method.name, use_cache=not args.no_cache, **options)
     # files first: the summary may go to a pipe that closes early
     if args.latex:
         latex_document(approx, args.latex)
@@ -593,7 +550,6 @@ def _check_out_dir(out: str) -> None:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from perturb.apps.scene import default_scene, load_scene, run_scene
-    from perturb.solve import check_harmonics, check_order
 
     _check_out_dir(args.out)
     if args.scene and _is_sweep_scene(args.scene):
@@ -603,12 +559,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
         Path(args.out).mkdir(parents=True, exist_ok=True)
         return cmd_sweep(build_args(args.scene, str(Path(args.out) / "map.nc")))
+    # the scene's method options are checked against the method registry when it is read
     scene = load_scene(args.scene) if args.scene else default_scene()
-    # the limits of the Python API (perturb.solve), before any work
-    if scene.harmonics is not None:
-        check_harmonics(scene.harmonics, f"{scene.source}: [method] harmonics")
-    if scene.order is not None:
-        check_order(scene.order, f"{scene.source}: [method] order", scene.method)
     if args.rtol is not None:
         import dataclasses
 
@@ -633,27 +585,34 @@ def _is_sweep_scene(path: str) -> bool:
         return False  # load_scene reports the problem
 
 
-#: One line per method of ``perturb derive`` (and ``frc --method``) for ``--help``.
-_METHOD_HELP = {
-    "hb1": "single-harmonic balance (zero-mean, odd forces)",
-    "hb": "harmonic balance: symbolic for derive, numeric (--harmonics) for frc",
-    "kb": "Krylov-Bogoliubov averaging with describing functions (frc alias: avg)",
-    "vdp": "van der Pol averaging",
-    "ms": "multiple scales, --order N (frc alias: mms)",
-    "lp": "Lindstedt-Poincare, --order N (free conservative oscillators)",
-    "mlp": "modified Lindstedt-Poincare, --order N",
-}
+def _method_help(kinds: tuple[str, ...]) -> dict[str, str]:
+    """One line per method of the registry (of the given kinds), for ``--help``."""
+    from perturb.methods.registry import REGISTRY
+
+    rows = {}
+    for name, spec in REGISTRY.items():
+        if spec.kind in kinds:
+            alias = f" (alias: {', '.join(spec.aliases)})" if spec.aliases else ""
+            rows[name] = spec.title + alias
+    return rows
 
 
-def _methods_epilog(extra: dict[str, str] | None = None) -> str:
-    rows = {**(extra or {}), **_METHOD_HELP}
+def _methods_epilog(kinds: tuple[str, ...]) -> str:
+    rows = _method_help(kinds)
     width = max(map(len, rows))
     return "methods:\n" + "\n".join(f"  {k:<{width}}  {v}" for k, v in rows.items())
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``perturb`` command (errors raise instead of exiting)."""
-    from perturb.solve import MAX_FREQUENCIES, MAX_HARMONICS, MAX_ORDER, MAX_POINTS
+    from perturb.methods.registry import (
+        MAX_FREQUENCIES,
+        MAX_HARMONICS,
+        MAX_ORDER,
+        MAX_POINTS,
+        names,
+        symbolic_names,
+    )
 
     parser = _Parser(
         prog="perturb",
@@ -686,20 +645,14 @@ def build_parser() -> argparse.ArgumentParser:
         description="Frequency response of a model: every branch the method finds, with\n"
         "stability, as CSV (standard output unless --out) and an optional PNG. With --plot\n"
         "and no --out the terminal gets a short summary instead of the CSV.",
-        epilog=_methods_epilog(
-            {
-                "auto": "the cheapest method that meets rtol 1e-3 at exact spot checks",
-                "exact": "continuation of exact periodic orbits (shooting)",
-            }
-        ),
+        epilog=_methods_epilog(("auto", "reference", "symbolic", "numeric")),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("model", help="builtin model name (perturb models) or an equation string")
     p.add_argument(
         "--method",
         default="hb1",
-        help="hb1, hb, auto, exact, mlp, ms (mms), kb (avg), vdp or lp (default: hb1); "
-        "see the list below",
+        help=f"{', '.join(names())} (default: hb1); see the list below",
     )
     p.add_argument(
         "--param",
@@ -785,10 +738,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "derive",
         help="derive an approximation (text, LaTeX, JSON)",
-        epilog=_methods_epilog(),
+        epilog=_methods_epilog(("symbolic",)),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("method", help="method short name: " + ", ".join(_METHOD_HELP))
+    p.add_argument("method", help="method short name: " + ", ".join(symbolic_names()))
     p.add_argument("model", help="builtin model name or an equation string")
     p.add_argument(
         "--order",

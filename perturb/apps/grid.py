@@ -118,6 +118,7 @@ from typing import Any
 import numpy as np
 
 from perturb.atomic import atomic_path, write_text
+from perturb.checks import parse_number
 from perturb.errors import ParameterError, PerturbError
 from perturb.progress import Progress
 
@@ -159,14 +160,6 @@ _OPTION_KEYS = {
 # --------------------------------------------------------------------------------------------
 # grids
 # --------------------------------------------------------------------------------------------
-def _finite(text: str, what: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise ParameterError(f"{what}: {text.strip()!r} is not a number") from None
-    if not math.isfinite(value):
-        raise ParameterError(f"{what}: expected a finite number, got {text.strip()!r}")
-    return value
 
 
 def parse_range(text: str, what: str | None = None) -> np.ndarray:
@@ -186,8 +179,8 @@ def parse_range(text: str, what: str | None = None) -> np.ndarray:
         parts = body.split(":")
         if len(parts) != 3:
             raise ParameterError(f"{what}: expected start:stop:count, e.g. 0.02:0.4:40")
-        lo, hi = _finite(parts[0], what), _finite(parts[1], what)
-        count = _finite(parts[2], what)
+        lo, hi = parse_number(parts[0], what), parse_number(parts[1], what)
+        count = parse_number(parts[2], what)
         if count != int(count) or not 1 <= count <= _MAX_CELLS:
             raise ParameterError(f"{what}: count {parts[2].strip()!r} must be a whole number >= 1")
         if int(count) > 1 and lo == hi:
@@ -196,7 +189,7 @@ def parse_range(text: str, what: str | None = None) -> np.ndarray:
     items = [p for p in body.split(",")]
     if not body or any(not p.strip() for p in items):
         raise ParameterError(f"{what}: expected start:stop:count or v1,v2,... (got {text!r})")
-    return np.array([_finite(p, what) for p in items])
+    return np.array([parse_number(p, what) for p in items])
 
 
 def parse_grid_item(text: str) -> tuple[str, np.ndarray]:
@@ -331,6 +324,16 @@ def parse_sweep_scene(text: str, source: str = "<scene>") -> SweepScene:
         options = _check_options(quantity, solver, {k: body[k] for k in _OPTION_KEYS & set(body)})
     except ParameterError as exc:
         raise PerturbError(f"scene {source}: [sweep] {exc}") from None
+    if solver == "approximation":
+        from perturb.methods.registry import spec as method_spec
+
+        method = method_spec(scene.method)
+        if method.kind != "symbolic":
+            raise PerturbError(
+                f"scene {source}: [sweep] solver = 'approximation' derives the scene's symbolic "
+                f"[method] once for the whole grid; {scene.method!r} is {method.title}: give "
+                "a symbolic method (hb1, shb, kb, ms, mlp) or solver = 'simulation'"
+            )
     return SweepScene(
         scene=scene,
         quantity=quantity,
@@ -560,7 +563,7 @@ class _ApproximationKernel:
     def __init__(self, spec: Mapping[str, Any]) -> None:
         import sympy as sp
 
-        from perturb.methods import METHODS
+        from perturb.methods.registry import spec as method_spec
         from perturb.model.parsing import real_symbol
         from perturb.numeric.compile import bind_parameters, lambdify
 
@@ -570,7 +573,7 @@ class _ApproximationKernel:
         _check_swept(osc, self.names, frequency_ok=False)
         free = osc.with_params({n: None for n in self.names})
         method = spec["method"]
-        approx = METHODS[method](free)
+        approx = method_spec(method).resolve()(free)
         if (
             approx.frequency_polynomial is None
             or approx.amplitude is None
@@ -579,7 +582,7 @@ class _ApproximationKernel:
         ):
             raise PerturbError(
                 f"method {method!r} gives no amplitude equation of degree <= 2 in Omega^2 with "
-                "an amplitude and a phase: use hb1, hb, kb, ms or mlp, or solver = 'simulation'"
+                "an amplitude and a phase: use hb1, shb, kb, ms or mlp, or solver = 'simulation'"
             )
         A, Om, phase, tau = approx.amplitude, approx.frequency, approx.unknowns[1], approx.tau
         syms = [real_symbol(n) for n in self.names]

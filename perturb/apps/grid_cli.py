@@ -12,8 +12,8 @@ scene's ``[sweep] params`` entry of that name; ``--param NAME=VALUE`` fixes one.
 cells are kept in ``OUT.partial/`` until the map is written, so an interrupted run continues
 where it stopped when the same command is given again (``--restart`` discards them).
 
-Registered in :mod:`perturb.apps.cli` by :func:`add_parser`; also runs alone as
-``python -m perturb.apps.grid_cli``.
+Registered in :mod:`perturb.apps.cli` by :func:`add_parser` (``perturb sweep``; this module
+does not import the command, so the two form no import circle).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from pathlib import Path
 
 from perturb.errors import ParameterError, PerturbError
 
-__all__ = ["add_parser", "cmd_sweep", "main"]
+__all__ = ["add_parser", "cmd_sweep", "build_args"]
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -63,8 +63,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def _grid_and_fixed(scene_grid, items: Sequence[str]):
-    from perturb.apps.cli import _number
     from perturb.apps.grid import parse_grid_item
+    from perturb.checks import parse_number
 
     grid = dict(scene_grid)
     fixed: dict[str, float] = {}
@@ -73,7 +73,7 @@ def _grid_and_fixed(scene_grid, items: Sequence[str]):
         value_text = text.partition("=")[2]
         for token in value_text.replace(":", ",").split(","):
             # a literal that underflows (1e-5000 -> 0) is refused, not swept as 0
-            _number("--param", token, shown=f"--param {text!r}")
+            parse_number(token, f"--param {text!r}")
         if ":" not in value_text and "," not in value_text:
             fixed[name] = float(values[0])
             grid.pop(name, None)
@@ -203,15 +203,3 @@ def build_args(scene: str, out: str) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="perturb")
     add_parser(parser.add_subparsers(dest="command"))
     return parser.parse_args(["sweep", scene, "--out", out])
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m perturb.apps.grid_cli SCENE ...`` (the same as ``perturb sweep SCENE ...``)."""
-    from perturb.apps.cli import main as cli_main
-
-    # the command's own error handling: one line, exit status 2, 130 on Ctrl-C
-    return cli_main(["sweep", *(sys.argv[1:] if argv is None else argv)])
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

@@ -75,7 +75,6 @@ from types import MappingProxyType
 
 from perturb.atomic import check_distinct, write_text
 from perturb.errors import ParameterError, PerturbError
-from perturb.methods import METHODS
 from perturb.model.oscillator import Oscillator, builtin_model, validate_parameter_value
 
 __all__ = [
@@ -85,7 +84,6 @@ __all__ = [
     "run_scene",
     "backbone",
     "step_oscillator",
-    "METHODS",
 ]
 
 _KEYS: dict[str, set[str]] = {
@@ -282,15 +280,9 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
                 f"[method] name = {method!r}: kind {kind!r} expects an integrator, one of "
                 + ", ".join(_INTEGRATORS),
             )
-    elif method not in METHODS and method not in _NUMERIC_METHODS:
-        raise _scene_error(
-            source,
-            f"[method] name = {method!r}: expected one of "
-            + ", ".join([*_NUMERIC_METHODS, *METHODS]),
-        )
-    # the limits of the Python API, before any work
-    from perturb.solve import check_harmonics, check_order
-
+    else:
+        spec = _method_spec(source, "[method] name =", method)
+        method = spec.name
     for key in ("order", "harmonics"):
         if key in method_table:
             value = method_table[key]
@@ -298,19 +290,23 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
                 raise _scene_error(
                     source, f"[method] {key} = {value!r}: expected a positive integer"
                 )
-            try:
-                fields[key] = (
-                    check_order(value, "[method] order", method)
-                    if key == "order"
-                    else check_harmonics(value, "[method] harmonics")
-                )
-            except ParameterError as exc:
-                raise _scene_error(source, str(exc)) from None
     if "all_branches" in method_table:
         value = method_table["all_branches"]
         if not isinstance(value, bool):
             raise _scene_error(source, f"[method] all_branches = {value!r}: expected true or false")
-        fields["all_branches"] = value
+    given = {
+        k: method_table[k] for k in ("order", "harmonics", "all_branches") if k in method_table
+    }
+    if given and kind in ("time_history", "step_response", "bifurcation_diagram"):
+        raise _scene_error(
+            source, f"[method] {', '.join(given)}: not options of the integrator {method!r}"
+        )
+    if given:
+        # the method's own options and limits (the registry's), before any work
+        try:
+            fields.update(spec.validate(given, prefix="[method] "))
+        except ParameterError as exc:
+            raise _scene_error(source, str(exc)) from None
     compare_table = data.get("compare", {})
     if compare_table and kind != "frequency_response":
         raise _scene_error(source, f"[compare] does not apply to kind {kind!r}")
@@ -331,12 +327,14 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
             raise _scene_error(
                 source, f"[compare] methods = {names!r}: expected a list of method names"
             )
+        from perturb.methods.registry import names as method_names
+
         for n in names:
-            if n == "auto" or (n not in METHODS and n not in _NUMERIC_METHODS):
+            if n == "auto" or n not in method_names():
                 raise _scene_error(
                     source,
                     f"[compare] methods: {n!r} is not a method: expected one of "
-                    + ", ".join(["hb", "exact", *METHODS]),
+                    + ", ".join(x for x in method_names() if x != "auto"),
                 )
         if len(set(names)) != len(names) or method in names:
             raise _scene_error(source, f"[compare] methods = {names!r}: a method twice")
@@ -421,7 +419,14 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
     )
 
 
-_NUMERIC_METHODS = ("auto", "hb", "exact")
+def _method_spec(source: str, what: str, name: object):
+    """The registry's spec of a scene's method name (aliases accepted), or a scene error."""
+    from perturb.methods.registry import spec
+
+    try:
+        return spec(name, what=what)
+    except ParameterError as exc:
+        raise _scene_error(source, str(exc)) from None
 
 
 def _is_number(v: object) -> bool:
@@ -532,6 +537,8 @@ def _trace(
     scene: Scene, osc: Oscillator, method: str, say, *, primary: bool
 ) -> tuple[object, object, dict]:
     """One method's response over the scene's window: (response, approximation or None, info)."""
+    from perturb.methods.registry import spec
+
     info: dict = {"method": method}
     approx = None
     harmonics = scene.harmonics if primary else None
@@ -553,10 +560,10 @@ def _trace(
         info["auto"]["summary"] = choice.summary()
         cand = choice.chosen.candidate
         if cand.method not in ("hb", "exact"):
-            from perturb.auto import _derive
+            from perturb.auto import derive_candidate
 
-            approx = _derive(cand, osc)
-    elif method in ("hb", "exact"):
+            approx = derive_candidate(cand, osc)
+    elif spec(method).kind != "symbolic":
         from perturb.solve import frequency_response
 
         extra: dict = {}
@@ -568,19 +575,13 @@ def _trace(
         say(f"[perturb] tracing the {method} frequency response over Omega in {scene.omega} ...")
         resp = frequency_response(osc, method, scene.omega, **extra)
     else:
-        from perturb.io.cache import cached_derivation
-        from perturb.numeric.amplitude import approximation_response
-        from perturb.numeric.residual import residual_response
+        from perturb.solve import derive, trace_approximation
 
         say(f"[perturb] deriving {method} ...")
-        opts = {} if order is None else {"order": order}
-        approx = cached_derivation(method, METHODS[method], osc, **opts)
+        opts = {"order": order, "harmonics": harmonics}
+        approx = derive(osc, method, use_cache=True, **opts)
         say(f"[perturb] tracing the {method} frequency response over Omega in {scene.omega} ...")
-        poly = approx.frequency_polynomial
-        if poly is None or len(poly) > 3 or approx.slow_flow is None:
-            resp = residual_response(approx, scene.omega)
-        else:
-            resp = approximation_response(approx, scene.omega, points=scene.points)
+        resp = trace_approximation(approx, scene.omega, points=scene.points)
     info["response"] = resp.method
     info["branches"] = len(resp.branches)
     info["points"] = int(sum(len(b) for b in resp.branches))

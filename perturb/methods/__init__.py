@@ -1,18 +1,18 @@
 """Symbolic methods: each turns an Oscillator into an Approximation (docs/architecture.md,
-the method contract). :data:`METHODS` maps the short names used by scenes and the command
-line to them."""
+the method contract).
+
+:data:`METHODS` maps the short names of the symbolic engines to them; it is derived from the
+method registry (:mod:`perturb.methods.registry`, the one home of method names, options and
+capabilities), so the two cannot disagree. The engines load on first use (module
+``__getattr__``): importing :mod:`perturb.methods` or the registry does not import SymPy.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from types import MappingProxyType
-
-from perturb.approximation import Approximation
-from perturb.methods.averaging import krylov_bogoliubov, van_der_pol_averaging
-from perturb.methods.harmonic_balance import harmonic_balance, single_harmonic_balance
-from perturb.methods.lindstedt import lindstedt_poincare
-from perturb.methods.modified_lindstedt import modified_lindstedt
-from perturb.methods.multiple_scales import multiple_scales
+import importlib
+import sys
+from types import MappingProxyType, ModuleType
+from typing import Any
 
 __all__ = [
     "METHODS",
@@ -25,15 +25,49 @@ __all__ = [
     "modified_lindstedt",
 ]
 
-#: Short name -> method. ``exact`` is not here: it is a solver, not an approximation.
-METHODS: MappingProxyType[str, Callable[..., Approximation]] = MappingProxyType(
-    {
-        "hb1": single_harmonic_balance,
-        "hb": harmonic_balance,
-        "kb": krylov_bogoliubov,
-        "vdp": van_der_pol_averaging,
-        "ms": multiple_scales,
-        "lp": lindstedt_poincare,
-        "mlp": modified_lindstedt,
-    }
-)
+#: Public engine name -> its module (loaded on first use).
+_ENGINES = {
+    "single_harmonic_balance": "perturb.methods.harmonic_balance",
+    "harmonic_balance": "perturb.methods.harmonic_balance",
+    "krylov_bogoliubov": "perturb.methods.averaging",
+    "van_der_pol_averaging": "perturb.methods.averaging",
+    "multiple_scales": "perturb.methods.multiple_scales",
+    "lindstedt_poincare": "perturb.methods.lindstedt",
+    "modified_lindstedt": "perturb.methods.modified_lindstedt",
+}
+
+
+def _methods() -> MappingProxyType:
+    """Short name -> engine, for every symbolic method of the registry (``exact`` and numeric
+    ``hb`` are solvers, not approximations: they are not here)."""
+    from perturb.methods.registry import REGISTRY
+
+    return MappingProxyType(
+        {name: s.resolve() for name, s in REGISTRY.items() if s.kind == "symbolic"}
+    )
+
+
+def __getattr__(name: str) -> Any:
+    if name == "METHODS":
+        value = _methods()
+    elif name in _ENGINES:
+        value = getattr(importlib.import_module(_ENGINES[name]), name)
+    else:
+        raise AttributeError(f"module 'perturb.methods' has no attribute {name!r}")
+    globals()[name] = value  # loaded once
+    return value
+
+
+class _Package(ModuleType):
+    """This package, keeping each engine's name for the function: importing the submodule
+    ``perturb.methods.harmonic_balance`` (or ``multiple_scales``, ``modified_lindstedt``)
+    would otherwise bind the package attribute of the same name to the module, where callers
+    expect the function (as when the engines were imported eagerly)."""
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name in _ENGINES and isinstance(value, ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package

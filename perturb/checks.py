@@ -1,0 +1,161 @@
+"""Argument validation: one helper per kind of value, for the Python API, the command line,
+scenes and grid sweeps.
+
+Each helper returns the value in its canonical type or raises
+:class:`~perturb.errors.ParameterError` with a message that names the value (``what``) and
+says what was expected. The module sits in the base layer (it imports only the standard
+library and :mod:`perturb.errors`), so the command line can validate its flags before any
+heavy import.
+
+``parse_number``
+    Text typed by a user -> a finite float, refusing literals that silently underflow
+    (``1e-5000`` -> 0) or land below the smallest normal double.
+``finite``
+    A number -> a finite float.
+``whole``
+    A whole number within ``[low, high]`` (limits of bounded work).
+``window``
+    ``(low, high)`` with ``0 < low < high`` (frequency windows).
+``frequencies``
+    A non-empty list of positive finite frequencies, at most ``limit`` of them.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import sys
+from typing import Any
+
+from perturb.errors import ParameterError
+
+__all__ = ["parse_number", "finite", "whole", "window", "frequencies"]
+
+
+def parse_number(text: str, what: str) -> float:
+    """``text`` as a finite float that is not an underflow of a nonzero literal to 0 or to a
+    subnormal value (``1e-5000`` would otherwise silently become 0).
+
+    Parameters
+    ----------
+    text
+        The typed text (nothing is evaluated: only :func:`float` reads it).
+    what
+        How the message names the value, e.g. ``"--omega '1e-5000:1'"``.
+
+    Raises
+    ------
+    ParameterError
+        Naming ``what``.
+    """
+    text = str(text).strip()
+    try:
+        value = float(text)
+    except ValueError:
+        raise ParameterError(f"{what}: {text!r} is not a number; expected a number") from None
+    if not math.isfinite(value):
+        raise ParameterError(f"{what}: expected a finite number, got {text!r}")
+    mantissa = re.split(r"[eE]", text)[0]
+    if value == 0.0 and re.search(r"[1-9]", mantissa):
+        raise ParameterError(
+            f"{what}: {text!r} underflows to 0 in double precision; expected 0 or a number of "
+            f"magnitude >= {sys.float_info.min:.3g}"
+        )
+    if value != 0.0 and abs(value) < sys.float_info.min:
+        raise ParameterError(
+            f"{what}: {text!r} is below the smallest normal double {sys.float_info.min:.3g}"
+        )
+    return value
+
+
+def finite(value: Any, what: str) -> float:
+    """``value`` (a real number, not a bool and not text) as a finite float.
+
+    Raises
+    ------
+    ParameterError
+        Naming ``what``.
+    """
+    if isinstance(value, bool | str):
+        raise ParameterError(f"{what} = {value!r}: expected a finite number")
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{what} = {value!r}: expected a finite number") from None
+    if not math.isfinite(out):
+        raise ParameterError(f"{what} = {value!r}: expected a finite number")
+    return out
+
+
+def whole(value: Any, what: str, low: int, high: int, why: str = "") -> int:
+    """``value`` as an int in ``[low, high]`` (a float that is a whole number is accepted).
+
+    Parameters
+    ----------
+    why
+        The reason for ``high``, added to the message when the value exceeds it.
+
+    Raises
+    ------
+    ParameterError
+        Naming ``what`` and the limit.
+    """
+    ok = not isinstance(value, bool) and _is_real(value)
+    if not ok or not math.isfinite(float(value)) or float(value) != int(value):
+        raise ParameterError(f"{what} = {value!r}: expected a whole number from {low} to {high}")
+    value = int(value)
+    if value < low:
+        raise ParameterError(f"{what} = {value}: expected at least {low}")
+    if value > high:
+        reason = f" ({why})" if why else ""
+        raise ParameterError(f"{what} = {value}: expected at most {high}{reason}")
+    return value
+
+
+def window(value: Any, what: str = "Omega") -> tuple[float, float]:
+    """``value`` as a window ``(low, high)`` of positive finite numbers with ``low < high``.
+
+    Raises
+    ------
+    ParameterError
+        Naming ``what``.
+    """
+    try:
+        lo, hi = (float(w) for w in value)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{what} = {value!r}: expected (low, high)") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 < lo < hi):
+        raise ParameterError(f"{what} = {value!r}: expected 0 < low < high")
+    return lo, hi
+
+
+def frequencies(values: Any, limit: int, what: str = "frequencies") -> list[float]:
+    """``values`` as a non-empty list of positive finite frequencies, at most ``limit``.
+
+    Raises
+    ------
+    ParameterError
+        Naming ``what``.
+    """
+    if isinstance(values, str | bytes):
+        raise ParameterError(f"{what} = {values!r}: expected a sequence of positive numbers")
+    try:
+        out = [float(w) for w in values]
+    except (TypeError, ValueError):
+        raise ParameterError(
+            f"{what} = {values!r}: expected a sequence of positive numbers"
+        ) from None
+    if not out or not all(math.isfinite(w) and w > 0 for w in out):
+        raise ParameterError(f"{what} = {out!r}: expected positive finite forcing frequencies")
+    if len(out) > limit:
+        raise ParameterError(f"{what}: {len(out)} values, expected at most {limit}")
+    return out
+
+
+def _is_real(value: Any) -> bool:
+    """A real number of any numeric type (int, float, numpy scalars), without importing
+    numpy."""
+    try:
+        return float(value) == value and not isinstance(value, str | bytes | complex)
+    except (TypeError, ValueError, OverflowError):
+        return False
