@@ -169,7 +169,10 @@ class _ForeignFlow(Flow):
         return float(fn(t0, t1)) if callable(fn) else None
 
     def __getattr__(self, name: str) -> Any:  # anything else the wrapped flow offers
-        return getattr(self.__dict__["flow"], name)
+        flow = self.__dict__.get("flow")
+        if flow is None:  # not initialised (copy, unpickling): no recursion into __getattr__
+            raise AttributeError(name)
+        return getattr(flow, name)
 
     def __repr__(self) -> str:
         return repr(self.flow)
