@@ -45,9 +45,10 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
+if TYPE_CHECKING:  # numpy is loaded by the functions that run, not by `perturb --help`
+    import numpy as np
 
 __all__ = [
     "PROBLEMS",
@@ -291,6 +292,8 @@ _timed.last = (0, math.nan)  # type: ignore[attr-defined]
 
 
 def _fill_errors(row: Row, resp: Any, ref: Any) -> None:
+    import numpy as np
+
     from perturb.comparison import compare
 
     c = compare(resp, ref)
@@ -323,6 +326,8 @@ def _selected(key: str, patterns: Sequence[str] | None) -> bool:
 
 def _sweep_subset(n_full: int, n_measured: int) -> np.ndarray:
     """Indices of ``n_measured`` evenly spaced frequencies of the full grid (ends included)."""
+    import numpy as np
+
     n = max(1, min(n_full, n_measured))
     return np.unique(np.round(np.linspace(0, n_full - 1, n)).astype(int))
 
@@ -368,6 +373,8 @@ def _run_problem(
     timeout: float | None,
     say: Callable[[str], None],
 ) -> list[Row]:
+    import numpy as np
+
     if prob.kind == "limit_cycle":
         return _run_limit_cycle(prob, pats, rep, timeout, say)
     from perturb.simulate.studies import frequency_sweep
@@ -536,6 +543,8 @@ def _explain(row: Row) -> None:
 def _lc_exact(prob: Problem, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Amplitude ``max|x|`` and period of the limit cycle at each value of ``grid``, by
     autonomous shooting, each seeded with the previous cycle."""
+    import numpy as np
+
     from perturb.model.oscillator import builtin_model
     from perturb.simulate.orbits.shooting import limit_cycle
     from perturb.simulate.studies import make_flow
@@ -556,6 +565,7 @@ def _lc_sweep(prob: Problem, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     previous value's end state for 60 time units at least and 6 cycles, then the amplitude
     as ``max|x|`` over the last cycle and the period as the spacing of the last upward zero
     crossings of ``x``."""
+    import numpy as np
     from scipy.integrate import solve_ivp
 
     amp, per = np.empty(grid.size), np.empty(grid.size)
@@ -587,6 +597,7 @@ def _lc_approx(prob: Problem, s: Setting, grid: np.ndarray) -> tuple[np.ndarray,
     ``grid``: derived once with the parameter symbolic, then the stable nonzero root ``a`` of
     the amplitude equation, the frequency ``1 + dbeta/dt`` (polar unknowns ``(a, beta)``) or
     ``1 + dq/dt / a`` at ``(p, q) = (a, 0)`` (Cartesian), and ``max|x|`` of the waveform."""
+    import numpy as np
     import sympy as sp
     from scipy.optimize import brentq
 
@@ -634,6 +645,8 @@ def _lc_approx(prob: Problem, s: Setting, grid: np.ndarray) -> tuple[np.ndarray,
 
 
 def _lc_errors(row: Row, amp: np.ndarray, per: np.ndarray, ref: tuple) -> None:
+    import numpy as np
+
     ra, rp = ref
     ok = np.isfinite(amp)
     if not np.any(ok):
@@ -656,6 +669,8 @@ def _run_limit_cycle(
     timeout: float | None,
     say: Callable[[str], None],
 ) -> list[Row]:
+    import numpy as np
+
     name = prob.name
     lo, hi = prob.window
     grid = np.linspace(lo, hi, prob.points)
@@ -871,6 +886,7 @@ def summary_table(rows: Sequence[Row], targets: Sequence[float] = SUMMARY_TARGET
 
 def _plot(rows: Sequence[Row], problem: str, path: Path) -> bool:
     import matplotlib
+    import numpy as np
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -1025,6 +1041,8 @@ def _arguments(p: argparse.ArgumentParser) -> None:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     """The ``perturb bench`` command."""
+    import numpy as np
+
     t0, c0, load0 = time.perf_counter(), time.process_time(), os.getloadavg()[0]
     rows = run_benchmark(
         _split(args.problems),
