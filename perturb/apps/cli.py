@@ -38,7 +38,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 from perturb import __version__
-from perturb.checks import parse_number
+from perturb.checks import parse_number, whole
 from perturb.errors import ParameterError, PerturbError
 
 __all__ = [
@@ -92,15 +92,6 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str):  # type: ignore[override]
         raise _UsageError(f"{message} (see: {self.prog} --help)")
-
-
-def _bounded_int(flag: str, value: int, low: int, high: int, why: str = "") -> int:
-    if value < low:
-        raise ParameterError(f"{flag} {value}: expected at least {low}")
-    if value > high:
-        reason = f" ({why})" if why else ""
-        raise ParameterError(f"{flag} {value}: expected at most {high}{reason}")
-    return value
 
 
 def parse_param(text: str) -> tuple[str, float]:
@@ -166,7 +157,7 @@ def _cmd_fourier(args: argparse.Namespace) -> int:
         )
     if args.A < 0:
         raise ParameterError(f"--A {args.A}: expected an amplitude >= 0")
-    _bounded_int("--n", args.n, 0, MAX_FOURIER_N)
+    whole(args.n, "--n", 0, MAX_FOURIER_N)
     print(f"# Fourier coefficients of f({args.var}) = {args.expr}")
     print(f"# under {args.var} = A cos(psi) + b, A = {args.A:g}, b = {args.b:g}:")
     print("# f = a_0/2 + sum_n a_n cos(n psi)   (no sine terms: f depends on x alone)")
@@ -434,7 +425,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     _check_outputs(out=args.out, plot=args.plot)
     if args.method not in INTEGRATORS:
         raise ParameterError(f"--method {args.method!r}: expected one of {', '.join(INTEGRATORS)}")
-    _bounded_int("--samples", args.samples, 2, MAX_SAMPLES, "rows of the output")
+    whole(args.samples, "--samples", 2, MAX_SAMPLES, "rows of the output")
     t0, t1 = _pair("--t", args.t.replace(":", ","))
     y0 = _pair("--y0", args.y0)
     if not t1 > t0:
@@ -473,7 +464,7 @@ def _cmd_periodic(args: argparse.Namespace) -> int:
     from perturb.solve import periodic_orbits
 
     _check_outputs(out=args.out)
-    _bounded_int("--m", args.m, 1, MAX_SUBHARMONIC, "forcing periods per orbit")
+    whole(args.m, "--m", 1, MAX_SUBHARMONIC, "forcing periods per orbit")
     if not args.omega > 0:
         raise ParameterError(f"--omega {args.omega}: expected a forcing frequency > 0")
     _check_omega_range("--omega", str(args.omega), [args.omega])
