@@ -153,15 +153,23 @@ from scipy.optimize import brentq
 
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
+from perturb.numeric.continuation import (
+    FoldTest,
+    StepControl,
+    hermite_direction,
+    hermite_extrapolate,
+)
+from perturb.numeric.roots import RootResult, damped_newton, illinois
 from perturb.progress import Progress
 from perturb.response import Branch, Response
-from perturb.simulate.flows.base import FlowFamily, ODEFlow
+from perturb.simulate.flows.base import ODEFlow
+from perturb.simulate.flows.factory import FlowFamily
 from perturb.simulate.flows.piecewise_exact import sample_trajectories
 from perturb.simulate.flows.system import frequency_symbol
 from perturb.simulate.orbits.shooting import (
     PeriodicOrbit,
     ShootingError,
-    _eigenvalues,
+    monodromy_multipliers,
     multiple_shooting,
     periodic_orbit,
 )
@@ -863,9 +871,8 @@ class _Engine:
         reused: the statistics cost no propagation)."""
         flow = self.flow(p_ev)
         P = self.m * float(flow.period)
-        det_fn = getattr(flow, "sensitivity_determinant", None)
-        det = float(det_fn(self.t0, self.t0 + P)) if callable(det_fn) else None
-        pt.mult = _eigenvalues(ev.M, det)
+        det = flow.sensitivity_determinant(self.t0, self.t0 + P)  # None: not known exactly
+        pt.mult = monodromy_multipliers(ev.M, det)
         pt.switches = ev.switches
         *stats, sig = self.statistics(flow, Zev, P, ev.trajs)
         pt.stats = tuple(stats)
@@ -1337,8 +1344,9 @@ def _spacing(a: _Pt, b: _Pt, Sp: float) -> float:
     return max(abs(b.p - a.p) / Sp, da)
 
 
-class _StepControl:
-    """Step length in scaled (Z, p) arclength.
+class _StepControl(StepControl):
+    """Step length in scaled (Z, p) arclength: the core's :class:`~perturb.numeric.
+    continuation.StepControl` with this engine's pace and an output-spacing cap.
 
     The corrector's work sets the pace (grow after at most two propagations, shrink after
     four); the output spacing caps it: the ratio of output spacing to step of the last step
@@ -1349,11 +1357,13 @@ class _StepControl:
     """
 
     DS_CAP = 8.0
+    #: (most Newton iterations, step factor)
+    PACE = ((2, 1.6), (3, 1.15), (4, 1.0), (math.inf, 0.6))
 
     def __init__(self, st: _Settings) -> None:
-        self.st = st
         # start a quarter of the largest step: the spacing ratio is not known yet
-        self.ds = 0.25 * st.ds_max
+        super().__init__(0.25 * st.ds_max, st.ds_min, st.ds_max, self.PACE)
+        self.st = st
         self.last_ok = st.ds_max
         self.iters = 0
         # quadratic-convergence constant |d1| / |d0|^2 of the corrector (largest recent)
@@ -1365,27 +1375,23 @@ class _StepControl:
         self.quad = max(max(self._quads), 10.0)
 
     def restart(self) -> None:
-        self.ds = 0.25 * self.st.ds_max
+        self.step = 0.25 * self.st.ds_max
 
     def accept(self, ds: float, evals: int, spacing: float, force: bool = False) -> bool:
+        """Pace the next step after a converged step ``ds``; False (and a shorter step) when
+        its output spacing is too coarse and it must be redone."""
         st = self.st
         rho = spacing / ds if ds > 0 else 1.0
         if not force and spacing > 1.5 * st.ds_max and ds > 4 * st.ds_min:
-            self.ds = max(st.ds_min, 0.8 * st.ds_max / max(rho, 1e-12))
+            self.step = max(st.ds_min, 0.8 * st.ds_max / max(rho, 1e-12))
             return False
         self.last_ok = ds
         # the pace follows the Newton iterations (a forward-difference column is not one)
         it = self.iters if self.iters else evals
         self.iters = 0
-        grow = 1.6 if it <= 2 else 1.15 if it == 3 else 1.0 if it == 4 else 0.6
-        self.ds = min(ds * grow, self.DS_CAP * st.ds_max, 0.9 * st.ds_max / max(rho, 1e-12))
-        self.ds = max(self.ds, st.ds_min)
+        self.step = ds
+        self.accepted(it, limit=min(self.DS_CAP * st.ds_max, 0.9 * st.ds_max / max(rho, 1e-12)))
         return True
-
-    def failed(self) -> bool:
-        """Halve after a failed correction; False when the step underflows."""
-        self.ds *= 0.5
-        return self.ds >= self.st.ds_min
 
     def jumps(self) -> list[float]:
         return [min(self.st.ds_max, k * self.last_ok) for k in (4.0, 16.0)]
@@ -1518,6 +1524,14 @@ def _orient(pt: _Pt, t: np.ndarray, prev: _Pt | None, ref3: np.ndarray | None, S
     return -t if float(t3 @ ref3) < 0 else t
 
 
+def _lu_or_lstsq(J: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Newton direction at fixed parameter: LU, least squares when ``J`` is singular."""
+    try:
+        return np.linalg.solve(J, rhs)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(J, rhs, rcond=None)[0]
+
+
 class _Tracer:
     """One continuation problem: engine, closed forms, registry and settings."""
 
@@ -1539,63 +1553,53 @@ class _Tracer:
 
     # -- points ---------------------------------------------------------------------------------
     def solve_fixed(self, p: float, Z: np.ndarray, max_iter: int = 40) -> _Pt:
-        """Damped Newton at fixed parameter (seeds, window ends); raises ShootingError."""
+        """Damped Newton at fixed parameter (seeds, window ends); raises ShootingError.
+
+        :func:`perturb.numeric.roots.damped_newton` on the shooting residual: converged when
+        the correction is below ``max(tol, 1e-11)`` relative to ``max(1, |z|)`` (the
+        corrected iterate is the point), a correction cut to 10 times that scale, halvings
+        down to ``2**-9`` until the residual decreases (Armijo); the residual floor of a
+        strongly unstable orbit (rounding times ``|M|``), where no step decreases it, is
+        accepted when the Newton correction is below ``1e-9`` relative."""
         eng = self.eng
         Z = np.array(Z, dtype=float).reshape(-1, 2)
         N = Z.shape[0]
-        z = Z.ravel().copy()
-        try:
-            ev = eng.evaluate(Z, p, gp=False)
-        except PerturbError as exc:
-            raise ShootingError(f"the flow failed at the seed: {exc}", math.inf, 0, z) from exc
-        if not np.all(np.isfinite(ev.r)):
-            raise ShootingError("non-finite residual at the seed", math.inf, 0, z)
-        for _ in range(max_iter):
-            scale = max(1.0, float(np.max(np.abs(z))))
-            try:
-                dz = np.linalg.solve(ev.Gz, -ev.r)
-            except np.linalg.LinAlgError:
-                dz = np.linalg.lstsq(ev.Gz, -ev.r, rcond=None)[0]
-            if not np.all(np.isfinite(dz)):
-                break
-            dn = float(np.max(np.abs(dz)))
-            if dn <= max(self.st.tol, 1e-11) * scale:
-                pt = _Pt(p, z + dz)
-                eng.finish(pt, ev, z.reshape(N, 2), p)
-                return pt
-            if dn > 10 * scale:
-                dz *= 10 * scale / dn
-            phi0 = float(np.linalg.norm(ev.r))
-            alpha = 1.0
-            accepted = False
-            while alpha > 2.0**-10:
-                zt = z + alpha * dz
-                try:
-                    evt = eng.evaluate(zt.reshape(N, 2), p, gp=False)
-                    if (
-                        np.all(np.isfinite(evt.r))
-                        and float(np.linalg.norm(evt.r)) <= (1 - 1e-4 * alpha) * phi0
-                    ):
-                        accepted = True
-                        break
-                except PerturbError:
-                    pass
-                alpha *= 0.5
-            if not accepted:
-                # the residual floor of a strongly unstable orbit (rounding times |M|): accept
-                # a negligible Newton correction there
-                if dn <= 1e-9 * scale:
-                    pt = _Pt(p, z + dz)
-                    eng.finish(pt, ev, z.reshape(N, 2), p)
-                    return pt
-                break
-            z, ev = zt, evt
-        raise ShootingError(
-            f"Newton at fixed {eng.family.parameter} = {p:.6g} did not converge",
-            float(np.max(np.abs(ev.r))),
-            max_iter,
-            z,
+
+        def residual(z: np.ndarray) -> tuple[np.ndarray, np.ndarray, _Eval]:
+            ev = eng.evaluate(z.reshape(N, 2), p, gp=False)
+            return ev.r, ev.Gz, ev
+
+        res = damped_newton(
+            residual,
+            Z.ravel().copy(),
+            tol=0.0,
+            max_iter=max_iter,
+            scale=lambda z: max(1.0, float(np.max(np.abs(z)))),
+            step_tol=max(self.st.tol, 1e-11),
+            take_final_step=True,
+            floor_step_tol=1e-9,
+            max_step=10.0,
+            max_halvings=9,
+            solve=_lu_or_lstsq,
+            catch=(PerturbError,),
         )
+        if res.status == "initial_error":
+            z = Z.ravel()
+            raise ShootingError(
+                f"the flow failed at the seed: {res.error}", math.inf, 0, z
+            ) from res.error
+        if res.status == "initial_nonfinite":
+            raise ShootingError("non-finite residual at the seed", math.inf, 0, Z.ravel())
+        if not res.converged:
+            raise ShootingError(
+                f"Newton at fixed {eng.family.parameter} = {p:.6g} did not converge",
+                res.rnorm,
+                max_iter,
+                res.z,
+            )
+        pt = _Pt(p, res.z)
+        eng.finish(pt, res.data, res.z_evaluated.reshape(N, 2), p)
+        return pt
 
     def polish(self, p: float, y: ArrayLike, max_iter: int = 40) -> _Pt:
         """A seed ``(p, y)`` to a converged point (multiple shooting when strongly unstable)."""
@@ -1804,7 +1808,7 @@ class _Tracer:
         # the step shrinks geometrically on every redo and failure (to ds_min): the cap is
         # only reached when a NaN keeps it from shrinking
         for _attempt in range(_MAX_STEP_ATTEMPTS):
-            ds = ctl.ds
+            ds = ctl.step
             if not (math.isfinite(ds) and ds > 0.0):
                 return None, f"non-finite step at {eng.family.parameter} = {cur.p:.8g}"
             if herm is not None:
@@ -1854,7 +1858,7 @@ class _Tracer:
         ub = cur.u() / D
         chord = ub - ua
         h = float(np.linalg.norm(chord))
-        if h == 0.0:
+        if not (math.isfinite(h) and h > 0.0):
             return None
         ta = prev.tangent * prev.D(self.eng.Sp) / D
         ta = ta / np.linalg.norm(ta)
@@ -1864,17 +1868,8 @@ class _Tracer:
             return None  # a sharp turn: the cubic would not help
 
         def predict(ds: float) -> tuple[np.ndarray, np.ndarray]:
-            s = 1.0 + ds / h
-            s2, s3 = s * s, s * s * s
-            u = (
-                (2 * s3 - 3 * s2 + 1) * ua
-                + (s3 - 2 * s2 + s) * h * ta
-                + (-2 * s3 + 3 * s2) * ub
-                + (s3 - s2) * h * tb
-            )
-            du = (6 * s2 - 6 * s) * ua + (3 * s2 - 4 * s + 1) * h * ta
-            du = du + (-6 * s2 + 6 * s) * ub + (3 * s2 - 2 * s) * h * tb
-            return u, du / np.linalg.norm(du)
+            u = hermite_extrapolate(ua, ta, ub, tb, ds, h)
+            return u, hermite_direction(ua, ta, ub, tb, ds, h)
 
         return predict
 
@@ -2038,7 +2033,7 @@ class _Tracer:
         out = [pts[0]] if pts else []
         for a, b in zip(pts[:-1], pts[1:], strict=True):
             ta, tb = a.tangent, b.tangent
-            if ta is not None and tb is not None and float(ta[-1]) * float(tb[-1]) < 0:
+            if ta is not None and tb is not None and FoldTest.crossed(ta, tb):
                 q = _fold_point(self, a, b)
                 if q is not None and not self._collapsed(q):
                     out.append(q)
@@ -2222,7 +2217,7 @@ def continue_orbits(
     Parameters
     ----------
     oscillator
-        The system, or a :class:`~perturb.simulate.flows.base.FlowFamily` built from it (exact
+        The system, or a :class:`~perturb.simulate.flows.factory.FlowFamily` built from it (exact
         flow for PWL models, ``solve_ivp`` otherwise).
     start
         Parameter value of the seed (inside ``window``).
@@ -2310,9 +2305,13 @@ def _refine(tracer: _Tracer, a: _Pt, b: _Pt, target: float, steps: int = 8) -> _
     t, _ = _null_tangent(a, eng.Sp)
     t = -t if t @ ch < 0 else t
     fa, fb = f(a), f(b)
-    best, fbest = (a, fa) if abs(fa) < abs(fb) else (b, fb)
-    best, _ = _illinois(tracer, a, t, D, L, f, fa, fb, steps, 1e-7, best, fbest)
-    return best
+    best = a if abs(fa) < abs(fb) else b
+    if not (fa * fb <= 0.0 and L > 0.0 and math.isfinite(L)):
+        return best  # no sign change measured again: the closer end
+    found = _illinois(tracer, a, t, D, L, f, fa, fb, steps, 1e-7, ends=True)
+    if found.payload is not None:
+        return found.payload
+    return a if found.root == 0.0 else b if found.root == L else best
 
 
 def _illinois(
@@ -2326,46 +2325,26 @@ def _illinois(
     fb: float,
     steps: int,
     s_tol: float,
-    best: _Pt | None,
-    fbest: float,
+    ends: bool,
     need_jacobian: bool = False,
-) -> tuple[_Pt | None, float]:
-    """Regula falsi (Illinois) for a sign change of ``f`` on ``s`` in ``[0, L]``: the point
-    ``a + s t`` (scaled by ``D``) corrected onto the branch on the hyperplane normal to ``t``
-    through it, ``f(a) = fa`` and ``f(end) = fb`` of opposite signs.  Returns the corrected
-    point with the smallest ``|f|`` seen (``best``/``fbest`` if none beats them) and its
-    value; stops after ``steps`` corrections, when the bracket is below ``s_tol * L``, when
-    ``f`` is exactly 0, or when a correction fails (or lacks its Jacobian and
-    ``need_jacobian``)."""
+) -> RootResult:
+    """Regula falsi (Illinois, :func:`perturb.numeric.roots.illinois`) for a sign change of
+    ``f`` on ``s`` in ``[0, L]``: the point ``a + s t`` (scaled by ``D``) corrected onto the
+    branch on the hyperplane normal to ``t`` through it, ``f(a) = fa`` and ``f(end) = fb`` of
+    opposite signs.  The result's ``payload`` is the corrected point with the smallest
+    ``|f|`` seen (None when no iterate beats the ends, with ``ends``, or none was made); it
+    stops after ``steps`` corrections, when the bracket is below ``s_tol * L``, when ``f`` is
+    exactly 0, or when a correction fails (or lacks its Jacobian and ``need_jacobian``)."""
     eng = tracer.eng
     u0 = a.u()
-    sa, sb = 0.0, L
-    side = 0
-    for _ in range(steps):
-        s = sb - fb * (sb - sa) / (fb - fa) if fb != fa else 0.5 * (sa + sb)
-        if not sa < s < sb:
-            s = 0.5 * (sa + sb)
+
+    def trial(s: float) -> tuple[float, _Pt] | None:
         q, _ = _correct(eng, u0 + s * t * D, a.N, D, t, max(s, 1e-9), tracer.st, first_cap=10.0)
         if q is None or (need_jacobian and q.J is None):
-            break
-        fq = f(q)
-        if abs(fq) < abs(fbest):
-            best, fbest = q, fq
-        if fq == 0.0:
-            break  # nothing can beat it
-        if fq * fa > 0:
-            sa, fa = s, fq
-            if side == -1:
-                fb *= 0.5
-            side = -1
-        else:
-            sb, fb = s, fq
-            if side == 1:
-                fa *= 0.5
-            side = 1
-        if sb - sa < s_tol * L:
-            break
-    return best, fbest
+            return None
+        return f(q), q
+
+    return illinois(trial, 0.0, L, fa, fb, xtol=s_tol * L, max_iter=steps, include_ends=ends)
 
 
 def _fold_point(tracer: _Tracer, a: _Pt, b: _Pt, steps: int = 12) -> _Pt | None:
@@ -2397,12 +2376,12 @@ def _fold_point(tracer: _Tracer, a: _Pt, b: _Pt, steps: int = 12) -> _Pt | None:
         value = float(-v[-1] if float(v @ ch) < 0 else v[-1])
         return 0.0 if abs(value) <= 1e-12 else value
 
-    fa, fb = float(a.tangent[-1]), float(b.tangent[-1])
-    if not fa * fb < 0:
+    if not FoldTest.crossed(a.tangent, b.tangent):
         return None
-    best, _ = _illinois(
-        tracer, a, t, D, L, f, fa, fb, steps, 1e-10, None, math.inf, need_jacobian=True
-    )
+    fa, fb = float(a.tangent[-1]), float(b.tangent[-1])
+    best = _illinois(
+        tracer, a, t, D, L, f, fa, fb, steps, 1e-10, ends=False, need_jacobian=True
+    ).payload
     if best is None:
         return None
     v, sing = _null_tangent(best, eng.Sp)

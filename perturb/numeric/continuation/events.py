@@ -53,9 +53,8 @@ class FoldTest:
 
     @staticmethod
     def crossed(t0: np.ndarray, t1: np.ndarray) -> bool:
-        """Whether the last component changes sign from ``t0`` to ``t1`` (``t0``'s nonzero)."""
-        g0, g1 = float(t0[-1]), float(t1[-1])
-        return not (g0 == 0.0 or g0 * g1 >= 0.0)
+        """Whether the last component changes sign from ``t0`` to ``t1`` (both nonzero)."""
+        return float(t0[-1]) * float(t1[-1]) < 0.0
 
     def check(
         self,
