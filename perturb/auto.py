@@ -58,6 +58,7 @@ __all__ = [
     "AutoChoice",
     "LADDER",
     "check_rtol",
+    "check_candidate",
     "derive_candidate",
     "spot_frequencies",
     "exact_spot_orbits",
@@ -365,6 +366,28 @@ def _hausdorff(found: Sequence[float], exact: Sequence[float], two_sided: bool) 
     return err
 
 
+def check_candidate(c: Candidate) -> Candidate:
+    """``c`` checked against the method registry before any work: a method
+    :func:`perturb.solve.frequency_response` knows (not ``"auto"`` itself), with an order and
+    harmonics that method takes and within its limits.
+
+    Raises
+    ------
+    ParameterError
+        Naming the rung and what is wrong.
+    """
+    from perturb.methods.registry import spec
+
+    try:
+        s = spec(c.method)
+        if s.kind == "auto":
+            raise ParameterError("'auto' cannot be a rung of its own ladder")
+        s.validate({"order": c.order, "harmonics": c.harmonics})
+    except ParameterError as exc:
+        raise ParameterError(f"ladder rung {c.name!r}: {exc}") from None
+    return c
+
+
 def derive_candidate(c: Candidate, oscillator: Oscillator):
     """The approximation of a symbolic rung ``c`` for ``oscillator`` (through the one
     dispatcher, :func:`perturb.solve.derive`, with the derivation cache).
@@ -560,6 +583,8 @@ def _choose(
     known = {} if known is None else known
     rtol = check_rtol(rtol)
     lo, hi = checks.window(window)
+    for c in ladder:  # before any work
+        check_candidate(c)
     if spots is None:
         spots = spot_frequencies(oscillator, (lo, hi), n_spots)
     try:

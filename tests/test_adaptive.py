@@ -166,3 +166,23 @@ def test_paper_scene_rtol_1e3_is_cheaper_than_1e8_and_both_hold(tmp_path):
     assert set(loose.spot_frequencies) <= set(report["auto"]["spot_frequencies"])
     assert (out / "frc.csv").read_text().startswith("branch,omega")
     assert (out / "frc.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_ladder_rung_the_registry_refuses_is_an_error_before_any_work():
+    """Rungs are checked against the method registry (method name, options, limits) before
+    the spot checks run."""
+    import time
+
+    from perturb.auto import Candidate, choose_method
+
+    osc = perturb.builtin_model("duffing")
+    for rung, fragment in (
+        (Candidate("x", "hb1", order=2), "'hb1' takes no order"),
+        (Candidate("y", "nosuch"), "method 'nosuch'"),
+        (Candidate("z", "hb", harmonics=10**6), "at most"),
+        (Candidate("w", "auto"), "own ladder"),
+    ):
+        t0 = time.perf_counter()
+        with pytest.raises(ParameterError, match=fragment):
+            choose_method(osc, (0.5, 1.5), 1e-3, ladder=[rung])
+        assert time.perf_counter() - t0 < 1.0
