@@ -111,6 +111,10 @@ def test_peak_map_scene_file():
         ("[sweep]\ndirection = 'up'\n", "direction"),  # applies to the simulation only
         ("[sweep.params]\nmu = '0.1:0.2'\n", "start:stop:count"),
         ("[sweep]\nsolver = 'simulation'\ndirection = 'sideways'\n", "'sideways'"),
+        # 'hb' is numeric harmonic balance (registry): the approximation solver derives a
+        # symbolic method once for the grid, so it is refused with what applies
+        ("[method]\nname = 'hb'\n[sweep]\nquantity = 'peak_amplitude'\n", "symbolic method"),
+        ("[method]\nname = 'exact'\n[sweep]\nquantity = 'peak_amplitude'\n", "'simulation'"),
     ],
 )
 def test_sweep_section_errors(extra, fragment):
