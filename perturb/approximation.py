@@ -22,8 +22,8 @@ contract (docs/architecture.md, "the method contract"):
 - ``notes``: what the method says about this approximation that the numbers do not (e.g. a
   zero-mean ansatz on a force with an even polynomial part), written by the method when it
   derives it (:mod:`perturb.methods.caveats`); every response computed from the
-  approximation repeats them in its ``notes``.  Not part of the saved JSON or the
-  derivation cache (an approximation with notes is recomputed rather than cached).
+  approximation repeats them in its ``notes``.  Saved with it (JSON and the derivation
+  cache, :mod:`perturb.io.serialize`) when there are any.
 """
 
 from __future__ import annotations

@@ -16,6 +16,7 @@ from perturb.io.serialize import (
     expr_from_text,
     expr_to_text,
 )
+from perturb.methods import METHODS
 from perturb.methods.harmonic_balance import single_harmonic_balance
 
 
@@ -101,7 +102,8 @@ def test_derive_command_writes_latex_and_json(tmp_path, monkeypatch, capsys):
     data = json.loads(js.read_text())
     assert data["method"] == "hb1" and data["oscillator"]["name"] == "nsd"
     assert main(["derive", "hb1", "nsd", "--order", "2"]) == 2
-    assert "no --order" in capsys.readouterr().err
+    # refused by the method registry, naming the option and the method
+    assert "--order = 2: method 'hb1' takes no order" in capsys.readouterr().err
     assert main(["derive", "nope", "nsd"]) == 2
 
 
@@ -122,3 +124,28 @@ def test_json_round_trip_keeps_sympy_options(tmp_path, monkeypatch):
     fresh = modified_lindstedt(osc, 1)
     assert back.frequency_polynomial == fresh.frequency_polynomial
     assert dict(back.options) == dict(fresh.options)
+
+
+def test_notes_are_saved_and_cached_with_the_approximation(tmp_path, monkeypatch):
+    """An approximation whose method wrote notes (a zero-mean ansatz on a force with an even
+    polynomial part) reads back equal, notes included, from JSON and from the cache: a cache
+    hit does not recompute it."""
+    from perturb.io.serialize import loads
+
+    monkeypatch.setenv("PERTURB_CACHE_DIR", str(tmp_path))
+    osc = builtin_model("quadratic_cubic")
+    calls = []
+
+    def method(o):
+        calls.append(1)
+        return METHODS["kb"](o)
+
+    fresh = cached_derivation("kb", method, osc)
+    assert fresh.notes and "even polynomial part" in fresh.notes[0]
+    hit = cached_derivation("kb", method, osc)
+    assert len(calls) == 1 and hit == fresh and hit.notes == fresh.notes
+    data = approximation_to_dict(fresh)
+    assert approximation_from_dict(data, osc).notes == fresh.notes
+    assert loads(json.dumps(data), osc) == fresh
+    # an approximation without notes is written as before: no 'notes' field at all
+    assert "notes" not in approximation_to_dict(METHODS["kb"](builtin_model("nsd")))

@@ -650,6 +650,7 @@ def approximation_to_dict(approx: Approximation) -> dict[str, Any]:
             {"title": s.title, "text": s.text, "math": [expr_to_text(m) for m in s.math]}
             for s in approx.steps
         ],
+        **({"notes": list(approx.notes)} if approx.notes else {}),
     }
 
 
@@ -743,6 +744,9 @@ def approximation_from_dict(
                 _text(s.get("text", ""), vocab, "step text"),
             )
             for s in steps
+        ),
+        notes=tuple(
+            _text(note, vocab, "note") for note in _items(field("notes", False) or [], vocab)
         ),
     )
 
@@ -958,7 +962,7 @@ def approximation_to_table(approx: Approximation) -> dict[str, Any]:
         for name in _SINGLE
     }
     fields.update({name: table.refs(getattr(approx, name)) for name in _SEVERAL})
-    return {
+    out = {
         "format": FORMAT_VERSION,
         "method": approx.method,
         "options": {k: _option_to_table(v, table) for k, v in approx.options.items()},
@@ -967,6 +971,9 @@ def approximation_to_table(approx: Approximation) -> dict[str, Any]:
         "steps": [[s.title, s.text, table.refs(s.math)] for s in approx.steps],
         "nodes": table.nodes,
     }
+    if approx.notes:  # only when there are notes: other descriptions keep their bytes
+        out["notes"] = list(approx.notes)
+    return out
 
 
 def approximation_from_table(
@@ -1022,6 +1029,10 @@ def approximation_from_table(
                 _literal_of(text, str, _MAX_TABLE_TEXT),
             )
             for title, text, math in _literal_of(data["steps"], list)
+        ),
+        notes=tuple(
+            _literal_of(note, str, _MAX_TABLE_TEXT)
+            for note in _literal_of(data.get("notes", []), list)
         ),
         **{name: one(data[name]) for name in _SINGLE},
     )
