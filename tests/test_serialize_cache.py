@@ -149,3 +149,29 @@ def test_notes_are_saved_and_cached_with_the_approximation(tmp_path, monkeypatch
     assert loads(json.dumps(data), osc) == fresh
     # an approximation without notes is written as before: no 'notes' field at all
     assert "notes" not in approximation_to_dict(METHODS["kb"](builtin_model("nsd")))
+
+
+def test_editing_a_shared_engine_changes_the_cache_key(monkeypatch):
+    """modified L-P calls the series engine of perturb.methods.series: an edit there (seen
+    here as a different source text) must orphan mlp's cache entries, while an edit of an
+    unrelated module (the exact reference solvers) must not."""
+    import inspect
+
+    import perturb.io.cache as pc
+
+    osc = builtin_model("nsd")
+    fn = METHODS["mlp"]
+    before = derivation_key("mlp", fn, osc, {})
+    real = inspect.getsource
+
+    def edited(name):
+        def getsource(obj):
+            text = real(obj)
+            return text + "\n# edited\n" if getattr(obj, "__name__", "") == name else text
+
+        return getsource
+
+    monkeypatch.setattr(pc.inspect, "getsource", edited("perturb.methods.series"))
+    assert derivation_key("mlp", fn, osc, {}) != before
+    monkeypatch.setattr(pc.inspect, "getsource", edited("perturb.simulate.exact_response"))
+    assert derivation_key("mlp", fn, osc, {}) == before

@@ -1,8 +1,9 @@
 """On-disk cache of derivations, stored as authenticated text.
 
 A derivation is keyed by the method, its options, the oscillator's equation (``srepr``) and
-parameter values, perturb's version and a hash of the method's source file — so editing a
-method invalidates its entries.
+parameter values, perturb's version and a hash of the sources of the method's module and of
+every perturb module it reaches (the shared engines it calls) — so editing a method, or an
+engine it uses, invalidates its entries.
 
 An entry is JSON: one table of expression nodes shared by every field (the derivation steps
 repeat the same symbols and subexpressions thousands of times), each node a whitelisted
@@ -112,13 +113,45 @@ def cache_key_file() -> Path:
     return Path(base) / "perturb" / "cache-key"
 
 
+def _engine_modules(fn: Callable[..., Any]) -> list[Any]:
+    """The module of ``fn`` and every perturb module it reaches through its global names
+    (modules, and functions or classes defined in one), transitively: a method's result
+    depends on the shared engines it calls (the L-P series engine, the caveats, the Fourier
+    symbols), not only on its own file."""
+    first = sys.modules.get(getattr(fn, "__module__", "") or "")
+    if first is None:
+        return []
+    seen = {first.__name__: first}
+    todo = [first]
+    while todo:  # bounded: each perturb module is visited once
+        module = todo.pop()
+        for value in list(vars(module).values()):
+            name = value.__name__ if inspect.ismodule(value) else getattr(value, "__module__", None)
+            if not isinstance(name, str) or not name.startswith("perturb.") or name in seen:
+                continue
+            dep = sys.modules.get(name)
+            if dep is not None:
+                seen[name] = dep
+                # a package's names include whichever submodules happen to be imported, so
+                # its own source counts but its names are not followed (a stable key)
+                if not hasattr(dep, "__path__"):
+                    todo.append(dep)
+    return [seen[name] for name in sorted(seen)]
+
+
 def _source_hash(fn: Callable[..., Any]) -> str:
+    """A hash of the sources of :func:`_engine_modules` of ``fn``: editing the method or an
+    engine it uses changes the cache key."""
+    h = hashlib.sha256()
+    modules = _engine_modules(fn)
     try:
-        module = sys.modules[fn.__module__]
-        text = inspect.getsource(module)
-    except (KeyError, OSError, TypeError):
-        text = repr(fn)
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
+        for module in modules:
+            h.update(module.__name__.encode() + b"\0" + inspect.getsource(module).encode())
+    except (OSError, TypeError):
+        modules = []
+    if not modules:
+        h = hashlib.sha256(repr(fn).encode())
+    return h.hexdigest()[:16]
 
 
 def derivation_key(method: str, fn: Callable[..., Any], osc: Oscillator, options: dict) -> str:
