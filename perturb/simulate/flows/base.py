@@ -332,15 +332,3 @@ def _step_budget(t0: float, t1: float, period: float | None):
     event.terminal = True  # type: ignore[attr-defined]
     event.max_steps = max_steps  # type: ignore[attr-defined]
     return event
-
-
-def __getattr__(name: str) -> Any:
-    # transitional (issue #14): FlowFamily moved to perturb.simulate.flows.factory; the
-    # committed exact_response.py still imports it from here until its owner's commit with the
-    # new import line lands.  Delete this function then: it is the last import of the factory
-    # from base (it keeps the base <-> factory circle alive in tools/import_graph.py).
-    if name == "FlowFamily":
-        from perturb.simulate.flows.factory import FlowFamily
-
-        return FlowFamily
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -469,11 +469,6 @@ def monodromy_multipliers(M: np.ndarray, det: float | None = None) -> np.ndarray
     return mu[np.argsort(-np.abs(mu), kind="stable")]
 
 
-# transitional (issue #14): the committed exact_response.py imports the old private name until
-# its owner's commit with the new import line lands; delete then
-_eigenvalues = monodromy_multipliers
-
-
 def make_orbit(
     *,
     dense: Any,
