@@ -1,6 +1,8 @@
 """perturb: periodic responses of nonlinear and piecewise-linear oscillators.
 
 The pipeline is ``Oscillator -> Approximation -> Solver -> Response``; see docs/architecture.md.
+Every public name loads on first use (module ``__getattr__``), so ``import perturb`` and the
+command line's start-up do not import SymPy, SciPy or matplotlib.
 
 >>> import perturb
 >>> osc = perturb.builtin_model("nsd", k=-2.0)
@@ -10,6 +12,7 @@ The pipeline is ``Oscillator -> Approximation -> Solver -> Response``; see docs/
 
 from __future__ import annotations
 
+import importlib
 from importlib.metadata import PackageNotFoundError, version
 
 from perturb.errors import (
@@ -20,37 +23,40 @@ from perturb.errors import (
     ParseError,
     PerturbError,
 )
-from perturb.model.oscillator import BUILTIN_MODELS, Forcing, Harmonic, Oscillator, builtin_model
-from perturb.model.parsing import parse_expression
-from perturb.model.pwl import PiecewiseLinear, to_pwl
-from perturb.response import Branch, Response
-from perturb.solve import frequency_response
+
+#: Public name -> the module that defines it (imported on first use).
+_LAZY = {
+    "Oscillator": "perturb.model.oscillator",
+    "Forcing": "perturb.model.oscillator",
+    "Harmonic": "perturb.model.oscillator",
+    "BUILTIN_MODELS": "perturb.model.builtins",
+    "builtin_model": "perturb.model.oscillator",
+    "PiecewiseLinear": "perturb.model.pwl",
+    "to_pwl": "perturb.model.pwl",
+    "parse_expression": "perturb.model.parsing",
+    "frequency_response": "perturb.solve",
+    "periodic_orbits": "perturb.solve",
+    "Response": "perturb.response",
+    "Branch": "perturb.response",
+    "time_history": "perturb.simulate.time_history",
+    "compare": "perturb.comparison",
+    "relative_errors": "perturb.comparison",
+    "plot": "perturb.report.figures",
+    "sweep": "perturb.apps.grid",
+}
 
 
 def __getattr__(name: str):
-    # the reference solvers pull in scipy.integrate; load them on first use (the front
-    # door: the search started also from approximations' solutions, perturb.seeds)
-    if name == "periodic_orbits":
-        from perturb.solve import periodic_orbits
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'perturb' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # loaded once
+    return value
 
-        return periodic_orbits
-    if name in ("compare", "relative_errors"):
-        from perturb import comparison as _compare
 
-        return getattr(_compare, name)
-    if name == "sweep":
-        from perturb.apps.grid import sweep
-
-        return sweep
-    if name == "time_history":
-        from perturb.simulate.time_history import time_history
-
-        return time_history
-    if name == "plot":  # matplotlib only when a figure is asked for
-        from perturb.report.figures import plot
-
-        return plot
-    raise AttributeError(f"module 'perturb' has no attribute {name!r}")
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
 
 
 try:
@@ -60,23 +66,7 @@ except PackageNotFoundError:  # running from a source tree that was not installe
 
 __all__ = [
     "__version__",
-    "Oscillator",
-    "Forcing",
-    "Harmonic",
-    "BUILTIN_MODELS",
-    "builtin_model",
-    "PiecewiseLinear",
-    "to_pwl",
-    "parse_expression",
-    "frequency_response",
-    "Response",
-    "Branch",
-    "periodic_orbits",
-    "time_history",
-    "compare",
-    "relative_errors",
-    "plot",
-    "sweep",
+    *_LAZY,
     "PerturbError",
     "ParseError",
     "ModelError",

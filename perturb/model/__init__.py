@@ -6,15 +6,25 @@
 - :mod:`perturb.model.pwl`: the canonical piecewise-linear form of nonsmooth terms.
 """
 
-from perturb.model.oscillator import (
-    BUILTIN_MODELS,
-    Forcing,
-    Harmonic,
-    Oscillator,
-    builtin_model,
-)
-from perturb.model.parsing import parse_expression
-from perturb.model.pwl import PiecewiseLinear, to_pwl
+import importlib
+
+_LAZY = {
+    "BUILTIN_MODELS": "perturb.model.builtins",
+    "Forcing": "perturb.model.oscillator",
+    "Harmonic": "perturb.model.oscillator",
+    "Oscillator": "perturb.model.oscillator",
+    "builtin_model": "perturb.model.oscillator",
+    "parse_expression": "perturb.model.parsing",
+    "PiecewiseLinear": "perturb.model.pwl",
+    "to_pwl": "perturb.model.pwl",
+}
+
+
+def __getattr__(name):
+    if name not in _LAZY:
+        raise AttributeError(f"module 'perturb.model' has no attribute {name!r}")
+    return getattr(importlib.import_module(_LAZY[name]), name)
+
 
 __all__ = [
     "BUILTIN_MODELS",
