@@ -14,6 +14,7 @@ import pytest
 
 from perturb.numeric.continuation import (
     ContinuationOptions,
+    FloquetCrossings,
     StepControl,
     branch_off,
     continue_curve,
@@ -112,3 +113,20 @@ def test_branch_point_of_a_pitchfork_and_switching_onto_the_parabola():
     for u, lam in sides:
         # on the parabola lam = u^2, off the trivial curve
         assert abs(lam - u[0] ** 2) < 1e-9 and abs(u[0]) > 1e-3
+
+
+def test_floquet_crossings_name_the_multiplier_that_crossed():
+    # a real multiplier through +1 (0.9 -> 1.2), the other inside: a branch point at 1/3
+    got = FloquetCrossings.crossings(np.array([0.9, 0.1 + 0j]), np.array([1.2, 0.1 + 0j]))
+    assert [k for k, _ in got] == ["branch_point"]
+    assert got[0][1] == pytest.approx(1.0 / 3.0, rel=1e-12)  # (1 - 0.9) / (0.3)
+    # through -1: a period doubling
+    got = FloquetCrossings.crossings(np.array([-0.8, 0.2 + 0j]), np.array([-1.1, 0.2 + 0j]))
+    assert [k for k, _ in got] == ["period_doubling"]
+    # a complex pair leaving the unit circle: Neimark-Sacker (torus)
+    inside = 0.95 * np.exp(1j * np.array([0.7, -0.7]))
+    outside = 1.05 * np.exp(1j * np.array([0.7, -0.7]))
+    got = FloquetCrossings.crossings(inside, outside)
+    assert [k for k, _ in got] == ["torus"] and got[0][1] == pytest.approx(0.5)
+    # no crossing
+    assert FloquetCrossings.crossings(np.array([0.5, 0.2 + 0j]), np.array([0.6, 0.3 + 0j])) == []

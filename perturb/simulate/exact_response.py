@@ -154,8 +154,10 @@ from scipy.optimize import brentq
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
 from perturb.numeric.continuation import (
+    FloquetCrossings,
     FoldTest,
     StepControl,
+    crossing_weight,
     hermite_direction,
     hermite_extrapolate,
 )
@@ -2106,9 +2108,6 @@ def _special_points(pts: list[_Pt], points: Sequence[ContinuationPoint]) -> list
             (float(y[0]), float(y[1])),
         )
 
-    def weight(fa: float, fb: float) -> float:
-        return abs(fa) / (abs(fa) + abs(fb)) if (abs(fa) + abs(fb)) > 0 else 0.5
-
     tp = [q.tangent[2] for q in points]
     fold_at = set()
     refined = {i for i, q in enumerate(pts) if q.fold}
@@ -2127,7 +2126,7 @@ def _special_points(pts: list[_Pt], points: Sequence[ContinuationPoint]) -> list
             # not refined (closed-form neighbour, or the refinement failed): interpolated, but
             # never inside the sampled range (the parameter is extreme at a fold)
             fold_at.add(i)
-            sp_ = interp(i, weight(tp[i], tp[i + 1]), "fold")
+            sp_ = interp(i, crossing_weight(tp[i], tp[i + 1]), "fold")
             pa, pb = points[i].parameter, points[i + 1].parameter
             edge = max(pa, pb) if tp[i] > 0 else min(pa, pb)
             if (sp_.parameter - edge) * tp[i] < 0:
@@ -2137,16 +2136,12 @@ def _special_points(pts: list[_Pt], points: Sequence[ContinuationPoint]) -> list
         a, b = pts[i], pts[i + 1]
         if a.mode == "closed" and b.mode == "closed" and a.seg == b.seg:
             continue
-        f1a, f1b = float(np.prod(1 - a.mult).real), float(np.prod(1 - b.mult).real)
-        if f1a * f1b < 0 and not (fold_at & {i - 1, i, i + 1}):
-            out.append(interp(i, weight(f1a, f1b), "branch_point"))
-        f2a, f2b = float(np.prod(1 + a.mult).real), float(np.prod(1 + b.mult).real)
-        if f2a * f2b < 0:
-            out.append(interp(i, weight(f2a, f2b), "period_doubling"))
-        ca = bool(np.any(np.abs(a.mult.imag) > 0))
-        cb = bool(np.any(np.abs(b.mult.imag) > 0))
-        if ca and cb and (abs(a.mult[0]) - 1) * (abs(b.mult[0]) - 1) < 0:
-            out.append(interp(i, weight(abs(a.mult[0]) - 1, abs(b.mult[0]) - 1), "torus"))
+        # stability changes (the core's multiplier test functions); a multiplier through +1
+        # next to a fold is that fold
+        for kind, w in FloquetCrossings.crossings(a.mult, b.mult):
+            if kind == "branch_point" and fold_at & {i - 1, i, i + 1}:
+                continue
+            out.append(interp(i, w, kind))
         if a.grazing:
             out.append(interp(i, 0.0, "grazing"))
         elif b.grazing and i == n - 2:
@@ -2262,7 +2257,7 @@ def continue_orbits(
 
     Examples
     --------
-    >>> from perturb.model.oscillator import builtin_model
+    >>> from perturb.model.builtins import builtin_model
     >>> br = continue_orbits(builtin_model("nsd", k=-2, mu=0.05, F=2), 1.6, [5.0, 0.0],
     ...                      (1.5, 2.0))
     >>> br.closed, br.points[0].parameter, br.points[-1].parameter

@@ -85,7 +85,8 @@ Layout
   fixed parameter (:func:`newton_fixed`);
 - :mod:`.predictors`: the cubic Hermite predictor (and a fold's Hermite estimate);
 - :mod:`.steps`: :class:`StepControl` (the pace set by the corrector's iterations);
-- :mod:`.events`: :class:`FoldTest` and :class:`BranchPointTest`, watched at every point;
+- :mod:`.events`: :class:`FoldTest` and :class:`BranchPointTest`, watched at every point,
+  and :class:`FloquetCrossings` (stability changes of periodic orbits from multipliers);
 - :mod:`.switching`: :func:`branch_off`;
 - :mod:`.core`: the loop, :func:`continue_curve` and :class:`ContinuationOptions`.
 """
@@ -102,7 +103,12 @@ from perturb.numeric.continuation.curve import (
     ContinuationError,
     FoldPoint,
 )
-from perturb.numeric.continuation.events import BranchPointTest, FoldTest
+from perturb.numeric.continuation.events import (
+    BranchPointTest,
+    FloquetCrossings,
+    FoldTest,
+    crossing_weight,
+)
 from perturb.numeric.continuation.predictors import hermite_direction, hermite_extrapolate
 from perturb.numeric.continuation.steps import StepControl
 from perturb.numeric.continuation.switching import branch_off
@@ -119,6 +125,8 @@ __all__ = [
     "StepControl",
     "FoldTest",
     "BranchPointTest",
+    "FloquetCrossings",
+    "crossing_weight",
     "BorderedCorrector",
     "CountedProblem",
     "hermite_extrapolate",

@@ -23,7 +23,13 @@ from perturb.numeric.continuation.corrector import BorderedCorrector, Corrected
 from perturb.numeric.continuation.curve import BranchPoint, FoldPoint
 from perturb.numeric.continuation.predictors import hermite_fold
 
-__all__ = ["FoldTest", "BranchPointTest", "augmented_slogdet"]
+__all__ = [
+    "FoldTest",
+    "BranchPointTest",
+    "FloquetCrossings",
+    "augmented_slogdet",
+    "crossing_weight",
+]
 
 
 class FoldTest:
@@ -308,3 +314,45 @@ class BranchPointTest:
         t = t / np.linalg.norm(t)
         refined = close or abs(hi[0] - lo[0]) <= 1e-3 * abs(s1)
         return w, t, ju, jl, refined
+
+
+def crossing_weight(fa: float, fb: float) -> float:
+    """Linear-interpolation weight of the zero of a test function between two points
+    (values ``fa``, ``fb`` of opposite signs); 0.5 when both vanish."""
+    return abs(fa) / (abs(fa) + abs(fb)) if (abs(fa) + abs(fb)) > 0 else 0.5
+
+
+class FloquetCrossings:
+    """Stability changes of a periodic orbit between two consecutive points, from the
+    Floquet multipliers :math:`\\mu_i` at both (any continuation of periodic orbits).
+
+    Test functions, each changing sign where a multiplier crosses the unit circle:
+
+    - ``'branch_point'``: :math:`\\prod_i (1 - \\mu_i)` (a multiplier through +1; also at a
+      fold, which the caller tells apart by the sign of :math:`d\\lambda/ds`);
+    - ``'period_doubling'``: :math:`\\prod_i (1 + \\mu_i)` (through -1);
+    - ``'torus'``: :math:`|\\mu_0| - 1` when both points have a complex pair (Neimark-Sacker).
+    """
+
+    @staticmethod
+    def values(mult: np.ndarray) -> tuple[float, float]:
+        """``(prod(1 - mu), prod(1 + mu))`` (real parts) at one point."""
+        return float(np.prod(1 - mult).real), float(np.prod(1 + mult).real)
+
+    @classmethod
+    def crossings(cls, mult_a: np.ndarray, mult_b: np.ndarray) -> list[tuple[str, float]]:
+        """``(kind, weight)`` of every sign change between the two points, in the order
+        branch point, period doubling, torus; ``weight`` locates it by linear interpolation
+        (:func:`crossing_weight`)."""
+        out = []
+        f1a, f2a = cls.values(mult_a)
+        f1b, f2b = cls.values(mult_b)
+        if f1a * f1b < 0:
+            out.append(("branch_point", crossing_weight(f1a, f1b)))
+        if f2a * f2b < 0:
+            out.append(("period_doubling", crossing_weight(f2a, f2b)))
+        ca = bool(np.any(np.abs(mult_a.imag) > 0))
+        cb = bool(np.any(np.abs(mult_b.imag) > 0))
+        if ca and cb and (abs(mult_a[0]) - 1) * (abs(mult_b[0]) - 1) < 0:
+            out.append(("torus", crossing_weight(abs(mult_a[0]) - 1, abs(mult_b[0]) - 1)))
+        return out
