@@ -41,7 +41,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 import perturb  # noqa: E402
-from perturb.model.oscillator import builtin_model  # noqa: E402
+from perturb.model.builtins import builtin_model  # noqa: E402
 from perturb.numeric.harmonic_balance import (  # noqa: E402
     harmonic_balance_branch,
     harmonic_balance_orbit,

@@ -48,7 +48,7 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from perturb.model.oscillator import builtin_model  # noqa: E402
+from perturb.model.builtins import builtin_model  # noqa: E402
 from perturb.numeric.harmonic_balance import harmonic_balance_response  # noqa: E402
 
 K, MU, F = -0.5, 0.05, 2.0

@@ -47,7 +47,7 @@ import time
 import numpy as np
 import scipy
 
-from perturb.model.oscillator import builtin_model
+from perturb.model.builtins import builtin_model
 from perturb.simulate.exact_response import continue_orbits, exact_branches
 from perturb.simulate.flows.base import FlowFamily
 from perturb.simulate.studies import frequency_sweep

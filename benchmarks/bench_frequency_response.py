@@ -38,7 +38,7 @@ import time
 import numpy as np
 
 from perturb.methods import modified_lindstedt
-from perturb.model.oscillator import builtin_model
+from perturb.model.builtins import builtin_model
 from perturb.numeric import frequency_response as fr
 from perturb.numeric.amplitude import approximation_response, compile_response
 

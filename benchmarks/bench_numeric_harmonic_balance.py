@@ -48,7 +48,7 @@ import numpy as np  # noqa: E402
 import scipy  # noqa: E402
 from scipy.optimize import minimize_scalar  # noqa: E402
 
-from perturb.model.oscillator import builtin_model  # noqa: E402
+from perturb.model.builtins import builtin_model  # noqa: E402
 from perturb.numeric import harmonic_balance as hb  # noqa: E402
 from perturb.numeric.harmonic_balance import (  # noqa: E402
     harmonic_balance_orbit,

@@ -56,7 +56,7 @@ def _child(method: str, order: int) -> None:
     import sympy as sp
 
     from perturb.methods import METHODS
-    from perturb.model.oscillator import builtin_model
+    from perturb.model.builtins import builtin_model
 
     model, params, _ = DERIVATIONS[method]
     osc = builtin_model(model, **params)
@@ -149,7 +149,7 @@ def _median_time(fn, repeat: int = 3) -> tuple[float, float, object]:
 
 def points(exact_steps: list[float]) -> None:
     from perturb.methods import METHODS
-    from perturb.model.oscillator import builtin_model
+    from perturb.model.builtins import builtin_model
     from perturb.numeric.amplitude import approximation_response, compile_response
     from perturb.simulate.exact_response import exact_frequency_response
 

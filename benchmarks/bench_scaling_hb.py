@@ -40,7 +40,7 @@ import tracemalloc  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from perturb.model.oscillator import builtin_model  # noqa: E402
+from perturb.model.builtins import builtin_model  # noqa: E402
 from perturb.numeric.continuation import newton_fixed  # noqa: E402
 from perturb.numeric.harmonic_balance import (  # noqa: E402
     HarmonicBalanceSystem,

@@ -31,7 +31,7 @@ import time
 import numpy as np
 import scipy
 
-from perturb.model.oscillator import builtin_model
+from perturb.model.builtins import builtin_model
 from perturb.simulate.flows.base import ODEFlow
 from perturb.simulate.flows.exact import ExactPWLFlow
 from perturb.simulate.orbits.shooting import N_STATS, periodic_orbit

@@ -88,7 +88,8 @@ from perturb.fourier.coefficients import (  # noqa: E402
     sign_coefficients,
 )
 from perturb.methods.averaging import equivalent_linearisation  # noqa: E402
-from perturb.model.oscillator import Oscillator, builtin_model  # noqa: E402
+from perturb.model.builtins import builtin_model  # noqa: E402
+from perturb.model.oscillator import Oscillator  # noqa: E402
 from perturb.model.parsing import real_symbol  # noqa: E402
 from perturb.numeric.continuation import (  # noqa: E402
     ContinuationError,

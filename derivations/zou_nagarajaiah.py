@@ -54,7 +54,8 @@ import sympy as sp
 from perturb.comparison import compare, relative_errors
 from perturb.errors import PerturbError
 from perturb.methods import lindstedt_poincare, modified_lindstedt
-from perturb.model.oscillator import Oscillator, builtin_model
+from perturb.model.builtins import builtin_model
+from perturb.model.oscillator import Oscillator
 from perturb.numeric.compile import bind_parameters, lambdify
 from perturb.numeric.harmonic_balance import (
     HarmonicBalanceBranch,

@@ -30,7 +30,7 @@ _LAZY = {
     "Forcing": "perturb.model.oscillator",
     "Harmonic": "perturb.model.oscillator",
     "BUILTIN_MODELS": "perturb.model.builtins",
-    "builtin_model": "perturb.model.oscillator",
+    "builtin_model": "perturb.model.builtins",
     "PiecewiseLinear": "perturb.model.pwl",
     "to_pwl": "perturb.model.pwl",
     "parse_expression": "perturb.model.parsing",

@@ -16,7 +16,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from perturb.errors import ParameterError
-from perturb.model.oscillator import Oscillator, builtin_model
+from perturb.model.builtins import builtin_model
+from perturb.model.oscillator import Oscillator
 from perturb.simulate.exact_response import (
     ContinuationBranch,
     ExactBranches,

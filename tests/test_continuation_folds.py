@@ -17,7 +17,7 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.optimize import root
 
-from perturb.model.oscillator import builtin_model
+from perturb.model.builtins import builtin_model
 from perturb.simulate.exact_response import continue_orbits
 
 DUFFING = {"mu": 0.1, "omega0": 1.0, "alpha": 1.0, "F": 0.5}

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from perturb.errors import ParameterError
-from perturb.model.oscillator import builtin_model
+from perturb.model.builtins import builtin_model
 from perturb.simulate.exact_response import exact_branches
 
 NSD_K3 = {"k": -3.0, "mu": 0.05, "F": 2.0}

@@ -36,7 +36,8 @@ from scipy.linalg import expm
 from scipy.optimize import brentq
 
 from perturb.errors import ModelError, ParameterError, PerturbError
-from perturb.model.oscillator import Oscillator, builtin_model
+from perturb.model.builtins import builtin_model
+from perturb.model.oscillator import Oscillator
 from perturb.simulate.flows.base import Flow
 from perturb.simulate.flows.event_driven import (
     EventFlow,

@@ -354,7 +354,7 @@ def test_friction_response_is_traced_with_saltation_multipliers():
 _CHILD = textwrap.dedent(
     """
     import multiprocessing as mp, sys, threading, time
-    from perturb.model.oscillator import builtin_model
+    from perturb.model.builtins import builtin_model
     from perturb.simulate.exact_response import exact_branches
 
     def report():
@@ -415,7 +415,7 @@ def test_solutions_at_one_frequency_include_the_one_well_orbits():
     """nsd, k = -2, Omega = 1.5: the one-well orbits are the linear responses of the outer
     segments, x = +-3 + A cos(Omega t - phi) with A = F / |1 - Omega^2 + i mu Omega|
     (closed form; x stays beyond +-1), stable; the saddle-type in-well orbit as well."""
-    from perturb.model.oscillator import builtin_model
+    from perturb.model.builtins import builtin_model
     from perturb.simulate.exact_response import exact_solutions_at
 
     k, mu, F_, W = -2.0, 0.05, 2.0, 1.5
@@ -441,7 +441,7 @@ def test_solutions_at_one_frequency_from_the_traced_branches_alone(monkeypatch):
     """With the brute-force search returning nothing, the crossings of the traced branches
     still give the three orbits of nsd (k = -2) at Omega = 1.5 (closed forms as above)."""
     import perturb.simulate.orbits.search as orbits_module
-    from perturb.model.oscillator import builtin_model
+    from perturb.model.builtins import builtin_model
     from perturb.simulate.exact_response import exact_solutions_at
 
     monkeypatch.setattr(orbits_module, "periodic_orbits", lambda *a, **k: ())

@@ -39,7 +39,8 @@ import pytest
 
 from perturb.comparison import compare
 from perturb.errors import ParameterError
-from perturb.model.oscillator import Oscillator, builtin_model
+from perturb.model.builtins import builtin_model
+from perturb.model.oscillator import Oscillator
 from perturb.numeric.continuation import BranchPoint, branch_off, continue_curve
 from perturb.numeric.harmonic_balance import (
     HarmonicBalanceSystem,

@@ -25,12 +25,8 @@ from perturb.fourier.symbols import (
     series_coefficient,
     series_coefficients,
 )
-from perturb.model.oscillator import (
-    MAX_FORCING_TERMS,
-    Oscillator,
-    builtin_model,
-    validate_parameter_value,
-)
+from perturb.model.builtins import builtin_model
+from perturb.model.oscillator import MAX_FORCING_TERMS, Oscillator, validate_parameter_value
 from perturb.model.parsing import (
     MAX_DEGREE,
     MAX_DEPTH,

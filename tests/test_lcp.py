@@ -42,7 +42,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from perturb.errors import ModelError, ParameterError, PerturbError
-from perturb.model.oscillator import Oscillator, builtin_model
+from perturb.model.builtins import builtin_model
+from perturb.model.oscillator import Oscillator
 from perturb.simulate.flows.lcp import (
     LCPTrajectory,
     is_p_matrix,

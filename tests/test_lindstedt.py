@@ -16,7 +16,8 @@ import sympy as sp
 
 from perturb.errors import ModelError, ParameterError
 from perturb.methods.lindstedt import AMPLITUDES, lindstedt_poincare
-from perturb.model.oscillator import Oscillator, builtin_model
+from perturb.model.builtins import builtin_model
+from perturb.model.oscillator import Oscillator
 from perturb.model.parsing import real_symbol
 from perturb.numeric.compile import bind_parameters, lambdify
 from perturb.report.latex import latex_document

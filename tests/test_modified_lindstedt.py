@@ -19,7 +19,8 @@ from perturb.fourier.symbols import NUMERIC_IMPLEMENTATIONS, RampCoefficient, St
 from perturb.methods.harmonic_balance import single_harmonic_balance
 from perturb.methods.lindstedt import lindstedt_poincare
 from perturb.methods.modified_lindstedt import modified_lindstedt
-from perturb.model.oscillator import Oscillator, builtin_model
+from perturb.model.builtins import builtin_model
+from perturb.model.oscillator import Oscillator
 from perturb.model.parsing import real_symbol
 from perturb.numeric.amplitude import approximation_response
 from perturb.numeric.compile import bind_parameters, lambdify

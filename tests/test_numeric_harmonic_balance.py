@@ -33,7 +33,8 @@ from scipy.integrate import quad_vec
 from scipy.optimize import minimize_scalar
 
 from perturb.errors import ModelError, ParameterError
-from perturb.model.oscillator import Oscillator, builtin_model
+from perturb.model.builtins import builtin_model
+from perturb.model.oscillator import Oscillator
 from perturb.model.pwl import NumericPWL
 from perturb.numeric.continuation import ContinuationError, continue_curve, newton_fixed
 from perturb.numeric.harmonic_balance import (

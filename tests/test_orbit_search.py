@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from perturb.model.oscillator import builtin_model
+from perturb.model.builtins import builtin_model
 from perturb.simulate.exact_response import _polish_at, exact_branches
 from perturb.solve import periodic_orbits
 

@@ -13,7 +13,7 @@ import pytest
 from perturb.comparison import compare, relative_errors
 from perturb.errors import ParameterError
 from perturb.methods import modified_lindstedt
-from perturb.model.oscillator import builtin_model
+from perturb.model.builtins import builtin_model
 from perturb.numeric.amplitude import solutions_at
 from perturb.numeric.residual import residual_response
 from perturb.solve import frequency_response, periodic_orbits

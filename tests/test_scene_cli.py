@@ -12,7 +12,7 @@ from perturb import PerturbError, __version__
 from perturb.apps.cli import main, parse_param
 from perturb.apps.scene import default_scene, parse_scene, run_scene
 from perturb.errors import ParameterError
-from perturb.model.oscillator import BUILTIN_MODELS, builtin_model
+from perturb.model.builtins import BUILTIN_MODELS, builtin_model
 from perturb.response import CSV_COLUMNS
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -30,7 +30,8 @@ from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
 from perturb.errors import ModelError, ParameterError, PerturbError
-from perturb.model.oscillator import Oscillator, builtin_model
+from perturb.model.builtins import builtin_model
+from perturb.model.oscillator import Oscillator
 from perturb.simulate.flows.base import ODEFlow
 from perturb.simulate.flows.exact import ExactPWLFlow, common_period
 from perturb.simulate.flows.piecewise_exact import PWLSystem, propagate

@@ -24,7 +24,8 @@ import pytest
 from scipy.linalg import expm
 
 from perturb.errors import ModelError, ParameterError, PerturbError
-from perturb.model.oscillator import Oscillator, builtin_model
+from perturb.model.builtins import builtin_model
+from perturb.model.oscillator import Oscillator
 from perturb.response import CSV_COLUMNS
 from perturb.simulate.flows.base import ODEFlow
 from perturb.simulate.studies import (

@@ -100,7 +100,7 @@ class Problem:
     points: int = 0
 
     def oscillator(self):
-        from perturb.model.oscillator import builtin_model
+        from perturb.model.builtins import builtin_model
 
         return builtin_model(self.model, **self.params)
 
@@ -545,7 +545,7 @@ def _lc_exact(prob: Problem, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     autonomous shooting, each seeded with the previous cycle."""
     import numpy as np
 
-    from perturb.model.oscillator import builtin_model
+    from perturb.model.builtins import builtin_model
     from perturb.simulate.orbits.shooting import limit_cycle
     from perturb.simulate.studies import make_flow
 
@@ -601,7 +601,7 @@ def _lc_approx(prob: Problem, s: Setting, grid: np.ndarray) -> tuple[np.ndarray,
     import sympy as sp
     from scipy.optimize import brentq
 
-    from perturb.model.oscillator import builtin_model
+    from perturb.model.builtins import builtin_model
     from perturb.numeric.compile import lambdify
     from perturb.solve import derive
 

@@ -124,7 +124,7 @@ def _finite(flag: str):
 
 
 def _cmd_models(args: argparse.Namespace) -> int:
-    from perturb.model.oscillator import BUILTIN_MODELS
+    from perturb.model.builtins import BUILTIN_MODELS
 
     for spec in BUILTIN_MODELS.values():
         defaults = ", ".join(f"{k}={v:g}" for k, v in spec.defaults.items())
@@ -235,7 +235,8 @@ def parse_omega(text: str) -> tuple[str, list[float]]:
 
 
 def _model_from_arg(text: str, params: dict[str, float]):
-    from perturb.model.oscillator import BUILTIN_MODELS, Oscillator, builtin_model
+    from perturb.model.oscillator import Oscillator
+    from perturb.model.builtins import BUILTIN_MODELS, builtin_model
 
     if text in BUILTIN_MODELS:
         return builtin_model(text, **params)

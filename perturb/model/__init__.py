@@ -13,7 +13,7 @@ _LAZY = {
     "Forcing": "perturb.model.oscillator",
     "Harmonic": "perturb.model.oscillator",
     "Oscillator": "perturb.model.oscillator",
-    "builtin_model": "perturb.model.oscillator",
+    "builtin_model": "perturb.model.builtins",
     "parse_expression": "perturb.model.parsing",
     "PiecewiseLinear": "perturb.model.pwl",
     "to_pwl": "perturb.model.pwl",

@@ -11,10 +11,12 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
+from perturb.errors import ModelError
+
 if TYPE_CHECKING:
     from perturb.model.oscillator import Oscillator
 
-__all__ = ["ModelSpec", "BUILTIN_MODELS"]
+__all__ = ["ModelSpec", "BUILTIN_MODELS", "builtin_model"]
 
 
 # ------------------------------------------------------------------------- builtins --
@@ -112,3 +114,20 @@ BUILTIN_MODELS: Mapping[str, ModelSpec] = MappingProxyType(
         )
     }
 )
+
+
+def builtin_model(name: str, **params: Any) -> Oscillator:
+    """A builtin model by name, with its default parameter values overridden by ``params``.
+
+    Raises
+    ------
+    ModelError
+        For an unknown name (the message lists the known ones).
+    """
+    try:
+        spec = BUILTIN_MODELS[name]
+    except KeyError:
+        raise ModelError(
+            f"unknown model {name!r}: expected one of {', '.join(BUILTIN_MODELS)}"
+        ) from None
+    return spec.build(**params)

@@ -33,7 +33,6 @@ from typing import Any
 import sympy as sp
 
 from perturb.errors import ModelError, ParameterError
-from perturb.model.builtins import BUILTIN_MODELS, ModelSpec
 from perturb.model.parsing import MAX_MAGNITUDE, MIN_MAGNITUDE, parse_equation, real_symbol
 from perturb.model.pwl import PiecewiseLinear, is_nonsmooth, to_pwl
 from perturb.printing import latex
@@ -42,9 +41,6 @@ __all__ = [
     "Harmonic",
     "Forcing",
     "Oscillator",
-    "ModelSpec",
-    "BUILTIN_MODELS",
-    "builtin_model",
     "validate_parameter_value",
 ]
 
@@ -748,20 +744,3 @@ def _forcing(expr: sp.Expr, t: sp.Symbol, source: str) -> Forcing:
                     f"(write the second frequency as a multiple of the first)"
                 )
     return Forcing(tuple(harmonics), constant)
-
-
-def builtin_model(name: str, **params: Any) -> Oscillator:
-    """A builtin model by name, with its default parameter values overridden by ``params``.
-
-    Raises
-    ------
-    ModelError
-        For an unknown name (the message lists the known ones).
-    """
-    try:
-        spec = BUILTIN_MODELS[name]
-    except KeyError:
-        raise ModelError(
-            f"unknown model {name!r}: expected one of {', '.join(BUILTIN_MODELS)}"
-        ) from None
-    return spec.build(**params)

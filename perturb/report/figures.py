@@ -265,7 +265,7 @@ def _default_title(items: Sequence[Response]) -> str:
     r = items[0]
     model = r.model or ""
     try:
-        from perturb.model.oscillator import BUILTIN_MODELS, builtin_model
+        from perturb.model.builtins import BUILTIN_MODELS, builtin_model
 
         if model in BUILTIN_MODELS:
             params = {k: v for k, v in r.params.items() if k != "Omega"}

@@ -101,7 +101,7 @@ class ExactPWLFlow(Flow):
 
     Examples
     --------
-    >>> from perturb.model.oscillator import builtin_model
+    >>> from perturb.model.builtins import builtin_model
     >>> flow = ExactPWLFlow(builtin_model("nsd", k=-2, mu=0.05, F=2, Omega=0.6))
     >>> res = flow([0.5, 0.0], 0.0, flow.period, sensitivity=True)
     >>> res.sensitivity.shape

@@ -696,7 +696,7 @@ def simulate_lcp(
 
     Examples
     --------
-    >>> from perturb.model.oscillator import builtin_model
+    >>> from perturb.model.builtins import builtin_model
     >>> osc = builtin_model("nsd", k=-2, mu=0.05, F=2, Omega=0.6)
     >>> traj = simulate_lcp(osc, (0.0, 0.0), (0.0, 10.0), 0.01)
     >>> traj.x.shape, traj.lam.shape

@@ -720,7 +720,7 @@ def periodic_orbit(
 
     Examples
     --------
-    >>> from perturb.model.oscillator import builtin_model
+    >>> from perturb.model.builtins import builtin_model
     >>> from perturb.simulate.flows.exact import ExactPWLFlow
     >>> flow = ExactPWLFlow(builtin_model("nsd", k=-2, mu=0.05, F=2, Omega=0.6))
     >>> orb = periodic_orbit(flow, [-3.3, 0.5])
