@@ -34,6 +34,17 @@ iterate), which keeps Newton superlinear for the ODE flow of smooth models.
 
 Continuation
 ------------
+A shooting problem on the package's pseudo-arclength core (:mod:`perturb.numeric.continuation`):
+the step control is the core's :class:`~perturb.numeric.continuation.StepControl` (with this
+engine's pace and output-spacing cap), the predictor its Hermite arc
+(:func:`~perturb.numeric.continuation.hermite_extrapolate`), folds are detected by
+:class:`~perturb.numeric.continuation.FoldTest` and stability changes by
+:class:`~perturb.numeric.continuation.FloquetCrossings`; special points are located by
+:func:`perturb.numeric.roots.illinois` and seeds polished by
+:func:`perturb.numeric.roots.damped_newton`.  What stays here is what shooting needs and the
+generic core does not have: a corrector whose acceptance knows the orbit statistics and the
+node growth, a variable number of nodes, closed-form arcs, and orbit-signature proximity tests.
+
 Along the solution curve :math:`u(s) = (z, p)`, in coordinates scaled so that 1 is the
 parameter window or the orbit's size (:math:`R = \max(1, \max|x|, \max|z|)`, shared by the
 nodes as :math:`R\sqrt N`):
