@@ -27,12 +27,35 @@ __all__ = [
     "from_harmonics",
     "solve_harmonic_oscillator",
     "fold_mirror_angles",
+    "split_argument",
 ]
 
 Harmonics = Mapping[int, tuple[sp.Expr, sp.Expr]]
 
 
-def _split_arg(arg: sp.Expr, psi: sp.Symbol) -> tuple[int, sp.Expr]:
+def split_argument(arg: sp.Expr, psi: sp.Symbol) -> tuple[int, sp.Expr]:
+    """Split a trigonometric argument ``n*psi + c`` into ``(n, c)``.
+
+    Parameters
+    ----------
+    arg : sympy.Expr
+        The argument of a ``cos``/``sin``.
+    psi : sympy.Symbol
+        The phase.
+
+    Returns
+    -------
+    n : int
+        The integer multiple of ``psi``.
+    c : sympy.Expr
+        The rest, free of ``psi`` (expanded).
+
+    Raises
+    ------
+    PerturbError
+        If ``arg`` is not linear in ``psi`` with an integer coefficient (e.g. ``psi/2``,
+        ``psi**2``, ``a*psi`` with a symbolic ``a``).
+    """
     arg = sp.expand(arg)
     n = arg.coeff(psi)
     rest = sp.expand(arg - n * psi)
@@ -59,7 +82,7 @@ def harmonics(expr: sp.Expr, psi: sp.Symbol) -> dict[int, tuple[sp.Expr, sp.Expr
     for f in expr.atoms(sp.cos, sp.sin):
         if not f.has(psi):
             continue
-        n, c = _split_arg(f.args[0], psi)
+        n, c = split_argument(f.args[0], psi)
         e_plus = z**n * sp.exp(sp.I * c)
         e_minus = z ** (-n) * sp.exp(-sp.I * c)
         reps[f] = (

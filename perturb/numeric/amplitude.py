@@ -37,7 +37,7 @@ from perturb.fourier.symbols import (
     RampCoefficient,
     StepCoefficient,
 )
-from perturb.fourier.trig import _split_arg
+from perturb.fourier.trig import split_argument as _split_arg
 from perturb.numeric.compile import bind_parameters, lambdify
 from perturb.numeric.stability import hill_exponents, monodromy_multipliers
 from perturb.response import Branch, Response
