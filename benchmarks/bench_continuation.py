@@ -49,7 +49,7 @@ import scipy
 
 from perturb.model.builtins import builtin_model
 from perturb.simulate.exact_response import continue_orbits, exact_branches
-from perturb.simulate.flows.base import FlowFamily
+from perturb.simulate.flows.factory import FlowFamily
 from perturb.simulate.studies import frequency_sweep
 
 PARAMS = {"k": -3.0, "mu": 0.05, "F": 2.0}
