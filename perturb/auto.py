@@ -65,6 +65,7 @@ __all__ = [
     "candidate_spot_errors",
     "choose_method",
     "auto_frequency_response",
+    "auto_solutions_at",
     "window_estimate",
 ]
 
@@ -778,6 +779,7 @@ def auto_frequency_response(
     ladder: Sequence[Candidate] = LADDER,
     log=None,
     max_extra_spots: int = 3,
+    frequencies: Sequence[float] | None = None,
 ) -> tuple[Response, AutoChoice]:
     """Choose the method (:func:`choose_method`), then trace only it over ``window``.
 
@@ -790,6 +792,9 @@ def auto_frequency_response(
     max_extra_spots : int
         Spot checks that may be added where the estimate along a traced HB curve exceeds
         ``rtol`` (default 3).
+    frequencies : sequence of float, optional
+        Answer at exactly these frequencies instead of tracing ``window``
+        (:func:`auto_solutions_at`; ``window`` and ``points`` are then not used).
 
     Returns
     -------
@@ -803,6 +808,10 @@ def auto_frequency_response(
     spot check (exact orbits there) and the ladder resumes at the chosen rung, at most
     ``max_extra_spots`` times; what remains is reported in the notes.
     """
+    if frequencies is not None:
+        return auto_solutions_at(
+            oscillator, frequencies, rtol, spots=spots, n_spots=n_spots, ladder=ladder, log=log
+        )
     known: dict[float, list] = {}
     exact_s = 0.0
     ladder = list(ladder)
@@ -853,6 +862,55 @@ def auto_frequency_response(
         before = choice.rejected
         ladder = ladder[i:]
     choice = _with_notes(choice, tuple(extra) + notes + _coverage_notes(resp, choice))
+    head = tuple(choice.summary().splitlines())
+    resp = Response(
+        resp.branches,
+        resp.method,
+        resp.model,
+        dict(resp.params),
+        folds=resp.folds,
+        notes=head + tuple(resp.notes),
+    )
+    return resp, choice
+
+
+def auto_solutions_at(
+    oscillator: Oscillator,
+    frequencies: Sequence[float],
+    rtol: float,
+    *,
+    spots: Sequence[float] | None = None,
+    n_spots: int = 4,
+    ladder: Sequence[Candidate] = LADDER,
+    log=None,
+) -> tuple[Response, AutoChoice]:
+    """The cheapest method that meets ``rtol``, answering at exactly ``frequencies``.
+
+    The spot checks run at the requested frequencies themselves when there are at most
+    ``n_spots`` of them (the error is measured where the answer is given), else at
+    :func:`spot_frequencies` over the window they span; the chosen method then answers at
+    every requested frequency (:func:`perturb.solve.frequency_response` with
+    ``frequencies=``).
+
+    Returns
+    -------
+    (Response, AutoChoice)
+        The response's ``notes`` start with the choice (method, estimate, spot errors).
+    """
+    from perturb.methods.registry import MAX_FREQUENCIES
+    from perturb.solve import frequency_response
+
+    targets = checks.frequencies(frequencies, MAX_FREQUENCIES)
+    unique = sorted(set(targets))
+    # a window around the frequencies (also for a single one), for the spot checks
+    window = (unique[0] * (1 - 0.02), unique[-1] * (1 + 0.02))
+    if spots is None and len(unique) <= n_spots:
+        spots = unique
+    choice, _ = _choose(oscillator, window, rtol, spots, n_spots, ladder, log)
+    cand = choice.chosen.candidate
+    settings = cand.settings()
+    method = settings.pop("method")
+    resp = frequency_response(oscillator, method, frequencies=targets, **settings)
     head = tuple(choice.summary().splitlines())
     resp = Response(
         resp.branches,

@@ -14,9 +14,9 @@ method takes and checks their values; this module routes the request:
 - ``"auto"``: :func:`perturb.auto.auto_frequency_response`, resolved by name (auto imports
   this module, never the reverse).
 
-``frequencies=`` works for every method but ``"auto"``: every solution at exactly those
-frequencies (traced over a covering window, then each crossing solved again at the exact
-frequency).
+``frequencies=`` works for every method: every solution at exactly those frequencies
+(traced over a covering window, then each crossing solved again at the exact frequency;
+``"auto"`` chooses its method with spot checks at those frequencies, then answers there).
 
 Limits
 ------
@@ -114,7 +114,7 @@ def frequency_response(
         ``(low, high)``.
     frequencies
         Exact frequencies to report instead of a traced curve: every solution found at
-        each of them, and no other frequency (every method but ``"auto"``). With ``"hb"``
+        each of them, and no other frequency (every method). With ``"hb"``
         and residual-traced approximations the branches are traced over a window covering
         the frequencies and each crossing of a branch with a requested frequency is solved
         again at exactly that frequency.
@@ -148,11 +148,6 @@ def frequency_response(
     """
     spec = registry.spec(method)
     if frequencies is not None:
-        if "frequencies" not in spec.capabilities:
-            raise ParameterError(
-                f"method {spec.name!r} chooses order and harmonics itself over a window "
-                "Omega=(lo, hi): give no frequencies="
-            )
         frequencies = checks.frequencies(frequencies, MAX_FREQUENCIES)
     if spec.kind == "symbolic":
         derive_options, solve_options = spec.split(options)
@@ -161,6 +156,12 @@ def frequency_response(
     options = spec.validate(options)
     if spec.kind == "auto":
         rtol = options.pop("rtol", 1e-3)
+        if frequencies is not None:
+            if "points" in options:
+                raise ParameterError(
+                    "points sets the resolution of a traced curve: give it without frequencies="
+                )
+            options["frequencies"] = frequencies
         return spec.resolve()(oscillator, Omega, rtol, **options)[0]
     if spec.kind == "reference":
         return _exact(oscillator, Omega, frequencies, options)

@@ -72,8 +72,11 @@ def test_front_door_auto_rejects_bad_rtol_and_grids():
     osc = perturb.builtin_model("nsd", k=-0.5, mu=0.05, F=2.0)
     with pytest.raises(ParameterError, match="rtol = 0"):
         perturb.frequency_response(osc, "auto", Omega=(0.8, 1.2), rtol=0)
-    with pytest.raises(ParameterError, match="auto"):
-        perturb.frequency_response(osc, "auto", frequencies=[0.9, 1.0], rtol=1e-3)
+    # listed frequencies are answered (tests/test_method_registry.py); bad ones are refused
+    with pytest.raises(ParameterError, match="frequencies"):
+        perturb.frequency_response(osc, "auto", frequencies=[0.9, -1.0], rtol=1e-3)
+    with pytest.raises(ParameterError, match="'auto' takes no order"):
+        perturb.frequency_response(osc, "auto", Omega=(0.8, 1.2), order=2)
 
 
 @pytest.mark.parametrize(

@@ -199,7 +199,6 @@ CASES = [
     ([*FRC, "--method", "exact", "--harmonics", "9"], "takes no harmonics"),
     ([*FRC, "--method", "hb1", "--one-branch"], "--one-branch"),
     ([*FRC, "--method", "auto", "--order", "2"], "--method auto"),
-    ([*FRC, "--method", "auto", "--omega", "0.6,0.9"], "--method auto"),
     # scenes
     (["run", "{tmp}/missing.toml"], "cannot read scene file"),
     (["run", "{tmp}/bad.toml"], "scene"),

@@ -312,7 +312,7 @@ def _cases_at():
         model, options = SYMBOLIC_CASES.get(name, ("duffing", {}))
         if name == "hb":
             options = {"harmonics": 5}
-        marks = [pytest.mark.slow] if name == "exact" else []
+        marks = [pytest.mark.slow] if name in ("exact", "auto") else []
         yield pytest.param(name, model, options, marks=marks, id=name)
     yield pytest.param("mlp", "duffing", {"order": 2}, id="mlp2")
 
@@ -342,10 +342,16 @@ def test_perturb_frc_reaches_every_method_at_listed_frequencies(name, model, opt
     assert rows and sorted({float(r["omega"]) for r in rows}) == LISTED
 
 
-def test_auto_refuses_listed_frequencies():
+@pytest.mark.slow
+def test_auto_checks_its_choice_at_the_listed_frequencies():
+    """With frequencies=, auto's exact spot checks run at those frequencies (where the answer
+    is given), and the chosen method answers there."""
     osc = perturb.builtin_model("duffing")
-    with pytest.raises(ParameterError, match="frequencies"):
-        frequency_response(osc, "auto", frequencies=LISTED)
+    resp = frequency_response(osc, "auto", frequencies=LISTED, rtol=1e-2)
+    assert resp.notes[0].startswith("auto: chose")
+    assert any("spot checks at Omega = 0.7, 1.3" in n for n in resp.notes)
+    with pytest.raises(ParameterError, match="points"):
+        frequency_response(osc, "auto", frequencies=LISTED, points=100)
 
 
 def test_lp_answers_free_oscillations_and_says_so():

@@ -235,8 +235,8 @@ def parse_omega(text: str) -> tuple[str, list[float]]:
 
 
 def _model_from_arg(text: str, params: dict[str, float]):
-    from perturb.model.oscillator import Oscillator
     from perturb.model.builtins import BUILTIN_MODELS, builtin_model
+    from perturb.model.oscillator import Oscillator
 
     if text in BUILTIN_MODELS:
         return builtin_model(text, **params)
@@ -339,10 +339,6 @@ def _cmd_frc(args: argparse.Namespace) -> int:
         options["all_branches"] = False
     elif "all_branches" in method.options:
         options["all_branches"] = True
-    if method.kind == "auto" and kind != "range":
-        raise ParameterError(
-            f"--method auto traces a window: give --omega start:stop, not {args.omega!r}"
-        )
     params = dict(parse_param(p) for p in args.param or ())
     osc = _model_from_arg(args.model, params)
     swept = str(getattr(osc.forcing, "base_frequency", ""))

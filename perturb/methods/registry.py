@@ -512,7 +512,7 @@ _SPECS = (
         "perturb.auto:auto_frequency_response",
         "the cheapest method that meets rtol (default 1e-3) at exact spot checks",
         options=_options(*_AUTO_OPTIONS),
-        capabilities=frozenset({"stability"}),
+        capabilities=frozenset({"frequencies", "stability"}),
     ),
 )
 
