@@ -262,11 +262,7 @@ def test_frc_method_aliases_and_numeric_hb(tmp_path):
     assert main([*base, "--method", "avg", "--omega", "0.6,0.9", "--out", str(out)]) == 0
     assert "kb" in out.read_text().splitlines()[1]
     assert main([*base, "--method", "hb", "--harmonics", "5", "--omega", "0.8:1.2"]) == 0
-    # listed frequencies with numeric HB: solved at exactly those (issue 18, item 8)
-    out2 = tmp_path / "b.csv"
-    assert main([*base, "--method", "hb", "--omega", "0.6,0.9", "--out", str(out2)]) == 0
-    rows = list(csv.DictReader(out2.open()))
-    assert rows and {r["omega"] for r in rows} == {"0.6", "0.9"}
+    # listed frequencies for every method, numeric HB included: tests/test_method_registry.py
 
 
 def test_run_on_a_sweep_scene_writes_the_map(tmp_path):
@@ -282,11 +278,6 @@ def test_run_on_a_sweep_scene_writes_the_map(tmp_path):
     ds = load_dataset(tmp_path / "out" / "map.nc")
     assert dict(ds.sizes)["mu"] == 2 and dict(ds.sizes)["k"] == 2
     assert (tmp_path / "out" / "map.png").read_bytes()[:4] == b"\x89PNG"
-
-
-def test_frc_order_for_a_method_without_one_is_a_clear_error(capsys):
-    assert main(["frc", "nsd", "--method", "hb1", "--order", "2"]) == 2
-    assert "'hb1' takes no order" in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------------------------------------
