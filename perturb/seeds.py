@@ -32,8 +32,9 @@ import numpy as np
 
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
+from perturb.model.segments import segment_steady_states
 from perturb.numeric.harmonic_balance import HarmonicBalanceSystem
-from perturb.simulate.flows.base import Flow
+from perturb.simulate.flows.base import Flow, as_flow
 from perturb.simulate.flows.factory import FlowFamily
 from perturb.simulate.orbits.search import NODES, default_extent, odd_symmetric
 
@@ -266,8 +267,8 @@ def harmonic_balance_guesses(
     found by Newton from a grid of starts (module docstring): ``c + A cos(j theta - phi)``
     for the forcing harmonic ``j = 1`` and, below the natural frequencies ``omega_i`` of the
     linear segments, for the superharmonics ``j`` nearest ``omega_i / Omega``."""
-    system = getattr(flow, "system", None)
-    slopes = np.asarray(getattr(system, "slopes", [1.0]), float)
+    system = as_flow(flow).system
+    slopes = np.asarray(system.slopes if system is not None else [1.0], float)
     naturals = np.sqrt(slopes[slopes > 0.0]) if np.any(slopes > 0.0) else np.array([1.0])
     harmonics = int(
         np.clip(np.ceil(_HARMONICS_PER_RATIO * naturals.max() / Omega), _SEARCH_HARMONICS, 21)
@@ -301,13 +302,21 @@ def harmonic_balance_guesses(
     # each linear segment's forced steady state, as if the segment extended everywhere
     pos1 = basis.index_of(1)
     if system is not None and len(system.forcing) == 1 and pos1 is not None:
-        (F, wf, ph), mu = system.forcing[0], system.damping
-        for sl, off in zip(system.slopes, system.offsets, strict=True):
-            if sl == 0.0 or abs(wf - Omega) > 1e-12 * Omega:
+        wf = system.forcing[0][1]
+        steady = segment_steady_states(
+            system.breakpoints,
+            system.slopes,
+            system.offsets,
+            system.damping,
+            system.forcing,
+            system.static_force,
+        )
+        for st in steady:
+            if st is None or abs(wf - Omega) > 1e-12 * Omega:
                 continue
-            Z = F * np.exp(1j * ph) / complex(sl - wf * wf, mu * wf)
+            Z = st.amplitude
             u = np.zeros(basis.size)
-            u[0] = (system.static_force - off) / sl
+            u[0] = st.centre
             u[pos1], u[pos1 + 1] = Z.real, -Z.imag
             if abs(u[0]) + abs(Z) > 1e3 * extent:
                 continue

@@ -28,7 +28,8 @@ import numpy as np
 
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
-from perturb.simulate.flows.base import Flow
+from perturb.model.segments import segment_steady_states
+from perturb.simulate.flows.base import Flow, as_flow
 from perturb.simulate.flows.factory import FlowFamily
 from perturb.simulate.orbits.shooting import (
     PeriodicOrbit,
@@ -56,9 +57,10 @@ def linear_segment_orbits(flow: Flow) -> list[np.ndarray]:
     In segment ``i`` the force is ``s_i x + o_i``; the steady state of
     ``x'' + mu x' + s_i x + o_i = c + F cos(w t + p)`` is
     ``x = (c - o_i)/s_i + Re(F e^{i(w t + p)} / (s_i - w^2 + i mu w))`` — an orbit of the
-    whole system when it never leaves the segment.
+    whole system when it never leaves the segment
+    (:func:`perturb.model.segments.segment_steady_states`).
     """
-    return [nodes[0] for nodes in _linear_segment_nodes(flow, 1)]
+    return [nodes[0] for nodes in _linear_segment_nodes(as_flow(flow), 1)]
 
 
 def _linear_segment_nodes(flow: Flow, max_nodes: int) -> list[np.ndarray]:
@@ -67,30 +69,35 @@ def _linear_segment_nodes(flow: Flow, max_nodes: int) -> list[np.ndarray]:
     at most ``_NODE_GROWTH`` per sub-interval: the saddle orbit of a negative-stiffness
     segment grows like ``exp(lambda T)``, beyond what single shooting can correct (a factor
     1e76 at Omega = 0.05 for nsd, k = -2), while its nodes are known in closed form."""
-    system = getattr(flow, "system", None)
+    system = flow.system
     if system is None or len(system.forcing) != 1:
         return []
-    (F, w, ph), mu = system.forcing[0], system.damping
+    (_, w, ph), mu = system.forcing[0], system.damping
     T = 2.0 * np.pi / w
-    edges = np.concatenate([[-np.inf], system.breakpoints, [np.inf]])
     out = []
-    for i, (s, o) in enumerate(zip(system.slopes, system.offsets, strict=True)):
-        if s == 0:
-            continue
-        Z = F / complex(s - w * w, mu * w)
-        xc = (system.static_force - o) / s
-        if edges[i] < xc - abs(Z) and xc + abs(Z) < edges[i + 1]:
-            rate = -0.5 * mu + np.sqrt(complex(0.25 * mu * mu - s)).real
+    for st in segment_steady_states(
+        system.breakpoints,
+        system.slopes,
+        system.offsets,
+        system.damping,
+        system.forcing,
+        system.static_force,
+    ):
+        if st is not None and st.inside:
+            rate = -0.5 * mu + np.sqrt(complex(0.25 * mu * mu - st.slope)).real
             n = int(np.clip(np.ceil(rate * T / np.log(_NODE_GROWTH)), 1, max_nodes))
-            phase = Z * np.exp(1j * (w * T * np.arange(n) / n + ph))
-            out.append(np.column_stack([xc + phase.real, (1j * w * phase).real]))
+            # the forcing angle w t_k as w T k / n (not w (T k / n)): the nodes of earlier
+            # versions, to the bit
+            phase = st.responses[0] * np.exp(1j * (w * T * np.arange(n) / n + ph))
+            out.append(np.column_stack([st.centre + phase.real, (1j * w * phase).real]))
     return out
 
 
 def default_extent(flow: Flow) -> float:
     """Half-width of the box of initial conditions and the scale of guesses: three times the
     largest breakpoint of a PWL flow (at least 3), else 3."""
-    bps = getattr(getattr(flow, "system", None), "breakpoints", np.array([]))
+    flow = as_flow(flow)
+    bps = flow.system.breakpoints if flow.system is not None else np.array([])
     return 3.0 * max(1.0, float(np.max(np.abs(bps)))) if len(bps) else 3.0
 
 
