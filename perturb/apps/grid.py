@@ -436,8 +436,8 @@ def _scene_spec(ss: SweepScene, names: Sequence[str]) -> dict[str, Any]:
 
 
 def _spec_oscillator(spec: Mapping[str, Any]):
-    from perturb.model.oscillator import Oscillator
     from perturb.model.builtins import builtin_model
+    from perturb.model.oscillator import Oscillator
 
     if spec["equation"] is not None:
         return Oscillator.parse(spec["equation"], dict(spec["params"]), name=spec["model"])

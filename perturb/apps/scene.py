@@ -75,8 +75,8 @@ from types import MappingProxyType
 
 from perturb.atomic import check_distinct, write_text
 from perturb.errors import ParameterError, PerturbError
-from perturb.model.oscillator import Oscillator, validate_parameter_value
 from perturb.model.builtins import builtin_model
+from perturb.model.oscillator import Oscillator, validate_parameter_value
 
 __all__ = [
     "Scene",
