@@ -12,7 +12,7 @@ in the same process, interleaved call by call so that both see the same load: th
 path, i.e. the amplitude's Fourier atoms through the validating public kernels of
 ``perturb.fourier.coefficients`` (``solver.atoms.unchecked = False``) and Hill's exponents from
 LAPACK's
-``eigvals`` of the 6x6 matrices (``_hill1_matrix``) instead of the closed-form cubic; and
+``eigvals`` of the 6x6 matrices (``hill1_matrix``) instead of the closed-form cubic; and
 the critical points and breakpoint crossings of the waveforms as they were before the last
 step of issue 5 (frozen copies ``_previous_extrema`` / ``_previous_crossings`` below: derivative
 tables per order, ``lexsort``, Newton from each piece's middle for every breakpoint, where
@@ -76,14 +76,14 @@ def timed_pair(fns: dict[str, object], repeat: int) -> dict[str, dict[str, objec
 @contextlib.contextmanager
 def previous_path(solver):
     """The path before the fast one: validating Fourier kernels and LAPACK for Hill."""
-    saved = fr._hill1_exponents
+    saved = fr.hill1_exponents
     solver.atoms.unchecked = False
     solver.atoms._plans.clear()
-    fr._hill1_exponents = lambda *a: np.linalg.eigvals(fr._hill1_matrix(*a))
+    fr.hill1_exponents = lambda *a: np.linalg.eigvals(fr.hill1_matrix(*a))
     try:
         yield
     finally:
-        fr._hill1_exponents = saved
+        fr.hill1_exponents = saved
         solver.atoms.unchecked = True
         solver.atoms._plans.clear()
 
@@ -92,14 +92,14 @@ def previous_path(solver):
 def previous_extrema():
     """The critical points and breakpoint crossings before issue 5's last step (the frozen
     copies below): everything else as in the fast path."""
-    saved = fr._extrema, fr._PWLHill.crossings, fr._PWLHill.max_multiplier
-    fr._extrema = _previous_extrema
+    saved = fr.critical_points, fr._PWLHill.crossings, fr._PWLHill.max_multiplier
+    fr.critical_points = _previous_extrema
     fr._PWLHill.crossings = _previous_crossings
     fr._PWLHill.max_multiplier = _previous_max_multiplier
     try:
         yield
     finally:
-        fr._extrema, fr._PWLHill.crossings, fr._PWLHill.max_multiplier = saved
+        fr.critical_points, fr._PWLHill.crossings, fr._PWLHill.max_multiplier = saved
 
 
 # --- the path before this change (frozen copy, commit HEAD of 2026-11-26): critical points
@@ -215,7 +215,7 @@ def _previous_extrema(C: np.ndarray, S: np.ndarray, count: int = fr.WAVEFORM_SAM
 
     # after a Halley step below 1e-3 the position is good to ~1e-9 (times the curvature
     # scale), and the value at a critical point depends on it only to second order
-    t = fr._safe_newton(slope, lo_b, hi_b, f_lo, f_hi, guess, 1e-3)
+    t = fr.safe_newton(slope, lo_b, hi_b, f_lo, f_hi, guess, 1e-3)
     x = poly(t)[0]
     r_b = np.concatenate([r_b, rows_d[sym]])
     t = np.mod(np.concatenate([t, t[:n_max][sym] + np.pi]), 2 * np.pi)
@@ -226,7 +226,7 @@ def _previous_extrema(C: np.ndarray, S: np.ndarray, count: int = fr.WAVEFORM_SAM
 
 def _previous_crossings(self, C, S, r, te, xe):
     """Breakpoint crossings of the orbits with critical points ``(r, te, xe)`` (from
-    :func:`_extrema`): row, phase ``tau`` in ``[0, 2 pi)`` and jump of ``q``."""
+    :func:`critical_points`): row, phase ``tau`` in ``[0, 2 pi)`` and jump of ``q``."""
     empty = np.empty(0)
     if r.size == 0 or self.breakpoints.size == 0:
         return np.empty(0, int), empty, empty
@@ -253,7 +253,7 @@ def _previous_crossings(self, C, S, r, te, xe):
             return x - d, dx
 
         lo, hi = te[k], t_end[k]
-        tc = fr._safe_newton(level, lo, hi, xe[k] - d, x_end[k] - d, 0.5 * (lo + hi), 1e-13)
+        tc = fr.safe_newton(level, lo, hi, xe[k] - d, x_end[k] - d, 0.5 * (lo + hi), 1e-13)
         rows.append(rk)
         taus.append(np.mod(tc, 2 * np.pi))
         dq = self.slopes[i + 1] - self.slopes[i]
@@ -266,7 +266,7 @@ def _previous_crossings(self, C, S, r, te, xe):
 def _previous_max_multiplier(self, coefs, extrema, w) -> np.ndarray:
     """``exp(max Re(lambda) T)`` of the two Floquet exponents of Hill's ``H = 1``
     truncation, for orbits ``x(tau)`` with coefficients ``coefs``, critical points
-    ``extrema`` (from :func:`_extrema`) and frequencies ``w``."""
+    ``extrema`` (from :func:`critical_points`) and frequencies ``w``."""
     C, S = coefs
     n_orb = C.shape[0]
     rows, tau, jump = self.crossings(C, S, *extrema)
@@ -282,7 +282,7 @@ def _previous_max_multiplier(self, coefs, extrema, w) -> np.ndarray:
         z = jump * np.exp(-1j * k * tau) / (2j * np.pi * k)  # q_k = (qc_k - i qs_k) / 2
         qc.append(2 * np.bincount(rows, z.real, minlength=n_orb))
         qs.append(-2 * np.bincount(rows, z.imag, minlength=n_orb))
-    lam = fr._hill1_exponents(q0, qc[0], qs[0], qc[1], qs[1], w, self.damping)
+    lam = fr.hill1_exponents(q0, qc[0], qs[0], qc[1], qs[1], w, self.damping)
     # of the 2 (2H + 1) eigenvalues the two with the smallest |Im| are the exponents
     order = np.argsort(np.abs(lam.imag) + 1e-12 * np.abs(lam.real), axis=1)
     re = np.max(np.take_along_axis(lam, order[:, :2], axis=1).real, axis=1)

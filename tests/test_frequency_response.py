@@ -147,7 +147,7 @@ def test_vectorised_bracketed_roots_match_scalar_brentq():
     """The all-brackets-at-once root refinement (regula falsi / Illinois with bisection
     safeguard) against scipy's scalar brentq, one bracket at a time, on functions with
     simple, steep, flat (cubic) and exactly representable roots."""
-    from perturb.numeric.amplitude import _bracketed_roots
+    from perturb.numeric.amplitude import bracketed_roots
 
     shifts = np.array([0.3, 1.7, 2.5, 1e-3, 4.0])
     funcs = [
@@ -163,7 +163,7 @@ def test_vectorised_bracketed_roots_match_scalar_brentq():
         def f(x, idx, g=g):
             return g(x, shifts[idx])
 
-        lo, hi, _, _ = _bracketed_roots(f, a, b, f(a, np.arange(5)), f(b, np.arange(5)))
+        lo, hi, _, _ = bracketed_roots(f, a, b, f(a, np.arange(5)), f(b, np.arange(5)))
         for i, s in enumerate(shifts):
             ref = brentq(lambda x, i=i, g=g: g(x, shifts[i]), a[i], b[i], xtol=1e-16, maxiter=2000)
             assert lo[i] <= hi[i]
@@ -171,7 +171,7 @@ def test_vectorised_bracketed_roots_match_scalar_brentq():
 
 
 def test_safeguarded_newton_matches_brentq():
-    from perturb.numeric.amplitude import _safe_newton
+    from perturb.numeric.amplitude import safe_newton
 
     # exp(x) + 0.2 sin(4 (x - s)) is increasing for x > log(0.8): one root per bracket
     s = np.array([0.9, 1.4, 2.2, 3.0])
@@ -183,7 +183,7 @@ def test_safeguarded_newton_matches_brentq():
 
     f_lo, f_hi = fdf(lo, np.arange(4))[0], fdf(hi, np.arange(4))[0]
     ok = f_lo * f_hi < 0
-    x = _safe_newton(fdf, lo[ok], hi[ok], f_lo[ok], f_hi[ok], 0.5 * (lo + hi)[ok], 1e-14)
+    x = safe_newton(fdf, lo[ok], hi[ok], f_lo[ok], f_hi[ok], 0.5 * (lo + hi)[ok], 1e-14)
     idx = np.nonzero(ok)[0]
     assert idx.size == 4
     for k, i in enumerate(idx):
@@ -201,7 +201,7 @@ def test_critical_points_give_max_abs_of_trigonometric_polynomials():
     bounded minimiser; rows include a pure cosine, strong higher harmonics and a mean."""
     from scipy.optimize import minimize_scalar
 
-    from perturb.numeric.amplitude import _extrema, _max_abs_at
+    from perturb.numeric.amplitude import critical_points, max_abs_at
 
     rng = np.random.default_rng(5)
     n_rows, K = 40, 16
@@ -212,8 +212,8 @@ def test_critical_points_give_max_abs_of_trigonometric_polynomials():
     C[20, :], S[20, :] = 0, 0
     C[20, 1] = 2.0  # a pure cosine: max |x| = 2
     C[21, 0] = 5.0  # a mean
-    rows, tau, xe = _extrema(C, S)
-    got = _max_abs_at(rows, xe, n_rows, C[:, 0])
+    rows, tau, xe = critical_points(C, S)
+    got = max_abs_at(rows, xe, n_rows, C[:, 0])
     t = np.linspace(0, 2 * np.pi, 1 << 16, endpoint=False)
     n = np.arange(K)
     for i in range(n_rows):
@@ -256,9 +256,9 @@ def test_exact_pwl_hill_matches_sampled_hill_exponents(k):
     phi = np.arctan2(ps, pc)
     wave = Waveform(approx, cp.A, cp.phase, cp.Omega)
     coefs = wave.coefficients(A, phi, w)
-    from perturb.numeric.amplitude import _extrema
+    from perturb.numeric.amplitude import critical_points
 
-    fast = cp.hill.max_multiplier(coefs, _extrema(*coefs), w)
+    fast = cp.hill.max_multiplier(coefs, critical_points(*coefs), w)
     xf, dxf = wave.samples(A, phi, w, 8192, coefs)
     lam = hill_exponents(osc, xf, w[:, None] * dxf, 2 * np.pi / w, 1, cp.Omega)
     sampled = np.exp(np.max(lam.real, axis=1) * 2 * np.pi / w)
@@ -283,8 +283,7 @@ def test_unchecked_fourier_path_gives_the_checked_response_bitwise(stability):
     solver = compile_response(modified_lindstedt(osc, 1))
     assert solver.atoms.unchecked
     fast = approximation_response(solver, (0.2, 2.0), points=600, stability=stability)
-    solver.atoms.unchecked = False
-    solver.atoms._plans.clear()
+    solver.atoms.unchecked = False  # also drops the plans built with the unchecked kernels
     slow = approximation_response(solver, (0.2, 2.0), points=600, stability=stability)
     assert fast.folds == slow.folds
     for x, y in zip(_response_arrays(fast), _response_arrays(slow), strict=True):
@@ -292,7 +291,7 @@ def test_unchecked_fourier_path_gives_the_checked_response_bitwise(stability):
 
 
 def test_closed_form_hill_exponents_match_lapack():
-    from perturb.numeric.amplitude import _hill1_exponents, _hill1_matrix
+    from perturb.numeric.amplitude import hill1_exponents, hill1_matrix
 
     rng = np.random.default_rng(5)
     n = 2000
@@ -309,8 +308,8 @@ def test_closed_form_hill_exponents_match_lapack():
 
     # (p > 0: with p = 0 the selection itself is ambiguous, +-nu having equal |Im| and |Re|)
     for p in (0.01, 0.05, 0.7):
-        lam = _hill1_exponents(q0, *qk, w, p)
-        ref = np.linalg.eigvals(_hill1_matrix(q0, *qk, w, p))
+        lam = hill1_exponents(q0, *qk, w, p)
+        ref = np.linalg.eigvals(hill1_matrix(q0, *qk, w, p))
         # the same six eigenvalues (greedy nearest matching), to LAPACK's own accuracy:
         # ~1e-15 typically, ~eps**(1/3) where three roots cluster
         for i in range(n):
@@ -338,7 +337,7 @@ def _dense_tables(K, count, endpoint):
 def _oracle_max_abs(c, s):
     """max |x| of one row ``x = sum_n c_n cos(n t) + s_n sin(n t)`` by brute force: 1e5
     samples, then a bounded scalar maximisation about the best one (independent of
-    :func:`_extrema`'s brackets, Newton steps and symmetry shortcuts)."""
+    :func:`critical_points`'s brackets, Newton steps and symmetry shortcuts)."""
     from scipy.optimize import minimize_scalar
 
     n = np.arange(c.size)
@@ -383,14 +382,14 @@ def _symmetric_rows():
 
 @pytest.mark.parametrize("count", [128, 127])
 def test_max_abs_of_half_wave_symmetric_rows_matches_dense_oracle(count):
-    """max |x| from :func:`_extrema` (which refines the critical points in [0, pi) of a
+    """max |x| from :func:`critical_points` (which refines the critical points in [0, pi) of a
     half-wave symmetric row and mirrors the rest, and orders them by one argsort) against
     brute force; an odd sample count takes the path without mirroring of sampled rows."""
-    from perturb.numeric.amplitude import _extrema, _max_abs_at
+    from perturb.numeric.amplitude import critical_points, max_abs_at
 
     C, S = _symmetric_rows()
-    rows, tau, xe = _extrema(C, S, count)
-    got = _max_abs_at(rows, xe, C.shape[0], C[:, 0])
+    rows, tau, xe = critical_points(C, S, count)
+    got = max_abs_at(rows, xe, C.shape[0], C[:, 0])
     for i in range(C.shape[0]):
         ref = _oracle_max_abs(C[i], S[i])
         assert abs(got[i] - ref) <= 1e-12 * ref, (i, got[i], ref)
@@ -442,11 +441,11 @@ def test_response_amplitudes_match_dense_oracle_including_grazing(k, F):
     against brute force on the waveform, including the orbits of the response closest above
     the breakpoints (max |x| = 1.0024 for k = -0.5) and rescaled orbits with
     max |x| = 1 + 1e-2 .. 1e-6."""
-    from perturb.numeric.amplitude import _extrema, _max_abs_at
+    from perturb.numeric.amplitude import critical_points, max_abs_at
 
     cp, C, S, amp, _ = _nsd_orbits(k, F)
-    rows, _, xe = _extrema(C, S)
-    got = _max_abs_at(rows, xe, C.shape[0], C[:, 0])
+    rows, _, xe = critical_points(C, S)
+    got = max_abs_at(rows, xe, C.shape[0], C[:, 0])
     for i in range(C.shape[0]):
         ref = _oracle_max_abs(C[i], S[i])
         assert abs(got[i] - ref) <= 1e-12 * ref, (i, got[i], ref)
@@ -462,10 +461,10 @@ def test_breakpoint_crossings_match_brentq_including_grazing(k, F):
     (max |x| = 1 + 1e-6: crossings 1e-3 apart)."""
     from scipy.optimize import brentq
 
-    from perturb.numeric.amplitude import _extrema
+    from perturb.numeric.amplitude import critical_points
 
     cp, C, S, _, n_grazing = _nsd_orbits(k, F)
-    rows, tau, jump = cp.hill.crossings(C, S, *_extrema(C, S))
+    rows, tau, jump = cp.hill.crossings(C, S, *critical_points(C, S))
     n = np.arange(C.shape[1])
     t, ct, st = _dense_tables(C.shape[1], 100_001, True)
     # q = g'(x) jumps by k - 1 crossing -1 upwards and by 1 - k crossing +1 upwards

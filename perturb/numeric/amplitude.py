@@ -14,9 +14,9 @@ Speed: every expression the tracer evaluates depends on the amplitude through a 
 coefficient functions (``RampCoefficient(n, A, 0, 1)`` ...). Their stable numeric forms
 cost a fixed set-up per call that exceeds the arithmetic on thousands of amplitudes, so
 they are compiled as plain inputs (:class:`_Atoms`), evaluated once per new amplitude, and
-all root refinements run vectorised over every bracket at once (:func:`_bracketed_roots`,
-:func:`_safe_newton`). ``max |x|`` comes from the waveform's critical points
-(:func:`_extrema`), and Hill's method for PWL oscillators integrates the piecewise-constant
+all root refinements run vectorised over every bracket at once (:func:`bracketed_roots`,
+:func:`safe_newton`). ``max |x|`` comes from the waveform's critical points
+(:func:`critical_points`), and Hill's method for PWL oscillators integrates the piecewise-constant
 stiffness exactly between the orbit's breakpoint crossings (:class:`_PWLHill`).
 """
 
@@ -47,6 +47,14 @@ __all__ = [
     "solutions_at",
     "compile_response",
     "FrequencyResponseSolver",
+    # the vectorised numerical kernels of the tracer (public so that they can be tested and
+    # benchmarked on their own, against SciPy and LAPACK)
+    "bracketed_roots",
+    "safe_newton",
+    "critical_points",
+    "max_abs_at",
+    "hill1_matrix",
+    "hill1_exponents",
 ]
 
 _SCAN_POINTS = 6000
@@ -93,7 +101,7 @@ def _roots(c0: np.ndarray, c1: np.ndarray, c2: np.ndarray) -> tuple[np.ndarray, 
     return lo, hi, disc
 
 
-def _bracketed_roots(
+def bracketed_roots(
     f: Callable[[np.ndarray, np.ndarray], np.ndarray],
     a: np.ndarray,
     b: np.ndarray,
@@ -175,7 +183,7 @@ def _bracketed_roots(
 def _cubic_guess(x: np.ndarray, y: np.ndarray, k: np.ndarray) -> np.ndarray:
     """Root in ``[x[k], x[k+1]]`` (where ``y`` changes sign) of the cubic through the four
     samples ``k-1 .. k+2`` (shifted inwards at the ends): error ~h^4 instead of the ~h^2 of
-    the secant, so :func:`_bracketed_roots` with a small ``probe`` closes in a few calls."""
+    the secant, so :func:`bracketed_roots` with a small ``probe`` closes in a few calls."""
     if x.size < 4:
         return x[k] - y[k] * (x[k + 1] - x[k]) / (y[k + 1] - y[k])
     j = np.clip(k - 1, 0, x.size - 4)
@@ -207,13 +215,24 @@ class _Atoms:
 
     def __init__(self, A: sp.Symbol, unchecked: bool = True) -> None:
         self.A = A
-        #: evaluate with the unchecked kernels (bit-identical on valid input); ``False``
-        #: keeps the public, validating ones (the benchmark's same-process baseline)
-        self.unchecked = unchecked
+        self._plans: dict[tuple[int, ...], list] = {}
+        self._unchecked = bool(unchecked)
         self.atoms: list[sp.Expr] = []
         self.symbols: list[sp.Dummy] = []
         self._index: dict[sp.Expr, int] = {}
-        self._plans: dict[tuple[int, ...], list] = {}
+
+    @property
+    def unchecked(self) -> bool:
+        """Evaluate with the unchecked kernels of :mod:`perturb.fourier.coefficients`
+        (bit-identical on valid input); ``False`` keeps the public, validating ones (the
+        benchmark's same-process baseline). Setting it drops the evaluation plans, which hold
+        the kernels chosen."""
+        return self._unchecked
+
+    @unchecked.setter
+    def unchecked(self, value: bool) -> None:
+        self._unchecked = bool(value)
+        self._plans.clear()
 
     def absorb(self, exprs: Sequence[sp.Expr]) -> tuple[list[sp.Expr], list[int]]:
         """``exprs`` with the atoms replaced by their symbols, and the atom indices used."""
@@ -411,7 +430,7 @@ def _roots_at(
         d0, d1, d2 = poly(x)
         return d0 + d1 * Wr[idx] + d2 * Wr[idx] * Wr[idx]
 
-    lo_a, hi_a, _, _ = _bracketed_roots(residual, lo_a, hi_a, f_lo, f_hi)
+    lo_a, hi_a, _, _ = bracketed_roots(residual, lo_a, hi_a, f_lo, f_hi)
     roots = 0.5 * (lo_a + hi_a)
     return w_all[iw], roots
 
@@ -735,7 +754,7 @@ def _peaks(grid: _Grid) -> np.ndarray:
         return _discriminant(np.array(cp.poly_u(cp.atoms.evaluate(x, cp.poly_rows), x)))
 
     guess = _cubic_guess(grid.a, disc, k)
-    a, b, fa, _ = _bracketed_roots(
+    a, b, fa, _ = bracketed_roots(
         f, grid.a[k], grid.a[k + 1], disc[k], disc[k + 1], guess=guess, probe=1e-6
     )
     # keep the side with disc >= 0 so that the joining point has real roots
@@ -874,7 +893,7 @@ class _TrigRows:
         return out
 
 
-def _safe_newton(
+def safe_newton(
     fdf: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
     lo: np.ndarray,
     hi: np.ndarray,
@@ -943,10 +962,10 @@ def _level_crossings(C, S, rows, d, lo, hi, x_lo, x_hi) -> np.ndarray:
         x, dx, d2x = poly(t, idx, (0, 1, 2))
         return x - d, dx, d2x
 
-    return _safe_newton(level, lo, hi, x_lo - d, x_hi - d, guess, 1e-7)
+    return safe_newton(level, lo, hi, x_lo - d, x_hi - d, guess, 1e-7)
 
 
-def _extrema(C: np.ndarray, S: np.ndarray, count: int = WAVEFORM_SAMPLES):
+def critical_points(C: np.ndarray, S: np.ndarray, count: int = WAVEFORM_SAMPLES):
     """Every critical point of the rows ``x(tau) = sum_n C_n cos(n tau) + S_n sin(n tau)``.
 
     Returns flat arrays ``rows, tau, x`` ordered by row, then ``tau`` in ``[0, 2 pi)``.
@@ -1005,7 +1024,7 @@ def _extrema(C: np.ndarray, S: np.ndarray, count: int = WAVEFORM_SAMPLES):
 
     # after a Halley step below 1e-3 the position is good to ~1e-9 (times the curvature
     # scale), and the value at a critical point depends on it only to second order
-    t = _safe_newton(slope, lo_b, hi_b, f_lo, f_hi, guess, 1e-3)
+    t = safe_newton(slope, lo_b, hi_b, f_lo, f_hi, guess, 1e-3)
     x = poly(t)[0]
     mirror = np.nonzero(sym)[0]
     r_b = np.concatenate([r_b, r_b[mirror]])
@@ -1021,7 +1040,7 @@ def _extrema(C: np.ndarray, S: np.ndarray, count: int = WAVEFORM_SAMPLES):
     return r_b[order], t[order], x[order]
 
 
-def _max_abs_at(rows: np.ndarray, xe: np.ndarray, n_rows: int, const: np.ndarray) -> np.ndarray:
+def max_abs_at(rows: np.ndarray, xe: np.ndarray, n_rows: int, const: np.ndarray) -> np.ndarray:
     """max |x| per row from its critical values (``|const|`` for rows without any)."""
     out = np.abs(np.asarray(const, float)).copy()
     if rows.size:
@@ -1132,14 +1151,14 @@ class Waveform:
 
     def max_abs(self, a, phi, w, xs: np.ndarray, coefs=None) -> np.ndarray:
         """max |x(tau)|: the largest value at the critical points of the trigonometric
-        polynomial (see :func:`_extrema`), or of the samples ``xs`` if that is larger or the
+        polynomial (see :func:`critical_points`), or of the samples ``xs`` if that is larger or the
         waveform is not a trigonometric polynomial."""
         best = np.max(np.abs(xs), axis=1)
         if self.terms is None:
             return best
         C, S = self.coefficients(a, phi, w) if coefs is None else coefs
-        rows, _, xe = _extrema(C, S, max(xs.shape[1], WAVEFORM_SAMPLES))
-        return np.maximum(best, _max_abs_at(rows, xe, C.shape[0], C[:, 0]))
+        rows, _, xe = critical_points(C, S, max(xs.shape[1], WAVEFORM_SAMPLES))
+        return np.maximum(best, max_abs_at(rows, xe, C.shape[0], C[:, 0]))
 
 
 class _PWLHill:
@@ -1190,7 +1209,7 @@ class _PWLHill:
 
     def crossings(self, C, S, r, te, xe):
         """Breakpoint crossings of the orbits with critical points ``(r, te, xe)`` (from
-        :func:`_extrema`): row, phase ``tau`` in ``[0, 2 pi)`` and jump of ``q``.
+        :func:`critical_points`): row, phase ``tau`` in ``[0, 2 pi)`` and jump of ``q``.
 
         An orbit with half-wave symmetry (odd harmonics only: ``x(tau + pi) = -x(tau)``)
         crosses ``-d`` at ``tau + pi`` where it crosses ``d`` at ``tau``, in the other
@@ -1242,7 +1261,7 @@ class _PWLHill:
     def max_multiplier(self, coefs, extrema, w) -> np.ndarray:
         """``exp(max Re(lambda) T)`` of the two Floquet exponents of Hill's ``H = 1``
         truncation, for orbits ``x(tau)`` with coefficients ``coefs``, critical points
-        ``extrema`` (from :func:`_extrema`) and frequencies ``w``."""
+        ``extrema`` (from :func:`critical_points`) and frequencies ``w``."""
         C, S = coefs
         n_orb = C.shape[0]
         rows, tau, jump = self.crossings(C, S, *extrema)
@@ -1259,16 +1278,16 @@ class _PWLHill:
             z = jump * e / (2j * np.pi * k)  # q_k = (qc_k - i qs_k) / 2
             qc.append(2 * np.bincount(rows, z.real, minlength=n_orb))
             qs.append(-2 * np.bincount(rows, z.imag, minlength=n_orb))
-        lam = _hill1_exponents(q0, qc[0], qs[0], qc[1], qs[1], w, self.damping)
+        lam = hill1_exponents(q0, qc[0], qs[0], qc[1], qs[1], w, self.damping)
         # of the 2 (2H + 1) eigenvalues the two with the smallest |Im| are the exponents
         order = np.argsort(np.abs(lam.imag) + 1e-12 * np.abs(lam.real), axis=1)
         re = np.max(np.take_along_axis(lam, order[:, :2], axis=1).real, axis=1)
         return np.exp(np.clip(re * 2 * np.pi / w, -700, 700))
 
 
-def _hill1_matrix(q0, qc1, qs1, qc2, qs2, w, p) -> np.ndarray:
+def hill1_matrix(q0, qc1, qs1, qc2, qs2, w, p) -> np.ndarray:
     """The ``(n, 6, 6)`` first-order matrices of Hill's ``H = 1`` truncation whose eigenvalues
-    :func:`_hill1_exponents` returns (the reference it is tested against).
+    :func:`hill1_exponents` returns (the reference it is tested against).
 
     In the real basis ``(1, cos wt, sin wt)`` -- the same subspace as the harmonics
     ``n = -1, 0, 1`` of :func:`~perturb.numeric.stability.hill_exponents` -- ``y = exp(lambda t)
@@ -1290,8 +1309,8 @@ def _hill1_matrix(q0, qc1, qs1, qc2, qs2, w, p) -> np.ndarray:
     return big
 
 
-def _hill1_exponents(q0, qc1, qs1, qc2, qs2, w, p) -> np.ndarray:
-    """The six eigenvalues ``lambda`` of :func:`_hill1_matrix`, shape ``(n, 6)``, in closed form.
+def hill1_exponents(q0, qc1, qs1, qc2, qs2, w, p) -> np.ndarray:
+    """The six eigenvalues ``lambda`` of :func:`hill1_matrix`, shape ``(n, 6)``, in closed form.
 
     ``lambda = nu - p/2`` removes the damping: ``det((nu + D)^2 + Q - p^2/4) = 0``, and as
     ``D`` is skew and ``Q`` symmetric in an orthonormal basis this determinant is even in
@@ -1440,8 +1459,8 @@ def _branches(
     coefs = wave.coefficients(a, phi, w, U) if wave.terms is not None else None
     extrema = None
     if coefs is not None:
-        extrema = _extrema(*coefs)
-        amplitude = _max_abs_at(extrema[0], extrema[2], a.size, coefs[0][:, 0])
+        extrema = critical_points(*coefs)
+        amplitude = max_abs_at(extrema[0], extrema[2], a.size, coefs[0][:, 0])
         mean = coefs[0][:, 0]
         first = np.hypot(coefs[0][:, 1], coefs[1][:, 1])
     else:
