@@ -39,7 +39,7 @@ import numpy as np
 
 from perturb.methods import modified_lindstedt
 from perturb.model.builtins import builtin_model
-from perturb.numeric import frequency_response as fr
+from perturb.numeric import amplitude as fr
 from perturb.numeric.amplitude import approximation_response, compile_response
 
 TARGET_S = 0.020
@@ -77,15 +77,13 @@ def timed_pair(fns: dict[str, object], repeat: int) -> dict[str, dict[str, objec
 def previous_path(solver):
     """The path before the fast one: validating Fourier kernels and LAPACK for Hill."""
     saved = fr.hill1_exponents
-    solver.atoms.unchecked = False
-    solver.atoms._plans.clear()
+    solver.atoms.unchecked = False  # the setter drops the plans built with the other kernels
     fr.hill1_exponents = lambda *a: np.linalg.eigvals(fr.hill1_matrix(*a))
     try:
         yield
     finally:
         fr.hill1_exponents = saved
         solver.atoms.unchecked = True
-        solver.atoms._plans.clear()
 
 
 @contextlib.contextmanager
