@@ -33,6 +33,7 @@ from scipy.integrate import quad_vec
 from scipy.optimize import minimize_scalar
 
 from perturb.errors import ModelError, ParameterError
+from perturb.fourier.projection import HarmonicBasis, pwl_projection, switching_angles
 from perturb.model.builtins import builtin_model
 from perturb.model.oscillator import Oscillator
 from perturb.model.pwl import NumericPWL
@@ -40,14 +41,11 @@ from perturb.numeric.continuation import ContinuationError, continue_curve, newt
 from perturb.numeric.harmonic_balance import (
     HarmonicBalanceSolution,
     HarmonicBalanceSystem,
-    HarmonicBasis,
     harmonic_balance_branch,
     harmonic_balance_branch_through,
     harmonic_balance_branches,
     harmonic_balance_orbit,
     harmonic_balance_response,
-    pwl_projection,
-    switching_angles,
 )
 from perturb.response import CSV_COLUMNS
 from perturb.seeds import single_harmonic_seeds

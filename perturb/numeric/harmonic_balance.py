@@ -27,44 +27,12 @@ Inertia and linear damping are projected exactly (diagonal and :math:`2\times 2`
 
 Exact projection of a piecewise-linear force (``projection="exact"``)
 ---------------------------------------------------------------------
-With the force :math:`f(x) = s_i x + o_i` on segment :math:`i`, the composite :math:`f(x(\theta))
-= q(\theta)\,x(\theta) + c(\theta)` *exactly*, where :math:`q` and :math:`c` are piecewise
-constant in :math:`\theta` and switch at the crossings :math:`\theta_c` of the breakpoints. Their
-complex Fourier coefficients are closed-form sums over the crossings,
-
-.. math::
-
-    Q_n = \frac{1}{2\pi}\sum_c (s_c^- - s_c^+)\,\frac{i\,e^{-in\theta_c}}{n}\ (n \ne 0),\qquad
-    Q_0 = \frac{1}{2\pi}\sum_{\text{intervals}} s\,|\text{interval}|,
-
-(likewise :math:`C_n` from the offsets; :math:`s_c^\mp` are the slopes before and after the
-crossing), and since :math:`x` has finitely many harmonics, the projection of :math:`f` is the
-finite convolution :math:`F_j = \sum_n Q_{j-n} X_n + C_j` with :math:`X_{\pm k} = (a_k \mp i
-b_k)/2` — no sampling and no aliasing, exact up to rounding and the crossing angles. The
-Jacobian is the Toeplitz matrix :math:`Q_{j-n}` (the Leibniz boundary terms cancel for a
-continuous force). A jump :math:`J` of the force at a crossing adds
-:math:`\frac{1}{2\pi}\sum_c \frac{f^+ - f^-}{x_\theta(\theta_c)} e^{-in\theta_c}` to
-:math:`Q_n` in the Jacobian only (the derivative of the moving switch), i.e. the
-:math:`J\,\delta(x - d)` term of :math:`f'`; it is unbounded at a tangential crossing of a jump,
-as the true derivative is.
-
-Crossings: all roots of the trigonometric polynomial :math:`x(\theta) - d` on
-:math:`[0, 2\pi)` by *certified isolation* on a grid of ``4 max(K)`` intervals (at least 16),
-then Halley/Newton polishing. With the global bounds :math:`B_j = \sum_k k^j r_k \ge
-\max|x^{(j)}|`, :math:`r_k = \sqrt{a_k^2 + b_k^2}`, and the derivatives at the midpoint
-:math:`c` of an interval of half-width :math:`\rho` (third-order Taylor bounds), the interval
-holds no root when :math:`|x(c) - d| > \rho|x'| + \rho^2|x''|/2 + \rho^3 B_3/6`, at most one
-(found from the sign change) when :math:`|x'(c)| > \rho|x''| + \rho^2 B_3/2` (``x``
-monotone), and at most one extremum when :math:`|x''(c)| > \rho|x^{(3)}| + \rho^2 B_4/2` —
-then the extremum is located by Newton on :math:`x'` and the two sides are monotone
-brackets; otherwise the interval is halved. So no crossing is missed, tangential ones
-included: an extremum within rounding of ``d`` is a tangency (the force does not switch),
-and a pair of crossings :math:`10^{-5}` apart next to an extremum is resolved. This was
-preferred to companion-matrix roots of the degree-``2K`` polynomial in :math:`z =
-e^{i\theta}` (exact too, but an :math:`O(K^3)` eigenvalue problem per breakpoint and
-evaluation: ~0.6 ms at ``K = 15`` on the development machine, against ~0.1 ms for the whole
-isolation) and to dense bracketing with brentq (which loses a pair of crossings between two
-samples).
+The Galerkin projection of a piecewise-linear force and its exact Jacobian (switching angles
+found on the multi-harmonic signal by certified isolation, closed-form spectra of the
+piecewise-constant slope and offset, a finite convolution: no sampling, no aliasing) live in
+the Fourier layer, :mod:`perturb.fourier.projection` (its module docstring has the formulas
+and the isolation method); this module adds inertia, damping and forcing, and uses the
+crossing intervals for the exact monodromy of the Hill test.
 
 AFT (``projection="aft"``)
 --------------------------
@@ -176,6 +144,13 @@ import sympy as sp
 from numpy.typing import ArrayLike
 
 from perturb.errors import ModelError, ParameterError, PerturbError
+from perturb.fourier.projection import (
+    CrossingIntervals,
+    ExactProjector,
+    HarmonicBasis,
+    TruncatedSeries,
+    crossing_intervals,
+)
 from perturb.model.oscillator import Oscillator
 from perturb.model.pwl import NumericPWL
 from perturb.numeric.continuation import (
@@ -190,9 +165,6 @@ from perturb.numeric.continuation import (
 from perturb.response import Branch, Response
 
 __all__ = [
-    "HarmonicBasis",
-    "switching_angles",
-    "pwl_projection",
     "HarmonicBalanceSystem",
     "HarmonicBalanceSolution",
     "HarmonicBalanceBranch",
@@ -301,597 +273,10 @@ def _options(
     return replace(options, **knobs) if knobs else options
 
 
-#: Grid intervals per highest harmonic for the isolation of crossings.
-_GRID_PER_HARMONIC = 4
-#: Smallest grid for the isolation of crossings.
-_GRID_MIN = 16
-#: Deepest bisection of an interval whose crossings the derivative bounds cannot decide.
-_MAX_DEPTH = 40
 #: Grid points per highest harmonic for the extrema of x (refined by Newton afterwards).
 _EXTREMA_PER_HARMONIC = 8
 _TWO_PI = 2.0 * math.pi
 _EPS = float(np.finfo(float).eps)
-
-
-# =============================================================================================
-# the basis
-# =============================================================================================
-@dataclass(frozen=True)
-class HarmonicBasis:
-    """The truncated Fourier basis ``1, cos k theta, sin k theta`` (``k`` in ``harmonics``).
-
-    Attributes
-    ----------
-    harmonics : tuple of int
-        Increasing positive harmonic numbers.
-    bias : bool
-        Whether the constant ``a0`` is an unknown.
-    """
-
-    harmonics: tuple[int, ...]
-    bias: bool = True
-
-    def __post_init__(self) -> None:
-        ks = tuple(int(k) for k in self.harmonics)
-        if (
-            not ks
-            or any(k < 1 for k in ks)
-            or any(b <= a for a, b in zip(ks, ks[1:], strict=False))
-        ):
-            raise ParameterError(
-                f"harmonics = {self.harmonics!r}: expected increasing positive integers"
-            )
-        object.__setattr__(self, "harmonics", ks)
-
-    @classmethod
-    def make(cls, H: int, *, odd_only: bool = False, bias: bool | None = None) -> HarmonicBasis:
-        """Harmonics ``1..H`` (odd ones only with ``odd_only``); ``bias`` defaults to
-        ``not odd_only``.
-
-        Raises
-        ------
-        ParameterError
-            For ``H`` that is not an integer at least 1.
-        """
-        if isinstance(H, bool) or not isinstance(H, int | np.integer) or H < 1:
-            raise ParameterError(f"harmonics = {H!r}: expected an integer H >= 1")
-        ks = tuple(range(1, int(H) + 1, 2 if odd_only else 1))
-        return cls(ks, (not odd_only) if bias is None else bool(bias))
-
-    # ---- layout ------------------------------------------------------------------------------
-    @property
-    def size(self) -> int:
-        """Number of unknowns."""
-        return int(self.bias) + 2 * len(self.harmonics)
-
-    @property
-    def kmax(self) -> int:
-        return self.harmonics[-1]
-
-    @cached_property
-    def k(self) -> np.ndarray:
-        """Harmonic numbers as an integer array."""
-        return np.array(self.harmonics, dtype=int)
-
-    @cached_property
-    def a_index(self) -> np.ndarray:
-        """Positions of ``a_k`` in ``u``."""
-        return int(self.bias) + 2 * np.arange(len(self.harmonics))
-
-    @cached_property
-    def b_index(self) -> np.ndarray:
-        """Positions of ``b_k`` in ``u``."""
-        return self.a_index + 1
-
-    def index_of(self, k: int) -> int | None:
-        """Position of ``a_k`` in ``u`` (``b_k`` follows), or None if ``k`` is not in the basis."""
-        try:
-            return int(self.bias) + 2 * self.harmonics.index(int(k))
-        except ValueError:
-            return None
-
-    def check(self, u: ArrayLike) -> np.ndarray:
-        arr = np.asarray(u, dtype=float)
-        if arr.shape[-1:] != (self.size,):
-            raise ParameterError(
-                f"coefficient vector of shape {arr.shape}: expected last dimension {self.size}"
-            )
-        return arr
-
-    # ---- evaluation --------------------------------------------------------------------------
-    def split(self, u: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(a0, a, b)`` from ``u`` (``a0`` zero without bias); works along the last axis."""
-        arr = self.check(u)
-        a0 = arr[..., 0] if self.bias else np.zeros(arr.shape[:-1])
-        return a0, arr[..., self.a_index], arr[..., self.b_index]
-
-    def design(self, theta: ArrayLike, derivative: int = 0) -> np.ndarray:
-        """Matrix ``Phi`` with ``x^(derivative)(theta) = Phi @ u``, shape ``(len(theta), n)``."""
-        th = np.asarray(theta, dtype=float).reshape(-1)
-        ks = self.k.astype(float)
-        arg = np.outer(th, ks)
-        c, s = np.cos(arg), np.sin(arg)
-        # d^j/dtheta^j of (cos, sin) cycles through (cos, sin) -> (-sin, cos) -> ...
-        cols_c, cols_s = [(c, s), (-s, c), (-c, -s), (s, -c)][derivative % 4]
-        scale = ks**derivative
-        out = np.zeros((th.size, self.size))
-        if self.bias and derivative == 0:
-            out[:, 0] = 1.0
-        out[:, self.a_index] = cols_c * scale
-        out[:, self.b_index] = cols_s * scale
-        return out
-
-    def evaluate(self, u: ArrayLike, theta: ArrayLike, derivative: int = 0) -> np.ndarray:
-        """``x(theta)`` (or its ``derivative``-th derivative in ``theta``)."""
-        arr = self.check(u)
-        return arr @ self.design(theta, derivative).T
-
-    def derivative_matrix(self) -> np.ndarray:
-        """``D`` with ``x_theta = Phi @ (D @ u)``: ``(a_k, b_k) -> (k b_k, -k a_k)``."""
-        D = np.zeros((self.size, self.size))
-        ia, ib, ks = self.a_index, self.b_index, self.k
-        D[ia, ib] = ks
-        D[ib, ia] = -ks
-        return D
-
-    def complex_coefficients(self, u: ArrayLike) -> np.ndarray:
-        """``X`` of length ``kmax + 1``: ``x = Re(X_0) + 2 Re sum_k X_k e^{ik theta}``,
-        ``X_0 = a0``, ``X_k = (a_k - i b_k)/2`` (zero for harmonics outside the basis)."""
-        a0, a, b = self.split(u)
-        X = np.zeros(np.shape(a0) + (self.kmax + 1,), dtype=complex)
-        X[..., 0] = a0
-        X[..., self.k] = 0.5 * (a - 1j * b)
-        return X
-
-
-# =============================================================================================
-# crossings of a truncated Fourier series
-# =============================================================================================
-class _Grid:
-    """Design matrices of one basis on the isolation grid (``x`` at the endpoints, ``x`` and
-    its first three derivatives at the midpoints), shared by every evaluation."""
-
-    def __init__(self, basis: HarmonicBasis) -> None:
-        N = max(_GRID_MIN, _GRID_PER_HARMONIC * basis.kmax)
-        self.N = N
-        self.h = _TWO_PI / N
-        self.points = self.h * np.arange(N + 1)
-        self.points[-1] = _TWO_PI
-        mids = self.points[:-1] + 0.5 * self.h
-        self.end = basis.design(self.points[:-1])
-        self.mid = np.stack([basis.design(mids, j) for j in range(4)])  # (4, N, n)
-        ks = basis.k.astype(float)
-        self.k_pow = np.array([ks**j for j in range(5)])
-
-
-_GRIDS: dict[HarmonicBasis, _Grid] = {}
-
-
-def _grid(basis: HarmonicBasis) -> _Grid:
-    g = _GRIDS.get(basis)
-    if g is None:
-        g = _GRIDS[basis] = _Grid(basis)
-    return g
-
-
-class _Series:
-    """One truncated series ``x(theta)`` with fast evaluation of its derivatives and the
-    bounds ``B_j = sum k^j r_k >= max |x^(j)|``."""
-
-    def __init__(self, basis: HarmonicBasis, u: np.ndarray) -> None:
-        self.basis, self.u = basis, u
-        self.grid = _grid(basis)
-        self.a0 = float(u[0]) if basis.bias else 0.0
-        self.ks = basis.k.astype(float)
-        self.c = u[basis.a_index] - 1j * u[basis.b_index]  # x = a0 + Re sum c_k e^{ik theta}
-        self.B = self.grid.k_pow @ np.abs(self.c)
-        self.scale = abs(self.a0) + float(self.B[0])
-
-    @cached_property
-    def _derivative_coefficients(self) -> np.ndarray:
-        # column j: the complex coefficients of the j-th derivative, c_k (i k)^j, j = 0..3
-        return self.c[:, None] * (1j * self.ks[:, None]) ** np.arange(4)
-
-    def values(self, theta: np.ndarray, orders: Sequence[int] = (0,)) -> list[np.ndarray]:
-        e = np.exp(1j * np.multiply.outer(theta, self.ks))
-        # one matrix product for every order asked (the root polishing asks for three)
-        vals = (e @ self._derivative_coefficients[:, list(orders)]).real
-        out = []
-        for col, j in enumerate(orders):
-            out.append(vals[..., col] + self.a0 if j == 0 else vals[..., col])
-        return out
-
-
-def _taylor_tests(x0, x1, x2, x3, r, B, slack):
-    """The three isolation tests on intervals of half-width ``r`` from the derivatives at the
-    midpoint (third-order Taylor bounds with the global ``B_3``, ``B_4``): no root of
-    ``x - d`` (``x0`` is ``x(c) - d``), ``x`` monotone, ``x'`` monotone."""
-    r2 = 0.5 * r * r
-    excluded = np.abs(x0) > r * np.abs(x1) + r2 * np.abs(x2) + (r * r2 / 3.0) * B[3] + slack
-    monotone = np.abs(x1) > r * np.abs(x2) + r2 * B[3] + slack
-    one_extremum = np.abs(x2) > r * np.abs(x3) + r2 * B[4] + slack
-    return excluded, monotone, one_extremum
-
-
-def _sign_change(e0: float, e1: float) -> bool:
-    return (e0 >= 0.0) != (e1 >= 0.0)
-
-
-def _extremum(series: _Series, a: float, b: float, d1a: float, d1b: float) -> float:
-    """The zero of ``x'`` in ``[a, b]`` (``x'`` monotone there, opposite signs at the ends)."""
-    lo, hi, flo = a, b, d1a
-    t = a - d1a * (b - a) / (d1b - d1a)
-    for _ in range(60):
-        d1, d2 = series.values(np.array([t]), (1, 2))
-        d1, d2 = float(d1[0]), float(d2[0])
-        if d1 == 0.0:
-            return t
-        if (d1 > 0) == (flo > 0):
-            lo, flo = t, d1
-        else:
-            hi = t
-        step = d1 / d2 if d2 != 0.0 else np.inf
-        tn = t - step
-        if not (lo < tn < hi):
-            tn = 0.5 * (lo + hi)
-        if abs(tn - t) <= 4e-16 * max(1.0, abs(t)) or hi - lo <= 4e-16 * max(1.0, abs(t)):
-            return tn
-        t = tn
-    return t
-
-
-def _isolate_hard(
-    series: _Series, d: float, a: float, b: float, ea: float, eb: float, slack: float, depth: int
-) -> list[tuple[float, float, float, float]]:
-    """Root brackets ``(lo, hi, e_lo, e_hi)`` of ``x - d`` in ``[a, b]`` when the grid tests
-    were inconclusive: at most one extremum -> locate it and split; else bisect."""
-    c, r = 0.5 * (a + b), 0.5 * (b - a)
-    x0, x1, x2, x3 = (float(v[0]) for v in series.values(np.array([c]), (0, 1, 2, 3)))
-    e = x0 - d
-    excluded, monotone, one_extremum = _taylor_tests(e, x1, x2, x3, r, series.B, slack)
-    if excluded:
-        return []
-    if monotone or depth >= _MAX_DEPTH:
-        return [(a, b, ea, eb)] if _sign_change(ea, eb) else []
-    if one_extremum:
-        d1a, d1b = (float(v) for v in series.values(np.array([a, b]), (1,))[0])
-        # an x' within rounding of zero at an end is an extremum there (grid points on an
-        # exact tangency: x'(2 pi) comes out as +-1e-16)
-        flat = 64 * _EPS * float(series.B[1])
-        if abs(d1a) <= flat:
-            te = a
-        elif abs(d1b) <= flat:
-            te = b
-        elif d1a * d1b > 0.0:
-            return [(a, b, ea, eb)] if _sign_change(ea, eb) else []
-        else:
-            te = _extremum(series, a, b, d1a, d1b)
-        ee = float(series.values(np.array([te]), (0,))[0][0]) - d
-        if abs(ee) <= slack:
-            return []  # a tangency: x touches d and turns back, no switch
-        out = []
-        if te > a and _sign_change(ea, ee):
-            out.append((a, te, ea, ee))
-        if te < b and _sign_change(ee, eb):
-            out.append((te, b, ee, eb))
-        return out
-    return _isolate_hard(series, d, a, c, ea, e, slack, depth + 1) + _isolate_hard(
-        series, d, c, b, e, eb, slack, depth + 1
-    )
-
-
-def _polish(
-    series: _Series, lo: np.ndarray, hi: np.ndarray, elo: np.ndarray, ehi: np.ndarray, d: np.ndarray
-):
-    """Roots of ``x - d`` in monotone brackets, and ``x'`` there.
-
-    Halley's iteration (cubic) from the regula-falsi point, all brackets at once (two or
-    three steps on these short brackets) until the residual is at rounding level, then one
-    Newton step. Brackets that do not get there (a root next to an extremum, where the steps
-    are small long before the root is reached), or whose iterate leaves the bracket, are redone
-    by the safeguarded Newton-bisection of :func:`_polish_safe`."""
-    ftol = _residual_floor(series, d)
-    t = lo - elo * (hi - lo) / (ehi - elo)
-    with np.errstate(all="ignore"):
-        for _ in range(7):
-            x, x1, x2 = series.values(t, (0, 1, 2))
-            f = x - d
-            if bool(np.all(np.abs(f) <= ftol)):
-                break
-            t = t - 2.0 * f * x1 / (2.0 * x1 * x1 - f * x2)
-        t_new = t - f / x1
-    margin = 1e-12 * (hi - lo)
-    bad = (np.abs(f) > ftol) | ~((t_new >= lo - margin) & (t_new <= hi + margin))
-    if not bad.any():
-        return t_new, x1
-    t_new[bad], x1[bad] = _polish_safe(series, lo[bad], hi[bad], elo[bad], d[bad])
-    return t_new, x1
-
-
-def _residual_floor(series: _Series, d: np.ndarray) -> float:
-    """``|x - d|`` at rounding level: the evaluation's own error bound."""
-    return 64.0 * _EPS * (series.scale + float(np.abs(d).max(initial=0.0)))
-
-
-def _polish_safe(series: _Series, lo: np.ndarray, hi: np.ndarray, elo: np.ndarray, d: np.ndarray):
-    """Safeguarded Newton (bisection fallback) on monotone brackets, until the residual is at
-    rounding level or the bracket at the resolution of the angle."""
-    ftol = _residual_floor(series, d)
-    lo, hi, elo = lo.copy(), hi.copy(), elo.copy()
-    t = 0.5 * (lo + hi)
-    act = np.arange(t.size)
-    for _ in range(200):
-        ta = t[act]
-        x, xd = series.values(ta, (0, 1))
-        e = x - d[act]
-        same = (e >= 0.0) == (elo[act] >= 0.0)
-        lo_a = np.where(same, ta, lo[act])
-        hi_a = np.where(same, hi[act], ta)
-        elo[act] = np.where(same, e, elo[act])
-        lo[act], hi[act] = lo_a, hi_a
-        with np.errstate(divide="ignore", invalid="ignore"):
-            tn = ta - e / xd
-        inside = np.isfinite(tn) & (tn > lo_a) & (tn < hi_a)
-        conv = (np.abs(e) <= ftol) | (hi_a - lo_a <= 4e-16 * np.maximum(1.0, np.abs(ta)))
-        t[act] = np.where(conv, ta, np.where(inside, tn, 0.5 * (lo_a + hi_a)))
-        act = act[~conv]
-        if act.size == 0:
-            break
-    x, xd = series.values(t, (0, 1))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        step = (x - d) / xd
-    ok = np.isfinite(step) & (t - step >= lo) & (t - step <= hi)
-    return np.where(ok, t - step, t), xd
-
-
-def _crossings(series: _Series, levels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """All crossings of ``x(theta) = d`` for ``d`` in ``levels``: sorted angles in
-    ``[0, 2 pi)``, the level index of each and ``x'`` there."""
-    grid = series.grid
-    r = 0.5 * grid.h
-    u = series.u
-    xe = grid.end @ u
-    xm, x1m, x2m, x3m = grid.mid @ u
-    slack = 64 * _EPS * (series.scale + float(np.abs(levels).max(initial=0.0)))
-    lv = levels[:, None]
-    e_end = xe[None, :] - lv  # (L, N)
-    excluded, monotone, _ = _taylor_tests(xm[None, :] - lv, x1m, x2m, x3m, r, series.B, slack)
-    e_next = np.concatenate([e_end[:, 1:], e_end[:, :1]], axis=1)
-    change = (e_end >= 0.0) != (e_next >= 0.0)
-    simple_l, simple_i = np.nonzero(~excluded & monotone[None, :] & change)
-    points = grid.points
-    lo = points[simple_i]
-    hi = points[simple_i + 1]
-    elo = e_end[simple_l, simple_i]
-    ehi = e_next[simple_l, simple_i]
-    level_idx = simple_l
-    hard_l, hard_i = np.nonzero(~excluded & ~monotone[None, :])
-    if hard_l.size:
-        extra = []
-        for j, i in zip(hard_l, hard_i, strict=True):
-            d = float(levels[j])
-            ea, eb = float(e_end[j, i]), float(e_end[j, (i + 1) % grid.N])
-            for a, b, e_a, e_b in _isolate_hard(
-                series, d, points[i], points[i + 1], ea, eb, slack, 0
-            ):
-                extra.append((a, b, e_a, e_b, j))
-        if extra:
-            ex = np.array(extra)
-            lo = np.concatenate([lo, ex[:, 0]])
-            hi = np.concatenate([hi, ex[:, 1]])
-            elo = np.concatenate([elo, ex[:, 2]])
-            ehi = np.concatenate([ehi, ex[:, 3]])
-            level_idx = np.concatenate([level_idx, ex[:, 4].astype(int)])
-    if lo.size == 0:
-        return np.empty(0), np.empty(0, dtype=int), np.empty(0)
-    theta, d1 = _polish(series, lo, hi, elo, ehi, levels[level_idx])
-    theta = np.mod(theta, _TWO_PI)
-    order = np.argsort(theta, kind="stable")
-    return theta[order], level_idx[order], d1[order]
-
-
-def switching_angles(basis: HarmonicBasis, u: ArrayLike, level: float) -> np.ndarray:
-    """All angles ``theta`` in ``[0, 2 pi)`` where ``x(theta)`` crosses ``level``.
-
-    Tangential touches (``x`` reaches ``level`` within rounding and turns back) are not
-    crossings and are not returned; see the module docstring for the isolation method.
-
-    Parameters
-    ----------
-    basis : HarmonicBasis
-    u : array_like
-        Coefficients ``[a0, a_1, b_1, ...]``.
-    level : float
-
-    Returns
-    -------
-    numpy.ndarray
-        Sorted crossing angles.
-    """
-    u = basis.check(u).reshape(-1)
-    level = float(level)
-    if not math.isfinite(level):
-        raise ParameterError(f"level = {level!r}: expected a finite number")
-    theta, _, _ = _crossings(_Series(basis, u), np.array([level]))
-    return theta
-
-
-# =============================================================================================
-# exact Galerkin projection of a piecewise-linear force
-# =============================================================================================
-@dataclass(frozen=True, eq=False)
-class _Pieces:
-    """The crossing intervals of one orbit: start angles, lengths, segment of each interval,
-    and for each crossing (the start of each interval) ``x'`` there."""
-
-    start: np.ndarray
-    length: np.ndarray
-    segment: np.ndarray
-    d1: np.ndarray
-
-
-def _pieces(pwl: NumericPWL, basis: HarmonicBasis, series: _Series) -> _Pieces:
-    bps = pwl.breakpoints
-    if bps.size == 0:
-        return _Pieces(np.zeros(1), np.array([_TWO_PI]), np.array([0]), np.zeros(0))
-    theta, level, d1 = _crossings(series, bps)
-    if theta.size == 0:
-        # no crossing: x stays in one closed segment, whose interior holds the mean
-        seg = pwl.segment_index(np.array([series.a0]))
-        return _Pieces(np.zeros(1), np.array([_TWO_PI]), seg, np.zeros(0))
-    length = np.empty(theta.size)
-    length[:-1] = theta[1:] - theta[:-1]
-    length[-1] = theta[0] + _TWO_PI - theta[-1]
-    # crossing breakpoint j upwards enters segment j + 1, downwards segment j
-    seg = level + (d1 > 0.0)
-    return _Pieces(theta, length, seg, d1)
-
-
-class _ExactProjector:
-    """``proj(u)`` and its Jacobian for a numeric PWL force on a basis."""
-
-    def __init__(self, pwl: NumericPWL, basis: HarmonicBasis) -> None:
-        self.pwl, self.basis = pwl, basis
-        self.continuous = bool(np.all(pwl.jumps == 0.0))
-        K = basis.kmax
-        self.K = K
-        ks = basis.k
-        # complex indices of x: -k (descending), 0 (bias), +k
-        n_idx = np.concatenate([-ks[::-1], [0] if basis.bias else [], ks]).astype(int)
-        j_idx = np.concatenate([[0] if basis.bias else [], ks]).astype(int)
-        self.n_idx, self.j_idx = n_idx, j_idx
-        self.diff = (j_idx[:, None] - n_idx[None, :]) + 2 * K
-        # dX_n/du
-        P = np.zeros((n_idx.size, basis.size), dtype=complex)
-        nh = ks.size
-        off = nh + int(basis.bias)
-        ia, ib = basis.a_index, basis.b_index
-        for i in range(nh):
-            P[off + i, ia[i]] = 0.5
-            P[off + i, ib[i]] = -0.5j
-            P[nh - 1 - i, ia[i]] = 0.5
-            P[nh - 1 - i, ib[i]] = 0.5j
-        if basis.bias:
-            P[nh, 0] = 1.0
-        self.P = P
-        # P has two entries per column (a_k and b_k feed X_{+k} and X_{-k}), so the product
-        # Toeplitz(Q) P is two gathered columns per harmonic: O(H^2), not a dense O(H^3)
-        # matrix product
-        self._diff_plus = self.diff[:, off + np.arange(nh)]
-        self._diff_minus = self.diff[:, nh - 1 - np.arange(nh)]
-        self._diff_bias = self.diff[:, nh] if basis.bias else None
-        self.n_freq = np.arange(1, 2 * K + 1)
-        # real rows from complex ones: [Re G_0], 2 Re G_k, -2 Im G_k, as one gather from
-        # the stacked [Re G; Im G]
-        nj = j_idx.size
-        rows = np.empty(basis.size, dtype=int)
-        factor = np.empty(basis.size)
-        if basis.bias:
-            rows[0], factor[0] = 0, 1.0
-        rows[ia] = off_j = np.arange(int(basis.bias), nj)
-        rows[ib] = off_j + nj
-        factor[ia], factor[ib] = 2.0, -2.0
-        self.rows, self.factor = rows, factor
-
-    def _spectra(
-        self, pc: _Pieces, with_jumps: bool
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """``Q_n, C_n`` for ``n = 0..2K`` (and the jump part of ``Q`` for the Jacobian)."""
-        s = self.pwl.slopes[pc.segment]
-        o = self.pwl.offsets[pc.segment]
-        Q = np.empty(2 * self.K + 1, dtype=complex)
-        C = np.empty(2 * self.K + 1, dtype=complex)
-        Q[0] = float(np.sum(s * pc.length)) / _TWO_PI
-        C[0] = float(np.sum(o * pc.length)) / _TWO_PI
-        if pc.d1.size == 0:
-            Q[1:] = 0.0
-            C[1:] = 0.0
-            return Q, C, None
-        before = np.arange(-1, s.size - 1)  # the interval ending at crossing c
-        ds = s[before] - s
-        do = o[before] - o
-        E = np.exp(-1j * np.multiply.outer(self.n_freq, pc.start))  # (2K, M)
-        weight = 1j / (_TWO_PI * self.n_freq)
-        Q[1:] = weight * (E @ ds)
-        C[1:] = weight * (E @ do)
-        Z = None
-        if with_jumps and not self.continuous:
-            x_c = self.pwl.breakpoints[np.minimum(pc.segment, pc.segment[before])]
-            jump = (-(ds) * x_c - do) / pc.d1
-            jump = np.where(pc.segment == pc.segment[before], 0.0, jump)
-            Z = np.empty(2 * self.K + 1, dtype=complex)
-            Z[0] = float(np.sum(jump)) / _TWO_PI
-            Z[1:] = (E @ jump) / _TWO_PI
-        return Q, C, Z
-
-    def _toeplitz(self, Q: np.ndarray) -> np.ndarray:
-        full = np.concatenate([np.conj(Q[:0:-1]), Q])  # n = -2K .. 2K
-        return full[self.diff]
-
-    def _toeplitz_times_P(self, Q: np.ndarray) -> np.ndarray:
-        """``Toeplitz(Q) @ P`` assembled column by column in O(H^2)."""
-        full = np.concatenate([np.conj(Q[:0:-1]), Q])  # n = -2K .. 2K
-        plus, minus = full[self._diff_plus], full[self._diff_minus]
-        out = np.empty((self.diff.shape[0], self.basis.size), dtype=complex)
-        out[:, self.basis.a_index] = 0.5 * (plus + minus)
-        out[:, self.basis.b_index] = 0.5j * (minus - plus)
-        if self._diff_bias is not None:
-            out[:, 0] = full[self._diff_bias]
-        return out
-
-    def _real(self, G: np.ndarray) -> np.ndarray:
-        """Real residual rows from complex projections ``G_j`` (a vector or matrix rows)."""
-        stacked = np.concatenate([G.real, G.imag])[self.rows]
-        return stacked * (self.factor if G.ndim == 1 else self.factor[:, None])
-
-    def project(
-        self, u: np.ndarray, jacobian: bool = True, series: _Series | None = None
-    ) -> tuple[np.ndarray, np.ndarray | None, _Pieces]:
-        series = series if series is not None else _Series(self.basis, u)
-        pc = _pieces(self.pwl, self.basis, series)
-        Q, C, Z = self._spectra(pc, jacobian)
-        # f(x(theta)) = q x + c exactly, so proj = (Toeplitz(Q) P) u + C: the matrix is the
-        # Jacobian of a continuous force
-        TP = self._real(self._toeplitz_times_P(Q))
-        proj = TP @ u + self._real(C[self.j_idx])
-        if not jacobian:
-            return proj, None, pc
-        if Z is not None:
-            TP = TP + self._real(self._toeplitz_times_P(Z))
-        return proj, TP, pc
-
-
-def pwl_projection(
-    pwl: NumericPWL, basis: HarmonicBasis, u: ArrayLike, *, jacobian: bool = False
-) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
-    """Exact Galerkin projection of a piecewise-linear force on a truncated Fourier series.
-
-    Parameters
-    ----------
-    pwl : NumericPWL
-        The force ``f(x)`` (e.g. ``oscillator.piecewise_linear().numeric()``).
-    basis : HarmonicBasis
-    u : array_like
-        Coefficients of ``x(theta)``.
-    jacobian : bool
-        Also return ``d proj / d u``.
-
-    Returns
-    -------
-    proj : numpy.ndarray
-        ``[(1/2pi) int f, (1/pi) int f cos k theta, (1/pi) int f sin k theta, ...]`` over
-        ``[0, 2 pi)``, laid out like ``u`` (no constant entry without bias).
-    jac : numpy.ndarray
-        Shape ``(n, n)``, with ``jacobian=True``; for a discontinuous force it includes the
-        derivative of the moving switches (module docstring).
-    """
-    if not isinstance(pwl, NumericPWL):
-        raise ParameterError(f"pwl = {pwl!r}: expected a NumericPWL (PiecewiseLinear.numeric())")
-    u = basis.check(u).reshape(-1).astype(float)
-    if not np.all(np.isfinite(u)):
-        raise ParameterError("u: expected finite coefficients")
-    proj, J, _ = _ExactProjector(pwl, basis).project(u, jacobian)
-    return (proj, J) if jacobian else proj
 
 
 # =============================================================================================
@@ -1060,7 +445,7 @@ class HarmonicBalanceSystem:
                     "projection does not sample"
                 )
             self.samples = None
-            self._exact = _ExactProjector(self.pwl, self.basis)
+            self._exact = ExactProjector(self.pwl, self.basis)
         else:
             n_s = 4 * kmax + 1 if samples is None else samples
             if isinstance(n_s, bool) or not isinstance(n_s, int | np.integer) or n_s < 2 * kmax + 1:
@@ -1087,7 +472,7 @@ class HarmonicBalanceSystem:
             if self.basis.bias:
                 Pr[0] *= 0.5
             self._Pr = Pr
-        self._cache: tuple[bytes, float, tuple, _Pieces | None] | None = None
+        self._cache: tuple[bytes, float, tuple, CrossingIntervals | None] | None = None
         self._forcing_cache: tuple[float, tuple] | None = None
 
     # ---- forcing -----------------------------------------------------------------------------
@@ -1358,7 +743,7 @@ class HarmonicBalanceSystem:
             raise PerturbError("the exact monodromy needs a piecewise-linear force")
         u = np.asarray(u, dtype=float).reshape(-1)
         w = float(Omega) / self.m
-        pc = _pieces(self.pwl, self.basis, _Series(self.basis, u))
+        pc = crossing_intervals(self.pwl, self.basis, TruncatedSeries(self.basis, u))
         return _monodromy(self.pwl, self.damping, w, pc, self._jumps)
 
     def _hill_newton(
@@ -1367,14 +752,14 @@ class HarmonicBalanceSystem:
         w: float,
         C: np.ndarray,
         K: np.ndarray,
-        pieces: _Pieces | None,
+        pieces: CrossingIntervals | None,
         refine_complex: bool,
     ) -> np.ndarray | None:
         assert self.pwl is not None
         T = _TWO_PI / w
         mu = self.damping
         if pieces is None:
-            pieces = _pieces(self.pwl, self.basis, _Series(self.basis, u))
+            pieces = crossing_intervals(self.pwl, self.basis, TruncatedSeries(self.basis, u))
         try:
             M = _monodromy(self.pwl, mu, w, pieces, self._jumps)
         except (PerturbError, OverflowError, ZeroDivisionError):
@@ -1419,7 +804,9 @@ def _expm2(p: float, q: float, h: float) -> tuple[float, float, float, float]:
     return e * (c + 0.5 * p * sh), e * sh, -e * q * sh, e * (c - 0.5 * p * sh)
 
 
-def _monodromy(pwl: NumericPWL, mu: float, w: float, pc: _Pieces, jumps: bool = True) -> np.ndarray:
+def _monodromy(
+    pwl: NumericPWL, mu: float, w: float, pc: CrossingIntervals, jumps: bool = True
+) -> np.ndarray:
     """Ordered product over the crossing intervals, with the saltation ``[[1, 0], [-J/v, 1]]``
     where the force jumps by ``J`` at a crossing with velocity ``v``."""
     slopes, offsets, bps = pwl.slopes, pwl.offsets, pwl.breakpoints
