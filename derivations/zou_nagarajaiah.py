@@ -2283,7 +2283,7 @@ HB_HARMONICS = (15, 7)
 def _hb_seed(k: float, mu: float, F: float, Omega: float, H: int) -> tuple[np.ndarray, float]:
     """HB coefficients ``[a0, a_1, b_1, ..., a_H, b_H]`` of the largest first-order mLP orbit
     at ``Omega`` (a guess that Newton corrects), and its amplitude ``max|x|``."""
-    m1 = _mlp(1)
+    m1 = mlp_solver(1)
     orbs = m1.orbits(m1.solve([Omega], k, mu, F), k, mu, F, samples=256)
     if not orbs:
         raise PerturbError(f"no first-order mLP solution at Omega = {Omega:g} to seed HB from")
@@ -2374,7 +2374,7 @@ APPROXIMATIONS: list[tuple[str, Callable[..., Response]]] = [
     ),
     (
         "mLP order 2",
-        lambda k, mu, F, win, run: _mlp2().response(k, mu, F, win, 30 if run.fast else 300),
+        lambda k, mu, F, win, run: mlp_solver(2).response(k, mu, F, win, 30 if run.fast else 300),
     ),
     ("HB", hb_response),
 ]
@@ -2382,14 +2382,12 @@ APPROXIMATIONS: list[tuple[str, Callable[..., Response]]] = [
 _MLP_CACHE: dict[int, MLP] = {}
 
 
-def _mlp(order: int) -> MLP:
+def mlp_solver(order: int) -> MLP:
+    """The :class:`MLP` solver of modified Lindstedt-Poincare of ``order`` for nsd, built once
+    per order (the symbolic derivation and compilation are the expensive part)."""
     if order not in _MLP_CACHE:
         _MLP_CACHE[order] = MLP(order)
     return _MLP_CACHE[order]
-
-
-def _mlp2() -> MLP:
-    return _mlp(2)
 
 
 def exact_response(k: float, mu: float, F: float, window, run: Run) -> Response:
@@ -3104,7 +3102,9 @@ def fig18(run: Run) -> Part:
         T = 2 * np.pi / W
         every = periodic_orbits(osc, grid=3, transient_periods=60 if run.fast else 100)
         stable = [o for o in every if o.is_stable]
-        approx = {n: _mlp(n).orbits(_mlp(n).solve([W], k, mu, F), k, mu, F) for n in (1, 2)}
+        approx = {
+            n: mlp_solver(n).orbits(mlp_solver(n).solve([W], k, mu, F), k, mu, F) for n in (1, 2)
+        }
         attractor = None
         if not stable:
             # no stable period-1 orbit: what the motion settles on instead
@@ -3442,7 +3442,7 @@ limit cycle of amplitude {g(lim)}, {smaller15}.
 def derivation(run: Run) -> Part:
     files = []
     for order in (1, 2):
-        ap = _mlp(order).approx
+        ap = mlp_solver(order).approx
         # one printer for the whole derivation: the closed forms of a_n, a^R_n, a^H_n and the
         # identities linking them first, then the steps with the coefficients written short
         body = derivation_body(ap.steps)

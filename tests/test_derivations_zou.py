@@ -747,7 +747,8 @@ def test_fig18_second_order_beats_first_at_low_frequency(zn):
     assert abs(orbit.mean) > 0.5  # not axially symmetric: no A cos(psi) expansion fits
     err = {}
     for n in (1, 2):
-        sols = zn._mlp(n).orbits(zn._mlp(n).solve([W], k, mu, F), k, mu, F)
+        solver = zn.mlp_solver(n)
+        sols = solver.orbits(solver.solve([W], k, mu, F), k, mu, F)
         err[n] = min(abs(s["amplitude"] / A - 1) for s in sols)
     assert err[1] > 0.2  # first order fails here (the paper's remark) ...
     assert err[2] < 0.5 * err[1]  # ... and second order repairs much of the amplitude
