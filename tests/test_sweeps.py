@@ -28,6 +28,7 @@ from perturb.model.builtins import builtin_model
 from perturb.model.oscillator import Oscillator
 from perturb.response import CSV_COLUMNS
 from perturb.simulate.flows.base import ODEFlow
+from perturb.simulate.flows.factory import make_flow
 from perturb.simulate.studies import (
     BasinResult,
     BifurcationDiagram,
@@ -38,7 +39,6 @@ from perturb.simulate.studies import (
     bifurcation_diagram,
     frequency_sweep,
     lyapunov_exponent,
-    make_flow,
     poincare_section,
 )
 
@@ -324,6 +324,36 @@ def test_lyapunov_of_linear_oscillator_is_minus_half_mu():
     # Liouville: lambda_1 + lambda_2 = -mu
     assert sum(res.exponents) == pytest.approx(-mu, abs=1e-12)
     assert res.spread < 1e-4
+
+
+class _StructuralFlow:
+    """A flow with only the structural interface (not derived from Flow), forcing period
+    declared or absent."""
+
+    def __init__(self, inner, period):
+        self.inner = inner
+        if period is not None:
+            self.period = period
+
+    def __call__(self, y0, t0, t1, *, sensitivity=False, t_eval=None):
+        return self.inner(y0, t0, t1, sensitivity=sensitivity, t_eval=t_eval)
+
+    def vector_field(self, t, y):
+        return self.inner.vector_field(t, y)
+
+
+def test_structural_flow_is_read_through_its_declared_period():
+    # the linear oscillator: lambda = -mu/2 whichever flow object carries it; a structural
+    # flow's period is read as declared, and one without a period is autonomous (needs one)
+    mu, W = 0.1, 0.8
+    inner = ODEFlow(linear(mu, Omega=W))
+    res = lyapunov_exponent(_StructuralFlow(inner, inner.period), [0.3, 0.0], 200, **QUIET)
+    assert res.period == pytest.approx(TWO_PI / W, rel=1e-15)
+    assert res.value == pytest.approx(-mu / 2, abs=2e-3)
+    with pytest.raises(ParameterError, match="autonomous"):
+        poincare_section(_StructuralFlow(inner, None), [0.3, 0.0], 2, **QUIET)
+    sec = poincare_section(_StructuralFlow(inner, None), [0.3, 0.0], 2, period=1.0, **QUIET)
+    assert sec.period == 1.0
 
 
 def _period_two_orbit():

@@ -5,13 +5,13 @@ on, found by integrating long enough, never by solving for a periodic orbit.  Th
 results an independent check of the approximate and continuation methods (which also find
 unstable orbits) and covers what those cannot: hysteresis jumps, period doubling, chaos.
 
-All functions take an :class:`~perturb.model.oscillator.Oscillator` ``x'' + g(x, x') = F cos(Omega
-t)``
-(any forcing the flows accept) or, where it makes sense, a
-:class:`~perturb.simulate.flows.base.Flow`.
-The flow is picked by :func:`make_flow`: the exact piecewise-linear flow
-(``perturb.simulate.flows.exact.ExactPWLFlow``) when that module is installed and the model is
-PWL, else :class:`~perturb.simulate.flows.base.ODEFlow` (DOP853 on the state and its variational
+All functions take an :class:`~perturb.model.oscillator.Oscillator` ``x'' + g(x, x') = F
+cos(Omega t)`` (any forcing the flows accept) or, where it makes sense, a
+:class:`~perturb.simulate.flows.base.Flow`, whose declared capabilities (its forcing
+``period``) are read, never probed. The flow of an oscillator comes from the one factory,
+:func:`perturb.simulate.flows.factory.make_flow`: the exact piecewise-linear flow
+(:class:`~perturb.simulate.flows.exact.ExactPWLFlow`) when the model is PWL, else
+:class:`~perturb.simulate.flows.base.ODEFlow` (DOP853 on the state and its variational
 equations).
 
 With the forcing period :math:`T = 2\pi/\Omega`:
@@ -62,14 +62,14 @@ from perturb.errors import ModelError, ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
 from perturb.progress import Progress
 from perturb.response import Branch, Response
-from perturb.simulate.flows.base import Flow, FlowResult, ODEFlow
+from perturb.simulate.flows.base import Flow, FlowResult, as_flow
+from perturb.simulate.flows.factory import FlowMethod, make_flow
 from perturb.simulate.flows.system import first_order_rhs, frequency_symbol
 
 __all__ = [
     "BasinOptions",
     "BifurcationOptions",
     "SweepOptions",
-    "make_flow",
     "SteadyState",
     "SweepBranch",
     "SweepResult",
@@ -85,7 +85,6 @@ __all__ = [
     "lyapunov_exponent",
 ]
 
-FlowMethod = Literal["auto", "exact", "ode"]
 Direction = Literal["up", "down", "both"]
 
 
@@ -293,86 +292,21 @@ def _frozen(a: ArrayLike, dtype: type = float) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 # flows
 # --------------------------------------------------------------------------------------------
-def _exact_flow_class() -> type | None:
-    """``ExactPWLFlow`` if its module is installed (imported lazily: it may land later)."""
-    try:
-        from perturb.simulate.flows import exact as exact_flow
-    except ImportError:
-        return None
-    return getattr(exact_flow, "ExactPWLFlow", None)
-
-
-def make_flow(
-    osc: Oscillator,
-    Omega: float | None = None,
-    *,
-    method: FlowMethod = "auto",
-    rtol: float = 1e-10,
-    atol: float = 1e-12,
-) -> Flow:
-    """The flow used by this module: exact for PWL models when available, else DOP853.
-
-    Parameters
-    ----------
-    osc
-        Oscillator with all parameter values set (``Omega`` may override the frequency).
-    Omega
-        Forcing frequency override.
-    method
-        ``"auto"``: :class:`ExactPWLFlow` when ``perturb.simulate.flows.exact`` exists and the
-        model is piecewise linear, else :class:`~perturb.simulate.flows.base.ODEFlow`;
-        ``"exact"``: require the exact flow; ``"ode"``: always ``ODEFlow``.
-    rtol, atol
-        Tolerances of ``ODEFlow`` (the exact flow has none).
-
-    Raises
-    ------
-    ParameterError
-        Unknown ``method`` or bad tolerances.
-    PerturbError
-        ``method="exact"`` but the exact flow is not installed, or the model is not PWL.
-    """
-    if not isinstance(osc, Oscillator):
-        raise ParameterError(f"osc = {osc!r}: expected an Oscillator")
-    if method not in ("auto", "exact", "ode"):
-        raise ParameterError(f"method = {method!r}: expected 'auto', 'exact' or 'ode'")
-    rtol = _tol("rtol", rtol)
-    atol = _real("atol", atol, positive=True)
-    if method != "ode":
-        cls = _exact_flow_class()
-        if method == "exact":
-            if cls is None:
-                raise PerturbError(
-                    "method = 'exact': perturb.simulate.flows.exact.ExactPWLFlow is not "
-                    "available in this installation; use method='auto' or 'ode'"
-                )
-            if not osc.is_piecewise_linear:
-                raise ModelError(
-                    f"method = 'exact': model {osc.name!r} is not piecewise linear; use "
-                    "method='ode'"
-                )
-            return cls(osc, Omega=Omega)
-        if cls is not None and osc.is_piecewise_linear:
-            try:
-                return cls(osc, Omega=Omega)
-            except ModelError:
-                # e.g. a PWL force with a feature the exact flow does not take: fall back
-                pass
-    return ODEFlow(osc, Omega, rtol=rtol, atol=atol)
-
-
-def _as_flow(obj: object, what: str, method: FlowMethod = "auto") -> Flow:
+def _flow_argument(obj: object, what: str, method: FlowMethod = "auto") -> Flow:
+    """The flow of a ``flow_or_osc`` argument: :func:`make_flow` for an oscillator, the flow
+    itself with its declared capabilities (:func:`~perturb.simulate.flows.base.as_flow`)
+    otherwise."""
     if isinstance(obj, Oscillator):
         return make_flow(obj, method=method)
     if isinstance(obj, Flow):
-        return obj
+        return as_flow(obj)
     raise ParameterError(f"{what} = {obj!r}: expected an Oscillator or a Flow")
 
 
 def _period_of(flow: Flow, period: float | None, what: str = "flow") -> float:
     if period is not None:
         return _real("period", period, positive=True)
-    T = getattr(flow, "period", None)
+    T = flow.period
     if T is None:
         raise ParameterError(
             f"the {what} is autonomous (no forcing period): pass period=... to set the "
@@ -387,7 +321,7 @@ def _section_period(flow: Flow, osc: Oscillator, period: float | None = None) ->
     flow is autonomous)."""
     if period is not None:
         return _real("period", period, positive=True)
-    T = getattr(flow, "period", None)
+    T = flow.period
     if T is None:
         T = first_order_rhs(osc).period
     if T is None:
@@ -670,7 +604,7 @@ def _steady_state(
     multipliers: bool,
 ) -> SteadyState:
     T = _TWO_PI / omega
-    flow_T = getattr(flow, "period", None)
+    flow_T = flow.period
     if flow_T is not None and not math.isclose(flow_T, T, rel_tol=1e-12):
         raise ModelError(
             f"the flow has period {flow_T!r} but Omega = {omega!r} gives {T!r}: the sweep needs "
@@ -1127,7 +1061,7 @@ def poincare_section(
     period
         Sampling period; default the flow's forcing period (required for autonomous flows).
     """
-    flow = _as_flow(flow_or_osc, "flow_or_osc", method)
+    flow = _flow_argument(flow_or_osc, "flow_or_osc", method)
     y = _state("y0", y0)
     n = _int("n_points", n_points, 1)
     tr = _int("transient", transient, 0)
@@ -1768,7 +1702,7 @@ def lyapunov_exponent(
     PerturbError
         The flow returns no sensitivity, or the orbit or its tangent dynamics overflow.
     """
-    flow = _as_flow(flow_or_osc, "flow_or_osc", method)
+    flow = _flow_argument(flow_or_osc, "flow_or_osc", method)
     y = _state("y0", y0)
     n = _int("n_periods", n_periods, 2)
     tr = _int("transient", transient, 0)
