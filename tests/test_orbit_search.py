@@ -19,7 +19,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from perturb.model.builtins import builtin_model
-from perturb.simulate.exact_response import _polish_at, exact_branches
+from perturb.simulate.exact_response import exact_branches
 from perturb.solve import periodic_orbits
 
 MU, F = 0.05, 2.0
@@ -32,7 +32,7 @@ def _crossings(found, W):
         for j in np.flatnonzero((p[:-1] - W) * (p[1:] - W) <= 0.0):
             if p[j] == p[j + 1]:
                 continue
-            orbit = _polish_at(br, int(j), W)
+            orbit = br.orbit_at(int(j), W)
             if orbit is not None and not any(_same(orbit, o) for o in out):
                 out.append(orbit)
     return out

@@ -431,6 +431,15 @@ class ContinuationBranch:
             return multiple_shooting(flow, q.nodes, m=self.m, t0=self.t0, tol=tol)
         return periodic_orbit(flow, q.y0, m=self.m, t0=self.t0, tol=tol)
 
+    def orbit_at(self, index: int, value: float) -> PeriodicOrbit | None:
+        """The orbit at exactly the parameter ``value`` between ``points[index]`` and
+        ``points[index + 1]``: their states interpolated linearly in the parameter, then
+        shooting at ``value`` (multiple shooting when both carry nodes or the orbit is
+        strongly unstable); None when shooting fails there."""
+        if not 0 <= int(index) < len(self.points) - 1:
+            raise ParameterError(f"index = {index!r}: expected 0 <= index < {len(self.points) - 1}")
+        return _polish_at(self, int(index), float(value))
+
 
 @dataclass(frozen=True, eq=False)
 class ExactBranches:
