@@ -138,48 +138,48 @@ def test_summary_names_the_cheapest_method_that_meets_each_accuracy(tmp_path):
 
 def test_repeats_adapt_to_the_cost():
     calls = []
-    t, out = bench._timed(lambda: calls.append(1) or 7, 5, budget=10.0)
-    assert out == 7 and len(calls) == 5 and bench._timed.last[0] == 5
+    t, out = bench.timed(lambda: calls.append(1) or 7, 5, budget=10.0)
+    assert out == 7 and len(calls) == 5 and bench.timed.last[0] == 5
     calls.clear()
-    bench._timed(lambda: calls.append(time.sleep(0.05)), 5, budget=0.01)
-    assert len(calls) == 1 and bench._timed.last == (1, pytest.approx(0.05, abs=0.04))
+    bench.timed(lambda: calls.append(time.sleep(0.05)), 5, budget=0.01)
+    assert len(calls) == 1 and bench.timed.last == (1, pytest.approx(0.05, abs=0.04))
 
 
 def test_timeout_stops_a_method():
     with pytest.raises(bench.MethodTimeout):
-        bench._timed(lambda: time.sleep(5), 1, timeout=0.2)
-    t, out = bench._timed(lambda: 3, 2, timeout=5)
+        bench.timed(lambda: time.sleep(5), 1, timeout=0.2)
+    t, out = bench.timed(lambda: 3, 2, timeout=5)
     assert out == 3 and t >= 0
 
 
 def test_sweep_subset_is_evenly_spaced_with_both_ends():
-    assert list(bench._sweep_subset(100, 3)) == [0, 50, 99]
-    assert list(bench._sweep_subset(4, 10)) == [0, 1, 2, 3]
+    assert list(bench.sweep_subset(100, 3)) == [0, 50, 99]
+    assert list(bench.sweep_subset(4, 10)) == [0, 1, 2, 3]
 
 
 def test_van_der_pol_limit_cycle_against_the_lindstedt_series():
     prob = bench.PROBLEMS["vdp"]
     eps = np.array([0.05, 0.1])
-    amp, per = bench._lc_exact(prob, eps)
+    amp, per = bench.limit_cycle_exact(prob, eps)
     np.testing.assert_allclose(amp, 2.0, rtol=2e-3)
     np.testing.assert_allclose(per, 2 * np.pi * (1 + eps**2 / 16), rtol=1e-5)
     # first-order averaging: a = 2 and period 2 pi exactly
     kb = next(s for s in bench.method_settings("limit_cycle") if s.key == "kb")
-    a1, p1 = bench._lc_approx(prob, kb, eps)
+    a1, p1 = bench.limit_cycle_approx(prob, kb, eps)
     np.testing.assert_allclose(a1, 2.0, rtol=1e-12)
     np.testing.assert_allclose(p1, 2 * np.pi, rtol=1e-12)
     # second-order multiple scales: the frequency 1 - eps^2 / 16
     ms2 = next(s for s in bench.method_settings("limit_cycle") if s.key == "ms2")
-    _, p2 = bench._lc_approx(prob, ms2, eps)
+    _, p2 = bench.limit_cycle_approx(prob, ms2, eps)
     np.testing.assert_allclose(p2, 2 * np.pi / (1 - eps**2 / 16), rtol=1e-12)
 
 
 def test_known_explanations_are_added_to_their_rows():
     row = bench.Row("duffing", "ms", "s")
-    bench._explain(row)
+    bench.explain_row(row)
     assert "backbone" in row.note
     row = bench.Row("duffing", "kb", "s")
-    bench._explain(row)
+    bench.explain_row(row)
     assert row.note == ""
 
 

@@ -250,7 +250,7 @@ def _on_alarm(signum: int, frame: Any) -> None:
     raise MethodTimeout
 
 
-def _timed(
+def timed(
     fn: Callable[[], Any],
     repeat: int,
     timeout: float | None = None,
@@ -261,7 +261,7 @@ def _timed(
     With ``budget`` (seconds) another call is made only while the calls so far took less in
     total, so expensive methods run once.  With ``timeout`` (seconds, per call; needs SIGALRM
     and the main thread) a longer call raises :class:`MethodTimeout`.  The number of calls
-    and the first call's time are in :data:`_timed.last` (``(calls, first)``)."""
+    and the first call's time are in :data:`timed.last` (``(calls, first)``)."""
     use_alarm = (
         timeout is not None
         and timeout > 0
@@ -284,11 +284,11 @@ def _timed(
                 signal.setitimer(signal.ITIMER_REAL, 0.0)
                 signal.signal(signal.SIGALRM, old)
         times.append(time.perf_counter() - t)
-    _timed.last = (len(times), times[0])  # type: ignore[attr-defined]
+    timed.last = (len(times), times[0])  # type: ignore[attr-defined]
     return statistics.median(times), out
 
 
-_timed.last = (0, math.nan)  # type: ignore[attr-defined]
+timed.last = (0, math.nan)  # type: ignore[attr-defined]
 
 
 def _fill_errors(row: Row, resp: Any, ref: Any) -> None:
@@ -324,7 +324,7 @@ def _selected(key: str, patterns: Sequence[str] | None) -> bool:
     return patterns is None or any(fnmatch.fnmatchcase(key, p) for p in patterns)
 
 
-def _sweep_subset(n_full: int, n_measured: int) -> np.ndarray:
+def sweep_subset(n_full: int, n_measured: int) -> np.ndarray:
     """Indices of ``n_measured`` evenly spaced frequencies of the full grid (ends included)."""
     import numpy as np
 
@@ -345,8 +345,8 @@ def _run_setting(
 ) -> Any:
     """Time ``fn`` into ``row``; None (and the row's status set) if it failed."""
     try:
-        row.time_s, out = _timed(fn, rep, timeout, REPEAT_BUDGET)
-        row.repeats, row.first_s = _timed.last  # type: ignore[attr-defined]
+        row.time_s, out = timed(fn, rep, timeout, REPEAT_BUDGET)
+        row.repeats, row.first_s = timed.last  # type: ignore[attr-defined]
         return out
     except MethodTimeout:
         row.status = f"timeout (stopped after {timeout:g} s)"
@@ -400,7 +400,7 @@ def _run_problem(
     say(f"   exact: {ex.time_s:.3g} s {ex.status} {ex.note}")
     # -- brute-force sweep (the time unit of the ratios), always run whatever --methods says
     grid = np.linspace(lo, hi, n_full)
-    sub = grid[_sweep_subset(n_full, n_measured)]
+    sub = grid[sweep_subset(n_full, n_measured)]
     extrapolated = sub.size != n_full
     sw = Row(
         name,
@@ -465,7 +465,7 @@ def _run_problem(
         for text in getattr(resp, "notes", ()) or ():
             if "left out" in text:
                 _note(row, text)
-        _explain(row)
+        explain_row(row)
         _say_row(say, row)
     for r in out_rows:
         if r.status == "ok" and np.isfinite(sweep_time) and sweep_time > 0:
@@ -529,7 +529,8 @@ KNOWN: tuple[tuple[str, str, str], ...] = (
 )
 
 
-def _explain(row: Row) -> None:
+def explain_row(row: Row) -> None:
+    """Append to ``row.note`` the known explanation of its outcome (:data:`KNOWN`), if any."""
     for prob, meth, text in KNOWN:
         if fnmatch.fnmatchcase(row.problem, prob) and any(
             fnmatch.fnmatchcase(row.method, m) for m in meth.split(",")
@@ -540,7 +541,7 @@ def _explain(row: Row) -> None:
 # ---------------------------------------------------------------------------------------------
 # the autonomous problem: the van der Pol limit cycle over a parameter
 # ---------------------------------------------------------------------------------------------
-def _lc_exact(prob: Problem, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def limit_cycle_exact(prob: Problem, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Amplitude ``max|x|`` and period of the limit cycle at each value of ``grid``, by
     autonomous shooting, each seeded with the previous cycle."""
     import numpy as np
@@ -592,7 +593,9 @@ def _lc_sweep(prob: Problem, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return amp, per
 
 
-def _lc_approx(prob: Problem, s: Setting, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def limit_cycle_approx(
+    prob: Problem, s: Setting, grid: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Amplitude ``max|x|`` and period of the approximate limit cycle at each value of
     ``grid``: derived once with the parameter symbolic, then the stable nonzero root ``a`` of
     the amplitude equation, the frequency ``1 + dbeta/dt`` (polar unknowns ``(a, beta)``) or
@@ -676,7 +679,7 @@ def _run_limit_cycle(
     grid = np.linspace(lo, hi, prob.points)
     say(f"== {name}: {prob.description}, {prob.parameter} in [{lo}, {hi}], {grid.size} values")
     ex = Row(name, "exact", f"autonomous shooting (limit_cycle), {grid.size} values")
-    ref = _run_setting(ex, lambda: _lc_exact(prob, grid), 1, None, say)
+    ref = _run_setting(ex, lambda: limit_cycle_exact(prob, grid), 1, None, say)
     if ref is not None:
         ex.max_rel_error = ex.rms_rel_error = 0.0
         ex.matched, ex.note = "1/1", "reference"
@@ -691,11 +694,11 @@ def _run_limit_cycle(
         if not _selected(s.key, pats):
             continue
         row = Row(name, s.key, s.setting)
-        res = _run_setting(row, lambda s=s: _lc_approx(prob, s, grid), rep, timeout, say)
+        res = _run_setting(row, lambda s=s: limit_cycle_approx(prob, s, grid), rep, timeout, say)
         rows.append(row)
         if res is not None and ref is not None:
             _lc_errors(row, *res, ref)
-            _explain(row)
+            explain_row(row)
             _say_row(say, row)
     if sw.status == "ok":
         for r in rows:
