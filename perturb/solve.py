@@ -260,23 +260,17 @@ def trace_approximation(
     if _residual_traced(approximation):
         from perturb.numeric.residual import residual_response, residual_solutions_at
 
-        if len(approximation.unknowns) == 1:
+        if len(approximation.unknowns) == 1 or approximation.frequency in approximation.unknowns:
             # a free oscillation: no forcing, so no phase and no response to trace
             raise ParameterError(
-                f"{approximation.method}: one unknown ({approximation.unknowns[0]}), a free "
+                f"{approximation.method}: unknowns "
+                f"({', '.join(str(u) for u in approximation.unknowns)}) of a free "
                 "oscillation's frequency-amplitude relation (a backbone), not a forced "
                 "response: the tracers need an amplitude and a phase. Draw it with a scene "
                 "[ask] kind = 'backbone', or use 'mlp' for the forced response"
             )
-        if len(approximation.unknowns) > 2:
-            # residual continuation follows an amplitude and a phase (polar unknowns)
-            names = ", ".join(str(u) for u in approximation.unknowns)
-            raise ParameterError(
-                f"{approximation.method}: {len(approximation.unknowns)} unknowns ({names}); "
-                "the tracers solve approximations in an amplitude and a phase only. For a "
-                "harmonic set or a mean term use numeric harmonic balance, method 'hb' (a "
-                "number of harmonics, the mean among its unknowns)"
-            )
+        # a harmonic set or a mean term (symbolic 'shb'): residual continuation in all the
+        # unknowns (perturb.numeric.residual), stability by Hill's method at its harmonics
 
         # the curve's resolution is set by the continuation step, not by a point count
         options.pop("points", None)

@@ -123,6 +123,47 @@ def _finite(flag: str):
     return convert
 
 
+def _harmonics_arg(text: str) -> int | str:
+    """``--harmonics``: a whole number (numeric ``hb``'s count, the series of ``lp`` /
+    ``mlp``) as before, or a comma list of harmonics such as ``1,3`` or ``1/3,1`` (the
+    harmonic set of ``--method shb``; :func:`_harmonics_option` reads it once the method is
+    known)."""
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    parts = [p.strip() for p in text.split(",")]
+    ok = all(p and all(c.isdigit() or c == "/" for c in p) and p.count("/") <= 1 for p in parts)
+    if "," not in text and "/" not in text or not ok:
+        raise argparse.ArgumentTypeError(
+            f"invalid value {text!r}: expected a whole number (hb) or a comma list of "
+            "harmonics such as 1,3 (shb)"
+        )
+    return text
+
+
+def _harmonics_option(method: str, value: int | str | None) -> int | tuple | None:
+    """The ``harmonics`` option of ``method`` from ``--harmonics``: a set for ``shb`` (a
+    comma list, or one harmonic), the whole number for every other method.
+
+    Raises
+    ------
+    ParameterError
+        For a comma list given to a method other than ``shb``.
+    """
+    if value is None:
+        return None
+    if method == "shb":
+        items = str(value).split(",")
+        return tuple(int(p) if "/" not in p else p.strip() for p in items)
+    if isinstance(value, str):
+        raise ParameterError(
+            f"--harmonics {value}: a harmonic set (comma list) is for --method shb; "
+            f"--method {method} takes a whole number"
+        )
+    return value
+
+
 def _cmd_models(args: argparse.Namespace) -> int:
     from perturb.model.builtins import BUILTIN_MODELS
 
@@ -321,7 +362,7 @@ def _cmd_frc(args: argparse.Namespace) -> int:
         raise PerturbError(f"--compare {args.compare!r}: expected exact")
     # the method's options and limits (the registry's) before the model: a refused request
     # costs nothing
-    given = {"harmonics": args.harmonics, "order": args.order}
+    given = {"harmonics": _harmonics_option(method.name, args.harmonics), "order": args.order}
     if method.kind == "auto" and (args.order is not None or args.harmonics is not None):
         raise ParameterError(
             "--method auto chooses the order and the harmonics itself: "
@@ -669,9 +710,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--harmonics",
-        type=int,
+        type=_harmonics_arg,
         help=f"harmonics of --method hb, 1 to {MAX_HARMONICS} (default: 15; for lp and mlp: "
-        "of their Fourier series, default 15)",
+        "of their Fourier series, default 15); for --method shb the harmonic set, a comma "
+        "list such as 1,3 (default: 1)",
     )
     p.add_argument(
         "--one-branch",

@@ -58,7 +58,7 @@ class ResidualSystem:
     ``R (m, n)``, ``R_u (m, n, n)``, ``R_Omega (m, n)`` in one call (shared subexpressions).
     """
 
-    def __init__(self, approx: Approximation) -> None:
+    def __init__(self, approx: Approximation, positive: bool = True) -> None:
         if not approx.residuals or len(approx.residuals) != len(approx.unknowns):
             raise PerturbError(
                 f"{approx.label}: {len(approx.residuals)} residuals for "
@@ -76,18 +76,30 @@ class ResidualSystem:
         self.amplitude_index = (
             self.unknowns.index(approx.amplitude) if approx.amplitude in self.unknowns else 0
         )
+        # the unknown that must stay >= 0 (a polar amplitude); None for Cartesian harmonic
+        # coefficients, which take any sign (harmonic balance over a harmonic set)
+        self.positive_index: int | None = self.amplitude_index
+        if not positive:
+            self.positive_index = (
+                self.unknowns.index(approx.amplitude) if approx.amplitude in self.unknowns else None
+            )
 
     def evaluate(self, U: np.ndarray, W: np.ndarray, amplitude_max: float = math.inf):
         """Residuals and Jacobians; NaN rows where the amplitude is negative (outside the
         domain of the closed-form Fourier coefficients) or above ``amplitude_max`` (NaN makes
         a continuation step fail, so a branch running away to infinite amplitude stops
-        there without evaluating the expressions)."""
+        there without evaluating the expressions).  Without a positive amplitude
+        (``positive_index`` None: Cartesian harmonic coefficients) the bound applies to the
+        largest unknown in absolute value."""
         n, m = self.n, W.shape[0]
         R = np.full((m, n), np.nan)
         J = np.full((m, n, n), np.nan)
         Rw = np.full((m, n), np.nan)
-        amp = U[:, self.amplitude_index]
-        ok = (amp >= 0) & (amp <= amplitude_max)
+        if self.positive_index is None:
+            ok = np.max(np.abs(U), axis=1) <= amplitude_max
+        else:
+            amp = U[:, self.positive_index]
+            ok = (amp >= 0) & (amp <= amplitude_max)
         if np.any(ok):
             out = self._fn(*(U[ok, i] for i in range(n)), W[ok])
             k = int(np.count_nonzero(ok))
@@ -115,9 +127,12 @@ def _newton_many(sys_: ResidualSystem, U: np.ndarray, W: np.ndarray, iters: int 
         cap = 0.5 * scale
         big = np.max(np.abs(dU) / cap, axis=1, keepdims=True)
         # and the amplitude stays positive: at most halved per step
-        a = U[:, sys_.amplitude_index]
-        da = dU[:, sys_.amplitude_index]
-        shrink = np.where(da < -0.5 * a, -da / (0.5 * np.maximum(a, 1e-300)), 1.0)
+        if sys_.positive_index is None:
+            shrink = np.ones(U.shape[0])
+        else:
+            a = U[:, sys_.positive_index]
+            da = dU[:, sys_.positive_index]
+            shrink = np.where(da < -0.5 * a, -da / (0.5 * np.maximum(a, 1e-300)), 1.0)
         dU = dU / np.maximum(np.maximum(1.0, big), shrink[:, None])
         U = U + dU
         scale = np.maximum(1.0, np.abs(U))
@@ -227,6 +242,52 @@ def _valid_runs(ok: np.ndarray) -> list[tuple[int, int]]:
     return [(a, b) for a, b in zip(starts, stops, strict=True) if b - a >= 2]
 
 
+def _check_options(
+    approx,
+    omega_range,
+    amplitude_range,
+    seed_frequencies,
+    seed_amplitudes,
+    seed_phases,
+    refine,
+    max_correction,
+    stability,
+) -> tuple[float, float, float, float, float]:
+    """The options of :func:`residual_response` checked: ``lo, hi, a_lo, a_hi,
+    max_correction``."""
+    if not isinstance(approx, Approximation):
+        raise ParameterError(f"approximation = {approx!r}: expected an Approximation")
+    try:
+        lo, hi = (float(w) for w in omega_range)
+    except (TypeError, ValueError):
+        raise ParameterError(f"omega_range = {omega_range!r}: expected (low, high)") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
+        raise ParameterError(f"omega_range = {omega_range!r}: expected 0 < low < high")
+    a_lo, a_hi = (float(a) for a in amplitude_range)
+    if not (0 < a_lo < a_hi and math.isfinite(a_hi)):
+        raise ParameterError(f"amplitude_range = {amplitude_range!r}: expected 0 < low < high")
+    for name, v in (
+        ("seed_frequencies", seed_frequencies),
+        ("seed_amplitudes", seed_amplitudes),
+        ("seed_phases", seed_phases),
+    ):
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise ParameterError(f"{name} = {v!r}: expected a positive integer")
+    if isinstance(refine, bool) or not isinstance(refine, int) or refine < 1:
+        raise ParameterError(f"refine = {refine!r}: expected a positive integer")
+    try:
+        max_correction = float(max_correction)
+    except (TypeError, ValueError):
+        max_correction = float("nan")
+    if not max_correction > 0:
+        raise ParameterError(f"max_correction = {max_correction!r}: expected a number > 0")
+    if stability not in _STABILITY:
+        raise ParameterError(f"stability = {stability!r}: expected one of {', '.join(_STABILITY)}")
+    if stability == "slow_flow" and approx.slow_flow is None:
+        raise PerturbError(f"{approx.label} has no slow flow: use stability='hill'")
+    return lo, hi, a_lo, a_hi, max_correction
+
+
 def residual_response(
     approximation: Approximation,
     omega_range: Sequence[float] = (0.2, 2.0),
@@ -288,37 +349,31 @@ def residual_response(
         A non-square residual system, or no slow flow for ``stability="slow_flow"``.
     """
     approx = approximation
-    if not isinstance(approx, Approximation):
-        raise ParameterError(f"approximation = {approx!r}: expected an Approximation")
-    try:
-        lo, hi = (float(w) for w in omega_range)
-    except (TypeError, ValueError):
-        raise ParameterError(f"omega_range = {omega_range!r}: expected (low, high)") from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
-        raise ParameterError(f"omega_range = {omega_range!r}: expected 0 < low < high")
-    a_lo, a_hi = (float(a) for a in amplitude_range)
-    if not (0 < a_lo < a_hi and math.isfinite(a_hi)):
-        raise ParameterError(f"amplitude_range = {amplitude_range!r}: expected 0 < low < high")
-    for name, v in (
-        ("seed_frequencies", seed_frequencies),
-        ("seed_amplitudes", seed_amplitudes),
-        ("seed_phases", seed_phases),
-    ):
-        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-            raise ParameterError(f"{name} = {v!r}: expected a positive integer")
-    if isinstance(refine, bool) or not isinstance(refine, int) or refine < 1:
-        raise ParameterError(f"refine = {refine!r}: expected a positive integer")
-    try:
-        max_correction = float(max_correction)
-    except (TypeError, ValueError):
-        max_correction = float("nan")
-    if not max_correction > 0:
-        raise ParameterError(f"max_correction = {max_correction!r}: expected a number > 0")
-    if stability not in _STABILITY:
-        raise ParameterError(f"stability = {stability!r}: expected one of {', '.join(_STABILITY)}")
-    if stability == "slow_flow" and approx.slow_flow is None:
-        raise PerturbError(f"{approx.label} has no slow flow: use stability='hill'")
+    lo, hi, a_lo, a_hi, max_correction = _check_options(
+        approx,
+        omega_range,
+        amplitude_range,
+        seed_frequencies,
+        seed_amplitudes,
+        seed_phases,
+        refine,
+        max_correction,
+        stability,
+    )
     approx = _polar(approx)
+    if _is_general(approx):
+        return _general_response(
+            approx,
+            lo,
+            hi,
+            (a_lo, a_hi),
+            seed_frequencies,
+            seed_amplitudes,
+            seed_phases,
+            ds_max,
+            refine,
+            stability,
+        )[0]
     sys_ = ResidualSystem(approx)
     n, amp = sys_.n, sys_.amplitude_index
 
@@ -604,6 +659,9 @@ def residual_solutions_at(
     """
     approx = approximation
     targets = [float(w) for w in frequencies]
+    if isinstance(approx, Approximation) and _is_general(_polar(approx)):
+        # validate the options as the tracer does (it raises on a bad one), then solve
+        return _general_solutions_at(approx, targets, **options)
     window = _covering_window(targets)
     traced = residual_response(approx, window, **options)
     stability = options.get("stability", "hill")
@@ -679,4 +737,492 @@ def residual_solutions_at(
         traced.model,
         dict(traced.params),
         notes=tuple(notes),
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# square balance systems in any unknowns: symbolic harmonic balance over a harmonic set
+# --------------------------------------------------------------------------------------------
+#: Most static equilibria used as starting biases (each multiplies the seeding grid).
+_MAX_BIAS_STARTS = 5
+#: Newton starts per seed frequency at most (bounds the seeding work of a large set).
+_MAX_STARTS = 4096
+#: The keyword defaults of :func:`residual_response`.
+_TRACER_DEFAULTS = {
+    "amplitude_range": (1e-2, 1e2),
+    "seed_frequencies": 8,
+    "seed_amplitudes": 24,
+    "seed_phases": 6,
+    "ds_max": 0.02,
+    "refine": 4,
+    "max_correction": 1.0,
+    "stability": "hill",
+}
+
+
+def _is_general(approx: Approximation) -> bool:
+    """Whether ``approx`` (after :func:`_polar`) is traced in its own unknowns rather than as
+    an (amplitude, phase) pair: more than two unknowns (a harmonic set, a mean term) or no
+    amplitude symbol (Cartesian coefficients of one harmonic that is not the fundamental)."""
+    return len(approx.unknowns) > 2 or approx.amplitude is None
+
+
+class _Roles:
+    """What each unknown of a balance system is, read from the waveform ``x(tau)``.
+
+    Attributes
+    ----------
+    m
+        ``tau = m s``: the waveform is a trigonometric polynomial in ``s`` (``m > 1`` for a
+        subharmonic set; the forcing frequency is harmonic ``m`` of ``s``).
+    order
+        The highest harmonic of ``s`` in the waveform.
+    phases, biases
+        Indices of phase unknowns (only inside trigonometric arguments) and of terms free of
+        ``tau`` (means).
+    pairs
+        ``(harmonic, cos index, sin index)`` for Cartesian coefficient pairs.
+    """
+
+    def __init__(self, approx: Approximation, wave: sp.Expr, s: sp.Symbol, m: int) -> None:
+        from perturb.fourier.trig import split_argument
+
+        self.m = m
+        trig = [f for f in wave.atoms(sp.cos, sp.sin) if f.has(s)]
+        harmonic_of: dict[sp.Expr, int] = {}
+        for f in trig:
+            n, _ = split_argument(f.args[0], s)
+            harmonic_of[f] = abs(int(n))
+        self.order = max([1, *harmonic_of.values()])
+        self.phases: list[int] = []
+        self.biases: list[int] = []
+        cos_of: dict[int, int] = {}
+        sin_of: dict[int, int] = {}
+        for i, u in enumerate(approx.unknowns):
+            if u == approx.amplitude:
+                continue
+            in_args = any(f.args[0].has(u) for f in trig)
+            if in_args:
+                self.phases.append(i)
+                continue
+            d = sp.expand(sp.diff(wave, u))
+            if not d.has(s):
+                self.biases.append(i)
+                continue
+            for f, n in harmonic_of.items():
+                if d == f:
+                    (cos_of if isinstance(f, sp.cos) else sin_of)[n] = i
+        self.pairs = [(n, cos_of[n], sin_of.get(n)) for n in sorted(cos_of)]
+
+
+def _static_biases(osc, a_hi: float) -> list[float]:
+    """Up to :data:`_MAX_BIAS_STARTS` roots of the static balance ``g(x, 0) = F_0`` in
+    ``|x| <= a_hi`` (sign changes on a grid, then bisection): starting means for the orbits
+    about each equilibrium (the wells of a double-well force)."""
+    from perturb.numeric.compile import lambdify as _lam
+
+    values = {s: v for s, v in osc.substitutions().items() if s != osc.x}
+    expr = (sp.sympify(osc.g).xreplace({osc.v: 0}) - osc.forcing.constant).xreplace(values)
+    if expr.free_symbols - {osc.x}:
+        return []
+    f = _lam((osc.x,), expr)
+    xs = np.linspace(-a_hi, a_hi, 4001)
+    ys = f(xs)
+    roots: list[float] = []
+    for j in np.nonzero(np.sign(ys[:-1]) * np.sign(ys[1:]) <= 0)[0]:
+        lo, hi = float(xs[j]), float(xs[j + 1])
+        flo = float(ys[j])
+        for _ in range(60):  # bisection to ~1e-18 of the grid step
+            mid = 0.5 * (lo + hi)
+            fm = float(f(np.array([mid]))[0])
+            if np.sign(fm) == np.sign(flo) and fm != 0:
+                lo, flo = mid, fm
+            else:
+                hi = mid
+        x0 = 0.5 * (lo + hi)
+        if not roots or abs(x0 - roots[-1]) > 1e-6 * max(1.0, abs(x0)):
+            roots.append(x0)
+    roots.sort(key=abs)
+    return roots[:_MAX_BIAS_STARTS]
+
+
+class _BalanceCurves:
+    """Seeding and continuation of a square balance system in all its unknowns."""
+
+    def __init__(self, approx: Approximation, amplitude_range, stability: str) -> None:
+        self.approx = approx
+        self.sys = ResidualSystem(approx, positive=False)
+        self.a_lo, self.a_hi = (float(a) for a in amplitude_range)
+        s = sp.Dummy("s", real=True)
+        keep = (*approx.unknowns, approx.frequency, approx.tau)
+        wave = bind_parameters(approx, [approx.waveform], keep)[0]
+        m = self._m(approx)
+        wave_s = sp.expand(wave.xreplace({approx.tau: m * s}))
+        self.roles = _Roles(approx, wave_s, s, m)
+        self._x = lambdify((s, *approx.unknowns, approx.frequency), wave_s)
+        self._dx = lambdify((s, *approx.unknowns, approx.frequency), sp.diff(wave_s, s))
+        self.stability = stability
+        if stability == "slow_flow":
+            flow = bind_parameters(approx, list(approx.slow_flow or ()), keep)
+            self._flow_jac = lambdify(
+                (*approx.unknowns, approx.frequency),
+                list(sp.Matrix(flow).jacobian(sp.Matrix(approx.unknowns))),
+            )
+
+    @staticmethod
+    def _m(approx: Approximation) -> int:
+        try:
+            return int(approx.options.get("m", 1))
+        except (AttributeError, TypeError, ValueError):
+            return 1
+
+    # -- seeds ---------------------------------------------------------------------------
+    def starts(self, amplitudes: int, phases: int) -> np.ndarray:
+        """Newton starts: one harmonic at a time (the one at the forcing frequency, and the
+        lowest when that is a subharmonic) over a log grid of amplitudes and a grid of phases,
+        every other harmonic zero, each mean at zero and at the static equilibria."""
+        n, r = self.sys.n, self.roles
+        amp = np.geomspace(self.a_lo, self.a_hi, amplitudes)
+        ph = np.linspace(-np.pi, np.pi, phases, endpoint=False)
+        biases = [0.0]
+        if r.biases:
+            biases += [b for b in _static_biases(self.approx.oscillator, self.a_hi) if b != 0.0]
+        rows = []
+        pos = self.sys.positive_index
+        if pos is not None:  # polar amplitude and phase(s) plus means
+            A, P = np.meshgrid(amp, ph, indexing="ij")
+            for b in biases:
+                U = np.zeros((A.size, n))
+                U[:, pos] = A.ravel()
+                for i in r.phases:
+                    U[:, i] = P.ravel()
+                for i in r.biases:
+                    U[:, i] = b
+                rows.append(U)
+        else:
+            wanted = {r.m, min((p[0] for p in r.pairs), default=r.m)}
+            for k, ic, is_ in r.pairs:
+                if k not in wanted:
+                    continue
+                A, P = np.meshgrid(amp, ph, indexing="ij")
+                for b in biases:
+                    U = np.zeros((A.size, n))
+                    U[:, ic] = (A * np.cos(P)).ravel()
+                    if is_ is not None:
+                        U[:, is_] = (A * np.sin(P)).ravel()
+                    for i in r.biases:
+                        U[:, i] = b
+                    rows.append(U)
+        if not rows:
+            rows.append(np.zeros((1, n)))
+        U = np.concatenate(rows)
+        return U[:_MAX_STARTS]
+
+    def solve_at(self, U0: np.ndarray, W0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Newton from every row; converged, phases wrapped, duplicates removed."""
+        U, W = _newton_many(self.sys, U0, W0)
+        bound = np.max(np.abs(U), axis=1) <= self.a_hi if U.size else np.ones(0, bool)
+        U, W = U[bound], W[bound]
+        if self.sys.positive_index is not None:
+            keep = U[:, self.sys.positive_index] > 0
+            U, W = U[keep], W[keep]
+        if self.roles.phases:
+            U[:, self.roles.phases] = np.angle(np.exp(1j * U[:, self.roles.phases]))
+        return _unique(U, W, 0)
+
+    # -- continuation ------------------------------------------------------------------------
+    def trace(self, lo, hi, seed_frequencies, seed_amplitudes, seed_phases, ds_max, refine):
+        """``[(U, W, folds)]``: every curve through a seed, continued both ways."""
+        sys_ = self.sys
+        n = sys_.n
+        ws = np.linspace(lo, hi, seed_frequencies + 2)[1:-1]
+        grid = self.starts(seed_amplitudes, seed_phases)
+        U, W = self.solve_at(np.tile(grid, (ws.size, 1)), np.repeat(ws, grid.shape[0]))
+        scale = max(1.0, float(np.max(np.abs(U)))) if U.size else 1.0
+        last: list = [None, None, None]
+        a_hi = self.a_hi
+
+        def point(u, lam):
+            if last[0] is None or last[1] != lam or not np.array_equal(last[0], u):
+                last[0], last[1] = u.copy(), lam
+                last[2] = sys_.evaluate(u[None, :], np.array([lam]), a_hi)
+            return last[2]
+
+        def residual(u, lam):
+            return point(u, lam)[0][0]
+
+        def jacobian(u, lam):
+            _, J, Rw = point(u, lam)
+            return J[0], Rw[0]
+
+        phases = self.roles.phases
+
+        def key(u: np.ndarray, w: np.ndarray) -> np.ndarray:
+            # a point of the response in scaled coordinates: frequency over the window and
+            # every unknown over the largest seed (phases by their cosine and sine, so a
+            # wrapped seed matches its unwrapped curve)
+            cols = [w / (hi - lo)]
+            for i in range(n):
+                if i in phases:
+                    cols += [np.cos(u[:, i]), np.sin(u[:, i])]
+                else:
+                    cols.append(u[:, i] / scale)
+            return np.column_stack(cols)
+
+        curves = []
+        traced: list[np.ndarray] = []
+        for u0, w0 in zip(U, W, strict=True):
+            k0 = key(u0[None, :], np.array([w0]))[0]
+            if any(np.min(np.linalg.norm(t - k0, axis=1)) < 2 * ds_max for t in traced):
+                continue  # on a curve traced already
+            parts = []
+            for direction in (-1, 1):
+                try:
+                    parts.append(
+                        continue_curve(
+                            residual,
+                            jacobian,
+                            u0,
+                            float(w0),
+                            (lo, hi),
+                            direction=direction,
+                            u_scale=np.full(n, max(1.0, float(np.max(np.abs(u0))))),
+                            adaptive_scale=True,
+                            ds_max=ds_max * refine,
+                            max_points=4000,
+                            **_FAST_CONTINUATION,
+                        )
+                    )
+                except ContinuationError:
+                    parts.append(None)
+            back, fwd = parts
+            if back is None and fwd is None:
+                continue
+            if back is not None and back.stop_reason == "closed":
+                u_c, w_c, folds = back.u, back.lam, list(back.folds)
+            else:
+                us, ls, folds = [], [], []
+                if back is not None:
+                    us.append(back.u[::-1])
+                    ls.append(back.lam[::-1])
+                    folds += list(back.folds)
+                if fwd is not None:
+                    start = 1 if back is not None else 0
+                    us.append(fwd.u[start:])
+                    ls.append(fwd.lam[start:])
+                    folds += list(fwd.folds)
+                u_c, w_c = np.concatenate(us), np.concatenate(ls)
+            good = np.all(np.isfinite(u_c), axis=1)
+            if sys_.positive_index is not None:
+                good &= u_c[:, sys_.positive_index] > 0
+            if np.count_nonzero(good) < 2:
+                continue
+            u_c, w_c = _densify(sys_, u_c[good], w_c[good], refine, hi - lo, a_hi)
+            curves.append((u_c, w_c, folds))
+            traced.append(key(u_c, w_c))
+        return curves
+
+    # -- statistics and stability -----------------------------------------------------------
+    def coefficients(self, U: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``C, S`` of ``x = sum_n C_n cos(n s) + S_n sin(n s)`` (``s = tau / m``), exact: the
+        FFT of more than ``2 * order`` samples of a trigonometric polynomial."""
+        K = self.roles.order
+        N = max(WAVEFORM_SAMPLES, 4 * K + 4)
+        s = np.linspace(0, 2 * np.pi, N, endpoint=False)
+        xs = self._x(s[None, :], *(U[:, i : i + 1] for i in range(U.shape[1])), w[:, None])
+        F = np.fft.rfft(xs, axis=1)[:, : K + 1] / N
+        C = 2 * F.real
+        S = -2 * F.imag
+        C[:, 0] = F[:, 0].real
+        return C, S
+
+    def branch(self, U: np.ndarray, w: np.ndarray) -> Branch:
+        """The response columns of the solutions ``U`` at ``w``: ``amplitude`` (max |x| at
+        the refined critical points), the component at the forcing frequency, the mean and
+        stability (Hill's method truncated at the ansatz's highest harmonic, or the slow
+        flow's Jacobian)."""
+        from perturb.numeric.amplitude import critical_points, max_abs_at
+        from perturb.numeric.stability import hill_exponents
+
+        C, S = self.coefficients(U, w)
+        m, K = self.roles.m, self.roles.order
+        ks = np.arange(K + 1)
+        s = np.linspace(0, 2 * np.pi, WAVEFORM_SAMPLES, endpoint=False)
+        xs = C @ np.cos(np.outer(ks, s)) + S @ np.sin(np.outer(ks, s))
+        rows, _, xe = critical_points(C, S, WAVEFORM_SAMPLES)
+        amplitude = np.maximum(
+            np.max(np.abs(xs), axis=1), max_abs_at(rows, xe, C.shape[0], C[:, 0])
+        )
+        first = np.hypot(C[:, m], S[:, m]) if m <= K else np.zeros(w.size)
+        mean = C[:, 0]
+        period = 2 * np.pi * m / w
+        if self.stability == "slow_flow":
+            n = U.shape[1]
+            vals = self._flow_jac(*(U[:, i] for i in range(n)), w)
+            Jm = np.stack(vals, axis=-1).reshape(-1, n, n)
+            re = np.max(np.linalg.eigvals(Jm).real, axis=1)
+            max_mult = np.exp(np.clip(re * period, -700, 700))
+            stable = re < 0
+        else:
+            sf = np.linspace(0, 2 * np.pi, FLOQUET_SAMPLES, endpoint=False)
+            cf, sn = np.cos(np.outer(ks, sf)), np.sin(np.outer(ks, sf))
+            xf = C @ cf + S @ sn
+            # dx/dt = (Omega / m) dx/ds
+            vf = (w / m)[:, None] * ((S * ks) @ cf - (C * ks) @ sn)
+            max_mult = np.empty(w.size)
+            chunk = 512
+            for a in range(0, w.size, chunk):
+                sl = slice(a, a + chunk)
+                # truncated at the ansatz's harmonics, so the singularity of Hill's matrix
+                # falls on the balance's folds
+                lam = hill_exponents(
+                    self.approx.oscillator, xf[sl], vf[sl], period[sl], K, self.approx.frequency
+                )
+                re = np.max(lam.real, axis=1)
+                max_mult[sl] = np.exp(np.clip(re * period[sl], -700, 700))
+            stable = max_mult < 1 - 1e-9
+        return Branch(
+            omega=w,
+            amplitude=amplitude,
+            first_harmonic_amplitude=first,
+            mean=mean,
+            stable=stable,
+            max_multiplier=max_mult,
+        )
+
+
+def _general_response(
+    approx: Approximation,
+    lo: float,
+    hi: float,
+    amplitude_range,
+    seed_frequencies: int,
+    seed_amplitudes: int,
+    seed_phases: int,
+    ds_max: float,
+    refine: int,
+    stability: str,
+) -> tuple[Response, _BalanceCurves, list]:
+    """:func:`residual_response` for a balance system in any unknowns (see there)."""
+    bc = _BalanceCurves(approx, amplitude_range, stability)
+    curves = bc.trace(lo, hi, seed_frequencies, seed_amplitudes, seed_phases, ds_max, refine)
+    branches, fold_pts = [], []
+    for u_c, w_c, folds in curves:
+        b = bc.branch(u_c, w_c)
+        branches.append(b)
+        for f in folds:
+            fb = bc.branch(np.asarray(f.u, float)[None, :], np.array([float(f.lam)]))
+            fold_pts.append((float(f.lam), float(fb.amplitude[0])))
+    notes: tuple[str, ...] = (
+        f"traced in all {bc.sys.n} unknowns ({', '.join(map(str, approx.unknowns))}) by "
+        "continuation of the balance residuals, seeded by Newton from one harmonic at a time "
+        f"at {seed_frequencies} frequencies; stability by "
+        + (
+            "the slow flow's Jacobian"
+            if stability == "slow_flow"
+            else f"Hill's method truncated at harmonic {bc.roles.order}"
+            + (f" of Omega/{bc.roles.m}" if bc.roles.m > 1 else "")
+        ),
+    )
+    if not branches:
+        notes += (
+            f"no solution found on the seeding grid ({seed_frequencies} frequencies in "
+            f"[{lo:.6g}, {hi:.6g}])",
+        )
+    params = {k: v for k, v in approx.oscillator.params.items() if v is not None}
+    resp = Response(
+        tuple(branches),
+        approx.label,
+        approx.oscillator.name,
+        params,
+        folds=tuple(fold_pts),
+        notes=notes,
+    )
+    return resp, bc, curves
+
+
+def _general_solutions_at(approx: Approximation, targets: list[float], **options) -> Response:
+    """:func:`residual_solutions_at` for a balance system in any unknowns: the curves are
+    traced over a covering window and every solution at each requested frequency is found by
+    Newton from the traced curve where it crosses the frequency and from the seeding grid
+    there."""
+    window = _covering_window(targets)
+    unknown = sorted(set(options) - set(_TRACER_DEFAULTS))
+    if unknown:
+        raise ParameterError(
+            f"{', '.join(unknown)}: not options of residual continuation (expected: "
+            f"{', '.join(_TRACER_DEFAULTS)})"
+        )
+    o = {**_TRACER_DEFAULTS, **options}
+    lo, hi, a_lo, a_hi, _ = _check_options(
+        approx,
+        window,
+        o["amplitude_range"],
+        o["seed_frequencies"],
+        o["seed_amplitudes"],
+        o["seed_phases"],
+        o["refine"],
+        o["max_correction"],
+        o["stability"],
+    )
+    traced, bc, curves = _general_response(
+        _polar(approx),
+        lo,
+        hi,
+        (a_lo, a_hi),
+        o["seed_frequencies"],
+        o["seed_amplitudes"],
+        o["seed_phases"],
+        o["ds_max"],
+        o["refine"],
+        o["stability"],
+    )
+    wanted = np.array(sorted(set(targets)))
+    starts_u, starts_w = [], []
+    crossing_count = 0
+    for u_c, w_c, _ in curves:
+        for w, j in _crossings(w_c, list(wanted)):
+            w0, w1 = float(w_c[j]), float(w_c[j + 1])
+            t = 0.0 if w1 == w0 else (w - w0) / (w1 - w0)
+            starts_u.append((1 - t) * u_c[j] + t * u_c[j + 1])
+            starts_w.append(w)
+            crossing_count += 1
+    grid = bc.starts(48, 12)
+    starts_u.append(np.tile(grid, (wanted.size, 1)))
+    starts_w.append(np.repeat(wanted, grid.shape[0]))
+    U0 = np.vstack([np.atleast_2d(u) for u in starts_u])
+    W0 = np.concatenate([np.atleast_1d(np.asarray(w, float)) for w in starts_w])
+    U, W = bc.solve_at(U0, W0)
+    notes = [
+        f"{W.size} solutions at {wanted.size} frequencies by Newton from the {crossing_count} "
+        f"crossings of the branches traced over Omega = {window[0]:.6g}..{window[1]:.6g} and "
+        "from a grid at each"
+    ]
+    branches: list[Branch] = []
+    if W.size:
+        b = bc.branch(U, W)
+        order = np.lexsort((b.amplitude, W))
+        Ws = W[order]
+        rank = np.zeros(W.size, int)
+        for w in wanted:
+            idx = np.nonzero(Ws == w)[0]
+            rank[idx] = np.arange(idx.size)
+        for r in range(int(rank.max()) + 1):
+            sel = order[rank == r]
+            branches.append(
+                Branch(
+                    omega=b.omega[sel],
+                    amplitude=b.amplitude[sel],
+                    first_harmonic_amplitude=b.first_harmonic_amplitude[sel],
+                    mean=b.mean[sel],
+                    stable=b.stable[sel],
+                    max_multiplier=b.max_multiplier[sel],
+                )
+            )
+    return Response(
+        tuple(branches),
+        traced.method,
+        traced.model,
+        dict(traced.params),
+        notes=tuple(notes) + traced.notes[:1],
     )
