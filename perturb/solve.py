@@ -144,7 +144,9 @@ def frequency_response(
     A symbolic approximation whose amplitude equation is a polynomial of degree <= 2 in
     ``Omega**2`` is traced by amplitude parametrisation; any other (second-order modified
     L-P, for instance) by seeding and continuation of its residuals
-    (:func:`perturb.numeric.residual.residual_response`).
+    (:func:`perturb.numeric.residual.residual_response`) — ``"shb"`` over a harmonic set or
+    with ``bias=True`` in all its unknowns (``a_n, b_n, c_0``), stability by Hill's method
+    truncated at its highest harmonic.
     """
     spec = registry.spec(method)
     if frequencies is not None:

@@ -6,7 +6,7 @@ Subcommands::
     perturb models                                  list the builtin models
     perturb fourier "EXPR" --A 2 [--b 0] --n 15     Fourier coefficients of a force f(x)
     perturb frc MODEL [--method hb1] [--param k=-2 ...] [--omega 0.2:2.0[:N] | w1,w2]
-                      [--out frc.csv] [--plot frc.png]
+                      [--harmonics H | 1,3 (shb)] [--out frc.csv] [--plot frc.png]
     perturb simulate MODEL [--param ...] --y0 x,v --t 0:100 [--method auto|exact|event|lcp|ode]
     perturb periodic MODEL [--param ...] --omega 0.6 [--m 1]
     perturb derive METHOD MODEL [--order N] [--param ...] [--latex F.tex] [--json F.json]

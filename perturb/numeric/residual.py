@@ -17,6 +17,18 @@ Here every branch is found by
 A detached loop is found when a seed frequency crosses it (the seeding grid is the knob).
 Stability is Hill's method about the approximate orbit, truncated at one harmonic as for the
 amplitude-parametrised solver, or the slow flow's Jacobian when the method gives one.
+
+Balance systems in more unknowns — symbolic harmonic balance over a harmonic set (``"shb"``,
+unknowns ``a_n, b_n`` and a mean ``c_0``) or with a bias (``A, b, phi``) — are traced the
+same way in all their unknowns (:class:`_BalanceCurves`): Newton starts put one harmonic at a
+time (the one at the forcing frequency, and the lowest of a subharmonic set) on the
+amplitude-times-phase grid with every other harmonic zero and each mean at zero and at the
+static equilibria (a bounded number of starts); every curve through a seed is continued both
+ways. Each solution's waveform is a trigonometric polynomial whose coefficients come exactly
+from an FFT of its samples: ``amplitude`` is max ``|x|`` at its refined critical points,
+``first_harmonic_amplitude`` the component at the forcing frequency, ``mean`` the constant
+term, and stability Hill's method truncated at the ansatz's highest harmonic (so its
+singularity falls on the balance's folds; numeric harmonic balance does the same).
 """
 
 from __future__ import annotations
@@ -340,6 +352,14 @@ def residual_response(
     -------
     Response
         One branch per traced curve; ``folds`` from the continuation.
+
+    Notes
+    -----
+    An approximation with more than two unknowns, or without an amplitude symbol (symbolic
+    harmonic balance over a harmonic set or with a bias), is traced in all its unknowns (see
+    the module docstring): ``seed_amplitudes`` and ``seed_phases`` then grid one harmonic at a
+    time, and ``max_correction`` has no effect (the waveform is the balance's own ansatz, and
+    an off-centre orbit's ``max|x|`` may well exceed twice its first harmonic).
 
     Raises
     ------
