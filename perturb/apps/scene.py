@@ -64,7 +64,6 @@ typo must not be silently ignored).
 from __future__ import annotations
 
 import json
-import math
 import sys
 import tomllib
 from collections.abc import Mapping
@@ -73,6 +72,7 @@ from importlib import resources
 from pathlib import Path
 from types import MappingProxyType
 
+from perturb import checks
 from perturb.atomic import check_distinct, write_text
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.builtins import builtin_model
@@ -183,7 +183,59 @@ def _scene_error(source: str, msg: str) -> PerturbError:
 
 
 def parse_scene(text: str, source: str = "<scene>") -> Scene:
-    """Read a scene from TOML text (no code is evaluated)."""
+    """Read a scene from TOML text (no code is evaluated).
+
+    The tables are read in a fixed order, one stage each: the TOML and its section/key names
+    (:func:`_scene_tables`), ``[model]``, ``[params]``, ``[ask]``, ``[method]``,
+    ``[compare]``, ``[plot]``, ``[output]``, ``[accuracy]``. A scene with several mistakes
+    reports the first in that order; every message names the table, the key and the bad value.
+
+    Parameters
+    ----------
+    text
+        The scene file's text.
+    source
+        How messages name the scene (its path, or ``"<default scene>"``).
+
+    Raises
+    ------
+    PerturbError
+        ``"scene <source>: ..."`` naming the first bad table, key or value.
+    """
+    data = _scene_tables(text, source)
+    name, equation = _model_table(source, data.get("model", {}))
+    params = _params_table(source, data.get("params", {}))
+    kind, points, fields = _ask_table(source, data.get("ask", {}))
+    method, method_fields = _method_table(source, data.get("method", {}), kind)
+    fields.update(method_fields)
+    fields.update(_compare_table(source, data.get("compare", {}), kind, method))
+    fields.update(_plot_table(source, data.get("plot", {}), kind))
+    outputs = _output_table(source, data.get("output", {}), kind)
+    rtol, accuracy_fields = _accuracy_table(source, data.get("accuracy", {}), kind, method)
+    fields.update(accuracy_fields)
+    return Scene(
+        model=str(name),
+        equation=equation,
+        params=MappingProxyType(params),
+        kind=kind,
+        points=points,
+        method=method,
+        rtol=rtol,
+        outputs=MappingProxyType(outputs),
+        source=source,
+        **fields,
+    )
+
+
+def _scene_tables(text: str, source: str) -> dict:
+    """The TOML document, after checking that every section is a known table and every key
+    one of its section's (``[params]`` takes any name: the model checks them).
+
+    Raises
+    ------
+    PerturbError
+        Invalid TOML, an unknown section, a section that is not a table, or an unknown key.
+    """
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -204,20 +256,62 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
                         f"unknown key {key!r} in [{section}]: expected one of "
                         + ", ".join(sorted(allowed)),
                     )
-    model = data.get("model", {})
+    return data
+
+
+def _model_table(source: str, model: dict) -> tuple[str, str | None]:
+    """``[model]``: ``(name, equation)`` -- a builtin ``name``, or an ``equation`` string
+    (named ``"custom"`` unless a name is given). The equation is only parsed (safely) when
+    the scene's oscillator is built.
+
+    Raises
+    ------
+    PerturbError
+        Neither key given, or an equation that is not a string.
+    """
     name = model.get("name", "custom" if "equation" in model else None)
     if name is None:
         raise _scene_error(source, "[model] needs a builtin 'name' or an 'equation'")
     equation = model.get("equation")
     if equation is not None and not isinstance(equation, str):
         raise _scene_error(source, f"[model] equation = {equation!r}: expected a string")
+    return name, equation
+
+
+def _params_table(source: str, table: dict) -> dict[str, float]:
+    """``[params]``: every value checked by the model layer's
+    :func:`~perturb.model.oscillator.validate_parameter_value` (a finite real number; its
+    message, prefixed with the scene)."""
     params = {}
-    for key, value in data.get("params", {}).items():
+    for key, value in table.items():
         try:
             params[key] = validate_parameter_value(key, value)
         except ParameterError as exc:
             raise _scene_error(source, str(exc)) from None
-    ask = data.get("ask", {})
+    return params
+
+
+#: ``[ask] points`` when not given, by kind (others: 2000).
+_DEFAULT_POINTS = {"frequency_response": 2000, "backbone": 200, "bifurcation_diagram": 60}
+#: Whole-number ``[ask]`` keys besides ``points``, with their limits (bounded work).
+_ASK_COUNTS = (
+    ("samples", 2, 10**7),
+    ("transient_periods", 0, 10**6),
+    ("record_periods", 1, 10**4),
+)
+
+
+def _ask_table(source: str, ask: dict) -> tuple[str, int, dict]:
+    """``[ask]``: ``(kind, points, fields)``, ``fields`` holding the :class:`Scene` fields the
+    table sets (``omega``, ``amplitude``, ``t``, ``values``, ``y0``, ``samples``,
+    ``transient_periods``, ``record_periods``, ``parameter``).
+
+    Raises
+    ------
+    PerturbError
+        An unknown kind, a key of another kind, a bad interval, ``y0`` or count, or a
+        bifurcation diagram without its ``parameter`` or ``values``.
+    """
     kind = ask.get("kind", "frequency_response")
     if kind not in _KINDS:
         raise _scene_error(source, f"[ask] kind = {kind!r}: expected one of {', '.join(_KINDS)}")
@@ -239,23 +333,16 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
         fields["values"] = _interval(source, "values", ask["values"], positive=False)
     if "y0" in ask:
         y0 = ask["y0"]
-        if not (
-            isinstance(y0, list) and len(y0) == 2 and all(_is_number(v) for v in y0)
-        ) or not all(math.isfinite(v) for v in y0):
+        if not _finite_list(y0, 2):
             raise _scene_error(source, f"[ask] y0 = {y0!r}: expected [x0, v0]")
         fields["y0"] = (float(y0[0]), float(y0[1]))
-    default_points = {"frequency_response": 2000, "backbone": 200, "bifurcation_diagram": 60}
-    points = ask.get("points", default_points.get(kind, 2000))
-    if not isinstance(points, int) or isinstance(points, bool) or not 10 <= points <= 10**6:
+    points = ask.get("points", _DEFAULT_POINTS.get(kind, 2000))
+    if not _is_count(points, 10, 10**6):
         raise _scene_error(source, f"[ask] points = {points!r}: expected an integer in [10, 1e6]")
-    for key, lo, hi in (
-        ("samples", 2, 10**7),
-        ("transient_periods", 0, 10**6),
-        ("record_periods", 1, 10**4),
-    ):
+    for key, lo, hi in _ASK_COUNTS:
         if key in ask:
             value = ask[key]
-            if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
+            if not _is_count(value, lo, hi):
                 raise _scene_error(
                     source, f"[ask] {key} = {value!r}: expected an integer in [{lo}, {hi}]"
                 )
@@ -269,12 +356,26 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
         if "values" not in fields:
             raise _scene_error(source, "[ask] values = [lo, hi] is needed for the diagram")
         fields["parameter"] = parameter
+    return kind, points, fields
 
-    method_table = data.get("method", {})
-    method = method_table.get(
-        "name", "auto" if kind in ("time_history", "step_response") else "hb1"
-    )
-    if kind in ("time_history", "step_response", "bifurcation_diagram"):
+
+#: Kinds whose ``[method] name`` is an integrator, not a method of the registry.
+_INTEGRATOR_KINDS = ("time_history", "step_response", "bifurcation_diagram")
+
+
+def _method_table(source: str, table: dict, kind: str) -> tuple[str, dict]:
+    """``[method]``: ``(method, fields)`` -- the canonical method name (aliases resolved by
+    the registry) or the integrator, and the options the registry validated (``order``,
+    ``harmonics``, ``all_branches``).
+
+    Raises
+    ------
+    PerturbError
+        An unknown method or integrator, an option of the wrong type, options given to an
+        integrator, or an option the method refuses (the registry's message).
+    """
+    method = table.get("name", "auto" if kind in ("time_history", "step_response") else "hb1")
+    if kind in _INTEGRATOR_KINDS:
         if method not in _INTEGRATORS:
             raise _scene_error(
                 source,
@@ -285,34 +386,46 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
         spec = _method_spec(source, "[method] name =", method)
         method = spec.name
     for key in ("order", "harmonics"):
-        if key in method_table:
-            value = method_table[key]
+        if key in table:
+            value = table[key]
             if not isinstance(value, int) or isinstance(value, bool):
                 raise _scene_error(
                     source, f"[method] {key} = {value!r}: expected a positive integer"
                 )
-    if "all_branches" in method_table:
-        value = method_table["all_branches"]
+    if "all_branches" in table:
+        value = table["all_branches"]
         if not isinstance(value, bool):
             raise _scene_error(source, f"[method] all_branches = {value!r}: expected true or false")
-    given = {
-        k: method_table[k] for k in ("order", "harmonics", "all_branches") if k in method_table
-    }
-    if given and kind in ("time_history", "step_response", "bifurcation_diagram"):
+    given = {k: table[k] for k in ("order", "harmonics", "all_branches") if k in table}
+    if given and kind in _INTEGRATOR_KINDS:
         raise _scene_error(
             source, f"[method] {', '.join(given)}: not options of the integrator {method!r}"
         )
-    if given:
-        # the method's own options and limits (the registry's), before any work
-        try:
-            fields.update(spec.validate(given, prefix="[method] "))
-        except ParameterError as exc:
-            raise _scene_error(source, str(exc)) from None
-    compare_table = data.get("compare", {})
-    if compare_table and kind != "frequency_response":
+    if not given:
+        return method, {}
+    # the method's own options and limits (the registry's), before any work
+    try:
+        return method, dict(spec.validate(given, prefix="[method] "))
+    except ParameterError as exc:
+        raise _scene_error(source, str(exc)) from None
+
+
+def _compare_table(source: str, table: dict, kind: str, method: str) -> dict:
+    """``[compare]`` (frequency responses only): the ``reference`` (``"exact"``) and the
+    further ``methods`` (``compare_methods``), as :class:`Scene` fields.
+
+    Raises
+    ------
+    PerturbError
+        The table under another kind, a reference other than exact (or exact against
+        itself), a method that is not in the registry (or ``auto``), a method twice (the
+        scene's own included), or ``exact`` both as reference and among the methods.
+    """
+    if table and kind != "frequency_response":
         raise _scene_error(source, f"[compare] does not apply to kind {kind!r}")
-    if "reference" in compare_table:
-        ref = compare_table["reference"]
+    fields: dict = {}
+    if "reference" in table:
+        ref = table["reference"]
         if ref != "exact":
             raise _scene_error(source, f"[compare] reference = {ref!r}: expected 'exact'")
         if method == "exact":
@@ -322,8 +435,8 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
                 "the exact response with what? Give another method or drop the reference",
             )
         fields["reference"] = ref
-    if "methods" in compare_table:
-        names = compare_table["methods"]
+    if "methods" in table:
+        names = table["methods"]
         if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
             raise _scene_error(
                 source, f"[compare] methods = {names!r}: expected a list of method names"
@@ -342,39 +455,48 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
         if "reference" in fields and "exact" in names:
             raise _scene_error(source, "[compare] 'exact' is already the reference")
         fields["compare_methods"] = tuple(names)
-    plot_table = data.get("plot", {})
-    if plot_table and kind != "frequency_response":
+    return fields
+
+
+def _plot_table(source: str, table: dict, kind: str) -> dict:
+    """``[plot]`` (frequency responses only): ``{"plot": options}`` when any is given --
+    ``mean`` and ``log_amplitude`` (booleans), ``zoom`` (four finite numbers, lo < hi)."""
+    if table and kind != "frequency_response":
         raise _scene_error(source, f"[plot] does not apply to kind {kind!r}")
     plot_opts: dict = {}
     for key in ("mean", "log_amplitude"):
-        if key in plot_table:
-            if not isinstance(plot_table[key], bool):
-                raise _scene_error(
-                    source, f"[plot] {key} = {plot_table[key]!r}: expected true or false"
-                )
-            plot_opts[key] = plot_table[key]
-    if "zoom" in plot_table:
-        z = plot_table["zoom"]
-        if not (
-            isinstance(z, list)
-            and len(z) == 4
-            and all(_is_number(v) and math.isfinite(v) for v in z)
-            and z[0] < z[1]
-            and z[2] < z[3]
-        ):
+        if key in table:
+            if not isinstance(table[key], bool):
+                raise _scene_error(source, f"[plot] {key} = {table[key]!r}: expected true or false")
+            plot_opts[key] = table[key]
+    if "zoom" in table:
+        z = table["zoom"]
+        if not (_finite_list(z, 4) and z[0] < z[1] and z[2] < z[3]):
             raise _scene_error(
                 source,
                 f"[plot] zoom = {z!r}: expected [omega_lo, omega_hi, amplitude_lo, "
                 "amplitude_hi] with lo < hi",
             )
         plot_opts["zoom"] = tuple(float(v) for v in z)
-    if plot_opts:
-        fields["plot"] = MappingProxyType(plot_opts)
+    return {"plot": MappingProxyType(plot_opts)} if plot_opts else {}
+
+
+def _output_table(source: str, table: dict, kind: str) -> dict[str, str]:
+    """``[output]``: the file name of each output, defaults filled in by kind (``latex`` for
+    frequency responses only).
+
+    Raises
+    ------
+    PerturbError
+        A name that is not a plain file name (directories would let a scene write anywhere).
+    ParameterError
+        Two outputs with the same name.
+    """
     csv_name, png_name = _DEFAULT_NAMES[kind]
     outputs = {"csv": csv_name, "png": png_name, "report": "report.json"}
     if kind == "frequency_response":
         outputs["latex"] = "derivation.tex"
-    for key, value in data.get("output", {}).items():
+    for key, value in table.items():
         if not isinstance(value, str) or not value or Path(value).name != value:
             raise _scene_error(
                 source, f"[output] {key} = {value!r}: expected a plain file name (no directories)"
@@ -384,8 +506,20 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
         check_distinct(outputs.values())
     except ParameterError as exc:
         raise ParameterError(f"scene {source}: [output] {exc}") from None
-    accuracy = data.get("accuracy", {})
-    rtol = accuracy.get("rtol")
+    return outputs
+
+
+def _accuracy_table(source: str, table: dict, kind: str, method: str) -> tuple[float | None, dict]:
+    """``[accuracy]``: ``(rtol, fields)`` -- the tolerance of ``method = "auto"`` (checked by
+    :func:`perturb.auto.check_rtol`, required for an auto frequency response) and its spot
+    frequencies (``spots``, positive and finite).
+
+    Raises
+    ------
+    PerturbError
+        A bad ``rtol`` or ``spots``, or an auto frequency response without ``rtol``.
+    """
+    rtol = table.get("rtol")
     if rtol is not None:
         from perturb.auto import check_rtol
 
@@ -395,29 +529,14 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
             raise _scene_error(source, f"[accuracy] {exc}") from None
     if method == "auto" and kind == "frequency_response" and rtol is None:
         raise _scene_error(source, "[method] name = 'auto' needs [accuracy] rtol = ...")
-    if "spots" in accuracy:
-        spots = accuracy["spots"]
-        if (
-            not isinstance(spots, list)
-            or not spots
-            or not all(_is_number(w) and 0 < w < math.inf for w in spots)
-        ):
-            raise _scene_error(
-                source, f"[accuracy] spots = {spots!r}: expected a list of positive frequencies"
-            )
-        fields["spots"] = tuple(float(w) for w in spots)
-    return Scene(
-        model=str(name),
-        equation=equation,
-        params=MappingProxyType(params),
-        kind=kind,
-        points=points,
-        method=method,
-        rtol=rtol,
-        outputs=MappingProxyType(outputs),
-        source=source,
-        **fields,
-    )
+    if "spots" not in table:
+        return rtol, {}
+    spots = table["spots"]
+    if not isinstance(spots, list) or not spots or not all(_is_positive(w) for w in spots):
+        raise _scene_error(
+            source, f"[accuracy] spots = {spots!r}: expected a list of positive frequencies"
+        )
+    return rtol, {"spots": tuple(float(w) for w in spots)}
 
 
 def _method_spec(source: str, what: str, name: object):
@@ -431,16 +550,48 @@ def _method_spec(source: str, what: str, name: object):
 
 
 def _is_number(v: object) -> bool:
+    """A TOML integer or float (TOML booleans are Python bools, refused)."""
     return isinstance(v, int | float) and not isinstance(v, bool)
 
 
+def _is_finite(v: object) -> bool:
+    """A finite TOML number (:func:`perturb.checks.finite` also refuses bools and strings)."""
+    try:
+        checks.finite(v, "value")
+    except ParameterError:
+        return False
+    return _is_number(v)
+
+
+def _is_positive(v: object) -> bool:
+    """A finite TOML number > 0 (a frequency)."""
+    return _is_finite(v) and v > 0  # type: ignore[operator]
+
+
+def _finite_list(value: object, n: int) -> bool:
+    """A TOML array of ``n`` finite numbers."""
+    return isinstance(value, list) and len(value) == n and all(_is_finite(v) for v in value)
+
+
+def _is_count(value: object, low: int, high: int) -> bool:
+    """A TOML integer (not a float: TOML tells them apart, and ``points = 100.0`` is refused)
+    within ``[low, high]`` (:func:`perturb.checks.whole`)."""
+    if not isinstance(value, int) or isinstance(value, bool):
+        return False
+    try:
+        checks.whole(value, "value", low, high)
+    except ParameterError:
+        return False
+    return True
+
+
 def _interval(source: str, key: str, value: object, *, positive: bool) -> tuple[float, float]:
+    """``[ask] key = [low, high]``: two finite numbers, ``low < high`` (and ``low > 0`` when
+    ``positive``) -- the scene's own message, naming the key and the value."""
     ok = (
-        isinstance(value, list)
-        and len(value) == 2
-        and all(_is_number(w) and math.isfinite(w) for w in value)
-        and value[0] < value[1]
-        and (not positive or value[0] > 0)
+        _finite_list(value, 2)
+        and value[0] < value[1]  # type: ignore[index]
+        and (not positive or value[0] > 0)  # type: ignore[index]
     )
     if not ok:
         cond = "0 < low < high" if positive else "low < high"
