@@ -71,6 +71,7 @@ continuous ``nsd`` force), truncated at ``harmonics``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
 
@@ -88,6 +89,7 @@ from perturb.methods.series import (
     Expansion,
     LaurentPolynomial,
     Series,
+    SplitModel,
     check_options,
     closed_form_step,
     derivation_step,
@@ -163,6 +165,60 @@ def _readable_difference(A: sp.Symbol, W: sp.Expr, f1: sp.Expr) -> sp.Expr:
     return sp.Add(*terms, evaluate=False)
 
 
+@dataclass
+class _Setup:
+    """Everything the stages of the derivation share: the model split about
+    :math:`\\omega_0`, the method's symbols and the expansion :math:`x = \\sum \\alpha^n x_n`
+    as it grows."""
+
+    osc: Oscillator
+    order: int
+    amplitude: str
+    model: SplitModel
+    forced: bool
+    damped: bool
+    A: sp.Symbol
+    tau: sp.Symbol
+    psi: sp.Symbol
+    phi: sp.Symbol
+    nu: sp.Dummy
+    alpha: sp.Dummy
+    deltas: list[Any]
+    F: sp.Expr
+    Omega: sp.Expr
+    mu: sp.Expr
+    eps: sp.Dummy
+    om1: sp.Dummy
+    om2: sp.Dummy
+    inv_nu: LaurentPolynomial
+    damp_lp: LaurentPolynomial
+    A_lp: LaurentPolynomial
+    w2_lp: LaurentPolynomial
+    exp: Expansion
+    xf: list[Any]
+
+    @property
+    def w0(self) -> sp.Expr:
+        return self.model.w0
+
+    @property
+    def w2(self) -> sp.Expr:
+        return self.model.w2
+
+
+@dataclass
+class _Orders:
+    """What the orders :math:`\\alpha^1 \\dots \\alpha^N` determined: the first harmonic of
+    :math:`g` (``g1``), the :math:`\\delta_n`, the sine coefficients :math:`S_n` (forced, order
+    >= 2) and the first-order cosine/sine secular coefficients."""
+
+    g1: LaurentPolynomial
+    fourier: dict[str, sp.Expr]
+    delta_val: dict[int, LaurentPolynomial]
+    sines: dict[int, LaurentPolynomial]
+    first: tuple[LaurentPolynomial, LaurentPolynomial]
+
+
 @states_caveats
 def modified_lindstedt(
     oscillator: Oscillator,
@@ -216,7 +272,23 @@ def modified_lindstedt(
         above :data:`PWL_MAX_ORDER`, an order above
         :data:`~perturb.methods.applicability.ORDER_LIMITS` ``["mlp"]``.
     """
-    osc = oscillator
+    s = _setup(oscillator, order, amplitude, omega0, harmonics)
+    steps = _transformation_steps(s) + _expansion_steps(s)
+    orders = _solve_orders(s, steps)
+    sol = _Solution(s, orders.delta_val)
+    options: dict[str, Any] = {"order": s.order, "amplitude": amplitude, "omega0": s.w0}
+    options["harmonics"] = sol.hmax
+    if not s.forced:
+        return _free_result(s, orders, sol, options, steps)
+    if s.order == 1:
+        return _forced_first_order_result(s, orders, sol, options, steps)
+    return _forced_higher_order_result(s, orders, sol, options, steps)
+
+
+def _setup(osc: Oscillator, order: int, amplitude: str, omega0: Any, harmonics: int) -> _Setup:
+    """Check that the model is one the method covers, split its restoring force about
+    :math:`\\omega_0` and introduce the method's symbols and the generating solution
+    :math:`x_0 = A\\cos\\psi`."""
     order = check_order("mlp", check_options(order, amplitude, harmonics))
     if osc.velocity != 0 or osc.parametric != 0:
         raise ModelError(
@@ -245,16 +317,8 @@ def modified_lindstedt(
             f"order = {order} for the piecewise-linear model {osc.name!r}: expected at most "
             f"{PWL_MAX_ORDER} (higher orders need products of whole truncated series)"
         )
-    w0, w2 = model.w0, model.w2
-    w0_lp = omega0_coefficient(w0)
-    w2_lp = w0_lp * w0_lp
-    nmax = harmonics if model.ramps else None
-    force = model.force
-
+    w0_lp = omega0_coefficient(model.w0)
     A = sp.Symbol("A", positive=True)
-    tau = real_symbol("tau")
-    psi = real_symbol("psi")
-    phi = real_symbol("phi")
     nu = method_dummy("nu")
     alpha = method_dummy("alphahat" if "alpha" in osc.params else "alpha")
     deltas = [None, None] + [method_dummy(f"delta_{n}") for n in range(2, order + 1)]
@@ -264,28 +328,57 @@ def modified_lindstedt(
     else:
         F, Omega, mu = sp.Integer(0), free_symbol(osc, "omega"), sp.Integer(0)
     eps, om1, om2 = method_dummy("varepsilon"), method_dummy("omega_1"), method_dummy("omega_2")
-    cphi, sphi = sp.cos(phi), sp.sin(phi)
     inv_nu = LaurentPolynomial.atom(nu, -1)
-    damp_lp = lift(mu) * lift(Omega) * inv_nu  # mu Omega / nu
     A_lp = LaurentPolynomial.atom(A)
+    return _Setup(
+        osc=osc,
+        order=order,
+        amplitude=amplitude,
+        model=model,
+        forced=forced is not None,
+        damped=damped,
+        A=A,
+        tau=real_symbol("tau"),
+        psi=real_symbol("psi"),
+        phi=real_symbol("phi"),
+        nu=nu,
+        alpha=alpha,
+        deltas=deltas,
+        F=F,
+        Omega=Omega,
+        mu=mu,
+        eps=eps,
+        om1=om1,
+        om2=om2,
+        inv_nu=inv_nu,
+        damp_lp=lift(mu) * lift(Omega) * inv_nu,  # mu Omega / nu
+        A_lp=A_lp,
+        w2_lp=w0_lp * w0_lp,
+        exp=Expansion({1: (A_lp, ZERO)}, A, harmonics if model.ramps else None),
+        xf=[sp.Function(f"x_{n}") for n in range(order + 1)],
+    )
 
-    exp = Expansion({1: (A_lp, ZERO)}, A, nmax)
-    xf = [sp.Function(f"x_{n}") for n in range(order + 1)]
+
+def _transformation_steps(s: _Setup) -> list[Step]:
+    """Derivation steps 1–3: the equation of motion, the split of the restoring force about
+    :math:`\\omega_0^2 x` and the :math:`\\alpha`-transformation of :math:`\\Omega^2`."""
+    osc, w2, alpha, deltas = s.osc, s.w2, s.alpha, s.deltas
     xpp = real_symbol(osc.x.name + "''")
-    g_expr = model.g_written(osc)
     gfun = sp.Function("g")
-    steps: list[Step] = [
+    return [
         derivation_step("Equation of motion", (osc.equation,)),
         derivation_step(
             "Split of the restoring force",
             (
-                equation(gfun(osc.x), g_expr),
-                equation(xpp + mu * osc.v + w2 * osc.x + gfun(osc.x), F * sp.cos(Omega * osc.t)),
+                equation(gfun(osc.x), s.model.g_written(osc)),
+                equation(
+                    xpp + s.mu * osc.v + w2 * osc.x + gfun(osc.x), s.F * sp.cos(s.Omega * osc.t)
+                ),
             ),
             "The restoring force is a linear reference term plus the remainder $g$"
             + (
                 " (the reference stiffness is the mean stiffness of the outer segments)"
-                if model.ramps and model.default_w0
+                if s.model.ramps and s.model.default_w0
                 else ""
             )
             + ". The damping, $g$ and the forcing are taken small, of order $\\varepsilon$.",
@@ -293,15 +386,15 @@ def modified_lindstedt(
         derivation_step(
             "Alpha-transformation",
             (
-                equation(tau, Omega * osc.t),
-                equation(Omega**2, w2 + eps * om1 + eps**2 * om2 + sp.Symbol("...")),
-                equation(nu, eps * om1),
-                equation(alpha, eps * om1 / (w2 + eps * om1)),
-                equation(alpha, nu / (w2 + nu)),
+                equation(s.tau, s.Omega * osc.t),
+                equation(s.Omega**2, w2 + s.eps * s.om1 + s.eps**2 * s.om2 + sp.Symbol("...")),
+                equation(s.nu, s.eps * s.om1),
+                equation(alpha, s.eps * s.om1 / (w2 + s.eps * s.om1)),
+                equation(alpha, s.nu / (w2 + s.nu)),
                 equation(
-                    Omega**2,
+                    s.Omega**2,
                     w2
-                    * (1 + sp.Add(*(deltas[n] * alpha**n for n in range(2, order + 1))))
+                    * (1 + sp.Add(*(deltas[n] * alpha**n for n in range(2, s.order + 1))))
                     / (1 - alpha),
                 ),
             ),
@@ -310,23 +403,32 @@ def modified_lindstedt(
             "$\\alpha$ (Cheung, Chen and Lau), which stays below one however strong the "
             "nonlinearity; the higher shifts become the coefficients $\\delta_n$.",
         ),
+    ]
+
+
+def _expansion_steps(s: _Setup) -> list[Step]:
+    """Derivation steps 4–5: the transformed equation, linear in :math:`\\alpha` apart from
+    the :math:`\\delta_n`, the expansion :math:`x = \\sum\\alpha^n x_n` and its order zero,
+    :math:`x_0 = A\\cos\\psi`."""
+    osc, tau, alpha, xf, nu = s.osc, s.tau, s.alpha, s.xf, s.nu
+    return [
         derivation_step(
             "Transformed equation and expansion",
             (
                 equation(
-                    (1 + sp.Add(*(deltas[n] * alpha**n for n in range(2, order + 1))))
+                    (1 + sp.Add(*(s.deltas[n] * alpha**n for n in range(2, s.order + 1))))
                     * sp.Derivative(osc.x, tau, 2)
                     + osc.x
                     + alpha
                     * (
-                        mu * Omega / nu * sp.Derivative(osc.x, tau)
+                        s.mu * s.Omega / nu * sp.Derivative(osc.x, tau)
                         - osc.x
-                        + gfun(osc.x) / nu
-                        - F / nu * sp.cos(tau)
+                        + sp.Function("g")(osc.x) / nu
+                        - s.F / nu * sp.cos(tau)
                     ),
                     0,
                 ),
-                equation(osc.x, sp.Add(*(alpha**n * xf[n](tau) for n in range(order + 1)))),
+                equation(osc.x, sp.Add(*(alpha**n * xf[n](tau) for n in range(s.order + 1)))),
             ),
             "Dividing by the squared frequency at first order, $\\omega_0^2 + \\nu$, leaves an "
             "equation linear in $\\alpha$ apart from the $\\delta_n$; $x$ is expanded in powers "
@@ -336,23 +438,31 @@ def modified_lindstedt(
             "Order zero in $\\alpha$",
             (
                 equation(sp.Derivative(xf[0](tau), tau, 2) + xf[0](tau), 0),
-                equation(xf[0](tau), A * sp.cos(psi)),
-                equation(psi, tau + phi),
+                equation(xf[0](tau), s.A * sp.cos(s.psi)),
+                equation(s.psi, tau + s.phi),
             ),
             "The amplitude $A$ is "
             + (
                 "the initial value $x(0)$."
-                if amplitude == "initial"
+                if s.amplitude == "initial"
                 else "that of the first harmonic."
             )
-            + ("" if forced else " The phase of a free oscillation is arbitrary and set to zero."),
+            + (
+                "" if s.forced else " The phase of a free oscillation is arbitrary and set to zero."
+            ),
         ),
     ]
-    g0 = exp.compose(force, 0)
+
+
+def _fourier_of_g(s: _Setup, steps: list[Step]) -> tuple[LaurentPolynomial, dict[str, sp.Expr]]:
+    """Fourier coefficients of :math:`g(A\\cos\\psi)` along the generating solution (closed-form
+    ramp/step coefficients for piecewise-linear terms); appends their derivation step and
+    returns :math:`\\hat g_1` and the ``fourier`` field."""
+    g0 = s.exp.compose(s.model.force, 0)
     g1 = g0.get(1, (ZERO, ZERO))[0]
-    ghat = sp.Function("ghat_1")(A)
+    ghat = sp.Function("ghat_1")(s.A)
     fourier = {f"g_{n}": (2 * c if n == 0 else c).to_sympy() for n, (c, _) in g0.items()}
-    fourier["f_1"] = (w2_lp * A_lp + g1).to_sympy()
+    fourier["f_1"] = (s.w2_lp * s.A_lp + g1).to_sympy()
     cf = closed_form_step(ghat, g1.to_sympy(), "First harmonic of $g$ in closed form")
     steps.append(
         derivation_step(
@@ -365,70 +475,104 @@ def modified_lindstedt(
     )
     if cf is not None:
         steps.append(cf)
+    return g1, fourier
 
+
+def _order_rhs(s: _Setup, n: int, delta_val: dict[int, LaurentPolynomial]) -> Series:
+    """Right-hand side of :math:`x_n'' + x_n = \\dots` at order :math:`\\alpha^n`, collected by
+    harmonic of :math:`\\psi` (the :math:`\\delta_n x_0''` term, unknown yet, left out)."""
+    exp = s.exp
+    terms: list[tuple[Any, Series]] = [
+        (1, exp.x[n - 1]),
+        (-s.inv_nu, exp.compose(s.model.force, n - 1)),
+    ]
+    if s.damped:
+        terms.append((-s.damp_lp, series_derivative(exp.x[n - 1])))
+    for j in range(2, n):
+        terms.append((-delta_val[j], series_derivative(exp.x[n - j], 2)))
+    if n == 1 and s.forced:
+        # (F/nu) cos(psi - phi) = (F/nu)(cos phi cos psi + sin phi sin psi)
+        fl = lift(s.F) * s.inv_nu
+        cs = (LaurentPolynomial.atom(sp.cos(s.phi)), LaurentPolynomial.atom(sp.sin(s.phi)))
+        terms.append((fl, {1: cs}))
+    return series_combine(*terms)
+
+
+def _first_order_conditions(
+    s: _Setup, c1: LaurentPolynomial, s1: LaurentPolynomial, g1: LaurentPolynomial
+) -> tuple[tuple[sp.Equality, ...], str]:
+    """Secular conditions at order :math:`\\alpha^1`: free, :math:`\\nu = \\hat g_1/A`; forced,
+    the :math:`\\cos\\psi` and :math:`\\sin\\psi` coefficients (Zou–Nagarajaiah (54)–(55))."""
+    if not s.forced:
+        if s1:
+            raise ModelError(f"sine secular term {s1.to_sympy()}: not conservative")
+        conditions = (equation(s.nu, tidy_coefficient(g1 / s.A_lp)),)
+        note = "No secular term: the coefficient of $\\cos\\psi$ vanishes, which gives $\\nu$."
+        return conditions, note
+    conditions = (
+        equation(tidy_coefficient(c1 * LaurentPolynomial.atom(s.nu)), 0),
+        equation(tidy_coefficient(s1 * LaurentPolynomial.atom(s.nu)), 0),
+    )
+    note = "No secular terms: the coefficients of $\\cos\\psi$ and $\\sin\\psi$ vanish" + (
+        ". Times $\\nu$, these are Zou and Nagarajaiah's eqs. (54) and (55) for "
+        "their model, without the bookkeeping parameter."
+        if s.model.ramps
+        else "."
+    )
+    return conditions, note
+
+
+def _higher_order_conditions(
+    s: _Setup,
+    n: int,
+    c1: LaurentPolynomial,
+    s1: LaurentPolynomial,
+    delta_val: dict[int, LaurentPolynomial],
+    sines: dict[int, LaurentPolynomial],
+) -> tuple[tuple[sp.Equality, ...], str]:
+    """Secular conditions at order :math:`\\alpha^n`, :math:`n \\ge 2`: the :math:`\\cos\\psi`
+    coefficient fixes :math:`\\delta_n` (stored in ``delta_val``); a :math:`\\sin\\psi`
+    coefficient (forced only) is kept in ``sines`` for the phase condition."""
+    # the unknown enters as -delta_n x_0'' = delta_n A cos(psi)
+    delta_val[n] = -c1 / s.A_lp
+    if s1:
+        sines[n] = s1
+        if not s.forced:
+            raise ModelError(f"sine secular term {s1.to_sympy()}: not conservative")
+    conditions = (equation(s.deltas[n], tidy_coefficient(delta_val[n])),)
+    note = (
+        "No secular term: the coefficient of $\\cos\\psi$ vanishes, which gives "
+        f"$\\delta_{n}$"
+        + ("; the coefficient of $\\sin\\psi$ joins the phase condition." if n in sines else ".")
+    )
+    return conditions, note
+
+
+def _solve_orders(s: _Setup, steps: list[Step]) -> _Orders:
+    """Orders :math:`\\alpha^1 \\dots \\alpha^N`: collect by harmonic, impose the secular
+    conditions, solve for :math:`x_n` (shifted to vanish at :math:`\\tau = 0` for
+    ``amplitude="initial"``) and append one derivation step per order."""
+    g1, fourier = _fourier_of_g(s, steps)
     delta_val: dict[int, LaurentPolynomial] = {}
     sines: dict[int, LaurentPolynomial] = {}
     first: tuple[LaurentPolynomial, LaurentPolynomial] | None = None
-    for n in range(1, order + 1):
-        terms: list[tuple[Any, Series]] = [(1, exp.x[n - 1]), (-inv_nu, exp.compose(force, n - 1))]
-        if damped:
-            terms.append((-damp_lp, series_derivative(exp.x[n - 1])))
-        for j in range(2, n):
-            terms.append((-delta_val[j], series_derivative(exp.x[n - j], 2)))
-        if n == 1 and forced is not None:
-            # (F/nu) cos(psi - phi) = (F/nu)(cos phi cos psi + sin phi sin psi)
-            fl = lift(F) * inv_nu
-            terms.append((fl, {1: (LaurentPolynomial.atom(cphi), LaurentPolynomial.atom(sphi))}))
-        rhs = series_combine(*terms)
+    tau, psi, xf = s.tau, s.psi, s.xf
+    for n in range(1, s.order + 1):
+        rhs = _order_rhs(s, n, delta_val)
         c1, s1 = rhs.get(1, (ZERO, ZERO))
         shown = series_to_sympy(rhs, psi, tidy=True)
         if n == 1:
             first = (c1, s1)
-            if forced is None:
-                if s1:
-                    raise ModelError(f"sine secular term {s1.to_sympy()}: not conservative")
-                conditions = (equation(nu, tidy_coefficient(g1 / A_lp)),)
-                note = (
-                    "No secular term: the coefficient of $\\cos\\psi$ vanishes, which gives $\\nu$."
-                )
-            else:
-                conditions = (
-                    equation(tidy_coefficient(c1 * LaurentPolynomial.atom(nu)), 0),
-                    equation(tidy_coefficient(s1 * LaurentPolynomial.atom(nu)), 0),
-                )
-                note = (
-                    "No secular terms: the coefficients of $\\cos\\psi$ and $\\sin\\psi$ vanish"
-                    + (
-                        ". Times $\\nu$, these are Zou and Nagarajaiah's eqs. (54) and (55) for "
-                        "their model, without the bookkeeping parameter."
-                        if model.ramps
-                        else "."
-                    )
-                )
+            conditions, note = _first_order_conditions(s, c1, s1, g1)
         else:
-            # the unknown enters as -delta_n x_0'' = delta_n A cos(psi)
-            delta_val[n] = -c1 / A_lp
-            if s1:
-                sines[n] = s1
-                if forced is None:
-                    raise ModelError(f"sine secular term {s1.to_sympy()}: not conservative")
-            conditions = (equation(deltas[n], tidy_coefficient(delta_val[n])),)
-            note = (
-                "No secular term: the coefficient of $\\cos\\psi$ vanishes, which gives "
-                f"$\\delta_{n}$"
-                + (
-                    "; the coefficient of $\\sin\\psi$ joins the phase condition."
-                    if n in sines
-                    else "."
-                )
-            )
+            conditions, note = _higher_order_conditions(s, n, c1, s1, delta_val, sines)
         xn = series_solve(rhs)
-        if amplitude == "initial":
+        if s.amplitude == "initial":
             at0 = series_at_zero(xn)
             if at0:
                 xn = series_combine((1, xn), (-at0, {1: (ONE, ZERO)}))
-        exp.push(xn)
-        shown_delta = deltas[n] * A * sp.cos(psi) if n >= 2 else 0
+        s.exp.push(xn)
+        shown_delta = s.deltas[n] * s.A * sp.cos(psi) if n >= 2 else 0
         steps.append(
             derivation_step(
                 f"Order {n} in $\\alpha$",
@@ -440,191 +584,231 @@ def modified_lindstedt(
                 note,
             )
         )
-
     assert first is not None
-    # alpha^n x_n = beta^n (nu^n x_n), beta = alpha/nu = 1/(omega_0^2 + nu): nu^n x_n is a
-    # polynomial in nu, so nothing is singular where nu = 0
-    beta = 1 / (w2 + nu)
-    scaled: list[Series] = []
-    for n in range(1, order + 1):
-        nun = LaurentPolynomial.atom(nu, n)
-        scaled.append({m: (c * nun, s * nun) for m, (c, s) in exp.x[n].items()})
-        assert all(min(v.degree(nu)[0] for v in cs) >= 0 for cs in scaled[-1].values())
-    corr_terms = [
-        beta**n * (delta_val[n] * LaurentPolynomial.atom(nu, n)).to_sympy() for n in delta_val
-    ]
-    freq_factor = 1 + sp.Add(*corr_terms)  # 1 + sum delta_n alpha^n
+    return _Orders(g1, fourier, delta_val, sines, first)
 
-    def waveform_in(psi_value: sp.Expr, tidy: bool = False) -> sp.Expr:
+
+class _Solution:
+    r"""Assembly of the solution: :math:`\alpha^n x_n = \beta^n (\nu^n x_n)` with
+    :math:`\beta = \alpha/\nu = 1/(\omega_0^2 + \nu)`, and the frequency factor
+    :math:`1 + \sum\delta_n\alpha^n`; :math:`\nu^n x_n` is a polynomial in :math:`\nu`, so
+    nothing is singular where :math:`\nu = 0`."""
+
+    def __init__(self, s: _Setup, delta_val: dict[int, LaurentPolynomial]) -> None:
+        self.s = s
+        nu = s.nu
+        self.beta = 1 / (s.w2 + nu)
+        self.scaled: list[Series] = []
+        for n in range(1, s.order + 1):
+            nun = LaurentPolynomial.atom(nu, n)
+            self.scaled.append({m: (c * nun, sn * nun) for m, (c, sn) in s.exp.x[n].items()})
+            assert all(min(v.degree(nu)[0] for v in cs) >= 0 for cs in self.scaled[-1].values())
+        corr_terms = [
+            self.beta**n * (delta_val[n] * LaurentPolynomial.atom(nu, n)).to_sympy()
+            for n in delta_val
+        ]
+        self.freq_factor = 1 + sp.Add(*corr_terms)  # 1 + sum delta_n alpha^n
+        self.hmax = max([1] + [m for ser in self.scaled for m in ser])
+
+    def waveform_in(self, psi_value: sp.Expr, tidy: bool = False) -> sp.Expr:
+        """:math:`x` with :math:`\\psi` = ``psi_value`` (coefficients tidied for display)."""
         conv = tidy_coefficient if tidy else LaurentPolynomial.to_sympy
-        out = A * sp.cos(psi_value)
-        for n, ser in enumerate(scaled, start=1):
-            for m, (c, s) in sorted(ser.items()):
-                trig = conv(c) * sp.cos(m * psi_value) + conv(s) * sp.sin(m * psi_value)
-                out += beta**n * trig
+        out = self.s.A * sp.cos(psi_value)
+        for n, ser in enumerate(self.scaled, start=1):
+            for m, (c, sn) in sorted(ser.items()):
+                trig = conv(c) * sp.cos(m * psi_value) + conv(sn) * sp.sin(m * psi_value)
+                out += self.beta**n * trig
         return out
 
-    def shown_wave(psi_value: sp.Expr, reps: dict | None = None) -> sp.Equality:
+    def shown_wave(self, psi_value: sp.Expr, reps: dict | None = None) -> sp.Equality:
         """The waveform for the text: explicit when short, else as the sum of the x_n."""
-        terms = sum(len(c.t) + len(s.t) for ser in scaled for c, s in ser.values())
+        s = self.s
+        terms = sum(len(c.t) + len(sn.t) for ser in self.scaled for c, sn in ser.values())
         if terms <= 60:
-            explicit = waveform_in(psi_value, tidy=True).xreplace(reps or {})
+            explicit = self.waveform_in(psi_value, tidy=True).xreplace(reps or {})
             if is_short(explicit):
-                return equation(osc.x, explicit)
-        return equation(osc.x, sp.Add(*(alpha**n * xf[n](tau) for n in range(order + 1))))
+                return equation(s.osc.x, explicit)
+        return equation(s.osc.x, sp.Add(*(s.alpha**n * s.xf[n](s.tau) for n in range(s.order + 1))))
 
-    options: dict[str, Any] = {"order": order, "amplitude": amplitude, "omega0": w0}
-    hmax = max([1] + [m for ser in scaled for m in ser])
-    options["harmonics"] = hmax
-    f1 = fourier["f_1"]
-    g1_sym = g1.to_sympy()
 
-    if forced is None:
-        nu_value = g1_sym / A
-        backbone = sp.sqrt((w2 + nu_value) * freq_factor.xreplace({nu: nu_value}))
-        waveform = waveform_in(tau).xreplace({nu: nu_value})
-        alpha_value = nu_value / (w2 + nu_value)
-        shown_deltas = []
-        for n, dv in delta_val.items():
-            value = dv.to_sympy().xreplace({nu: nu_value})
-            if not model.ramps:
-                value = sp.factor(sp.cancel(value))
-            shown_deltas.append(equation(deltas[n], value))
-        steps.append(
-            derivation_step(
-                "Result",
-                (
-                    equation(nu, tidy_coefficient(g1 / A_lp)),
-                    equation(alpha, sp.factor(alpha_value) if not model.ramps else alpha_value),
-                    *shown_deltas,
-                    equation(
-                        Omega,
-                        w0
-                        * sp.sqrt(
-                            (1 + sp.Add(*(deltas[n] * alpha**n for n in delta_val))) / (1 - alpha)
-                        ),
-                    ),
-                    shown_wave(tau),
-                ),
-                "The frequency-amplitude relation (backbone) of the free oscillation and its "
-                "waveform; each term in a power of $\\alpha$ is written over powers of "
-                "$\\omega_0^2 + \\nu$, which keeps it finite where $\\nu$ vanishes.",
-            )
-        )
-        return Approximation(
-            oscillator=osc,
-            method="mlp",
-            options=MappingProxyType(options),
-            unknowns=(A,),
-            residuals=(Omega - backbone,),
-            waveform=waveform,
-            tau=tau,
-            frequency=Omega,
-            amplitude=A,
-            backbone=backbone,
-            fourier=MappingProxyType(fourier),
-            steps=tuple(steps),
-        )
-
-    c1, s1 = first
-    cos_res = (c1 * LaurentPolynomial.atom(nu)).to_sympy()  # nu A - ghat_1 + F cos(phi)
-    sin_res = (s1 * LaurentPolynomial.atom(nu)).to_sympy()  # mu Omega A + F sin(phi)
-    if order == 1:
-        # first order: nu = Omega^2 - omega_0^2 exactly, alpha/nu = 1/Omega^2 (eq. (59))
-        residuals = (sp.expand(cos_res.xreplace({nu: Omega**2 - w2})), sin_res)
-        waveform = waveform_in(tau + phi).xreplace({nu: Omega**2 - w2})
-        W = Omega**2
-        c0p, c1p, c2p = f1**2 - F**2, mu**2 * A**2 - 2 * A * f1, A**2
-        slow_flow = (
-            -(mu * Omega * A + F * sphi) / (2 * Omega),
-            -(F * cphi - f1 + W * A) / (2 * Omega * A),
-        )
-        steps.append(
-            derivation_step(
-                "First-order result",
-                (
-                    equation(nu, Omega**2 - w2),
-                    *(equation(r, 0) for r in residuals),
-                    shown_wave(tau + phi, {nu: Omega**2 - w2}),
-                ),
-                "At first order the squared forcing frequency is $\\omega_0^2 + \\nu$, so "
-                "$\\alpha/\\nu$ is one over the squared frequency: the waveform is Zou and "
-                f"Nagarajaiah's eq. (59), here to harmonic ${hmax}$.",
-            )
-        )
-        steps.append(
-            derivation_step(
-                "Frequency-amplitude equation and slow flow",
-                (
-                    equation(
-                        sp.Add(
-                            sp.Pow(_readable_difference(A, W, f1), 2, evaluate=False),
-                            sp.Pow(sp.Mul(mu, Omega, A, evaluate=False), 2, evaluate=False),
-                            evaluate=False,
-                        ),
-                        F**2,
-                    ),
-                    equation(c2p * W**2 + c1p * W + c0p, 0),
-                    equation(sp.Derivative(A, osc.t), slow_flow[0]),
-                    equation(sp.Derivative(phi, osc.t), slow_flow[1]),
-                ),
-                "Squaring and adding the two conditions eliminates the phase; the result is "
-                "a quadratic in the squared frequency, with $f_1$ the first harmonic of the whole "
-                "restoring force (the second equation): the same curve as "
-                "single-harmonic balance. The slow flow comes from averaging the first-order "
-                "ansatz; its fixed points are the two conditions above.",
-            )
-        )
-        return Approximation(
-            oscillator=osc,
-            method="mlp",
-            options=MappingProxyType(options),
-            unknowns=(A, phi),
-            residuals=residuals,
-            waveform=waveform,
-            tau=tau,
-            frequency=Omega,
-            slow_flow=slow_flow,
-            amplitude=A,
-            frequency_polynomial=(c0p, c1p, c2p),
-            phase_from=(f1 - W * A, -mu * Omega * A),
-            fourier=MappingProxyType(fourier),
-            steps=tuple(steps),
-        )
-
-    # order >= 2: nu from the first-order cosine condition, the deltas from the higher ones,
-    # the sine conditions summed into the phase equation
-    nu_value = (g1_sym - F * cphi) / A
-    phase_terms = [
-        beta ** (n - 1) * (sv * LaurentPolynomial.atom(nu, n)).to_sympy()
-        for n, sv in sorted(sines.items())
-    ]
-    residuals = (
-        ((w2 + nu) * freq_factor - Omega**2).xreplace({nu: nu_value}),
-        (sin_res + sp.Add(*phase_terms)).xreplace({nu: nu_value}),
-    )
-    waveform = waveform_in(tau + phi).xreplace({nu: nu_value})
-    S = {n: sp.Symbol(f"S_{n}") for n in sines}
+def _free_result(
+    s: _Setup, o: _Orders, sol: _Solution, options: dict[str, Any], steps: list[Step]
+) -> Approximation:
+    """Free oscillation: :math:`\\nu = \\hat g_1/A` in the backbone
+    :math:`\\Omega = \\omega_0\\sqrt{(1 + \\sum\\delta_n\\alpha^n)/(1 - \\alpha)}` and the
+    waveform; the result step and the Approximation."""
+    nu, w2, alpha, deltas = s.nu, s.w2, s.alpha, s.deltas
+    nu_value = o.g1.to_sympy() / s.A
+    backbone = sp.sqrt((w2 + nu_value) * sol.freq_factor.xreplace({nu: nu_value}))
+    waveform = sol.waveform_in(s.tau).xreplace({nu: nu_value})
+    alpha_value = nu_value / (w2 + nu_value)
+    shown_deltas = []
+    for n, dv in o.delta_val.items():
+        value = dv.to_sympy().xreplace({nu: nu_value})
+        if not s.model.ramps:
+            value = sp.factor(sp.cancel(value))
+        shown_deltas.append(equation(deltas[n], value))
     steps.append(
         derivation_step(
-            f"Order-{order} result",
+            "Result",
+            (
+                equation(nu, tidy_coefficient(o.g1 / s.A_lp)),
+                equation(alpha, sp.factor(alpha_value) if not s.model.ramps else alpha_value),
+                *shown_deltas,
+                equation(
+                    s.Omega,
+                    s.w0
+                    * sp.sqrt(
+                        (1 + sp.Add(*(deltas[n] * alpha**n for n in o.delta_val))) / (1 - alpha)
+                    ),
+                ),
+                sol.shown_wave(s.tau),
+            ),
+            "The frequency-amplitude relation (backbone) of the free oscillation and its "
+            "waveform; each term in a power of $\\alpha$ is written over powers of "
+            "$\\omega_0^2 + \\nu$, which keeps it finite where $\\nu$ vanishes.",
+        )
+    )
+    return Approximation(
+        oscillator=s.osc,
+        method="mlp",
+        options=MappingProxyType(options),
+        unknowns=(s.A,),
+        residuals=(s.Omega - backbone,),
+        waveform=waveform,
+        tau=s.tau,
+        frequency=s.Omega,
+        amplitude=s.A,
+        backbone=backbone,
+        fourier=MappingProxyType(o.fourier),
+        steps=tuple(steps),
+    )
+
+
+def _forced_first_order_result(
+    s: _Setup, o: _Orders, sol: _Solution, options: dict[str, Any], steps: list[Step]
+) -> Approximation:
+    """Forced, first order: :math:`\\nu = \\Omega^2 - \\omega_0^2` exactly, the two secular
+    conditions as residuals, the waveform (Zou–Nagarajaiah eq. (59)), the frequency polynomial
+    (phase eliminated, quadratic in :math:`\\Omega^2`) and the averaged slow flow."""
+    A, nu, w2, Omega, mu, F = s.A, s.nu, s.w2, s.Omega, s.mu, s.F
+    cphi, sphi = sp.cos(s.phi), sp.sin(s.phi)
+    f1 = o.fourier["f_1"]
+    c1, s1 = o.first
+    cos_res = (c1 * LaurentPolynomial.atom(nu)).to_sympy()  # nu A - ghat_1 + F cos(phi)
+    sin_res = (s1 * LaurentPolynomial.atom(nu)).to_sympy()  # mu Omega A + F sin(phi)
+    # first order: nu = Omega^2 - omega_0^2 exactly, alpha/nu = 1/Omega^2 (eq. (59))
+    residuals = (sp.expand(cos_res.xreplace({nu: Omega**2 - w2})), sin_res)
+    waveform = sol.waveform_in(s.tau + s.phi).xreplace({nu: Omega**2 - w2})
+    W = Omega**2
+    c0p, c1p, c2p = f1**2 - F**2, mu**2 * A**2 - 2 * A * f1, A**2
+    slow_flow = (
+        -(mu * Omega * A + F * sphi) / (2 * Omega),
+        -(F * cphi - f1 + W * A) / (2 * Omega * A),
+    )
+    steps.append(
+        derivation_step(
+            "First-order result",
+            (
+                equation(nu, Omega**2 - w2),
+                *(equation(r, 0) for r in residuals),
+                sol.shown_wave(s.tau + s.phi, {nu: Omega**2 - w2}),
+            ),
+            "At first order the squared forcing frequency is $\\omega_0^2 + \\nu$, so "
+            "$\\alpha/\\nu$ is one over the squared frequency: the waveform is Zou and "
+            f"Nagarajaiah's eq. (59), here to harmonic ${sol.hmax}$.",
+        )
+    )
+    steps.append(_frequency_equation_step(s, f1, (c0p, c1p, c2p), slow_flow))
+    return Approximation(
+        oscillator=s.osc,
+        method="mlp",
+        options=MappingProxyType(options),
+        unknowns=(A, s.phi),
+        residuals=residuals,
+        waveform=waveform,
+        tau=s.tau,
+        frequency=Omega,
+        slow_flow=slow_flow,
+        amplitude=A,
+        frequency_polynomial=(c0p, c1p, c2p),
+        phase_from=(f1 - W * A, -mu * Omega * A),
+        fourier=MappingProxyType(o.fourier),
+        steps=tuple(steps),
+    )
+
+
+def _frequency_equation_step(
+    s: _Setup, f1: sp.Expr, poly: tuple[sp.Expr, sp.Expr, sp.Expr], slow_flow: tuple
+) -> Step:
+    """The derivation step of the first-order frequency-amplitude equation (the two secular
+    conditions squared and added) and of the slow flow."""
+    A, Omega, mu = s.A, s.Omega, s.mu
+    W = Omega**2
+    c0p, c1p, c2p = poly
+    return derivation_step(
+        "Frequency-amplitude equation and slow flow",
+        (
+            equation(
+                sp.Add(
+                    sp.Pow(_readable_difference(A, W, f1), 2, evaluate=False),
+                    sp.Pow(sp.Mul(mu, Omega, A, evaluate=False), 2, evaluate=False),
+                    evaluate=False,
+                ),
+                s.F**2,
+            ),
+            equation(c2p * W**2 + c1p * W + c0p, 0),
+            equation(sp.Derivative(A, s.osc.t), slow_flow[0]),
+            equation(sp.Derivative(s.phi, s.osc.t), slow_flow[1]),
+        ),
+        "Squaring and adding the two conditions eliminates the phase; the result is "
+        "a quadratic in the squared frequency, with $f_1$ the first harmonic of the whole "
+        "restoring force (the second equation): the same curve as "
+        "single-harmonic balance. The slow flow comes from averaging the first-order "
+        "ansatz; its fixed points are the two conditions above.",
+    )
+
+
+def _forced_higher_order_result(
+    s: _Setup, o: _Orders, sol: _Solution, options: dict[str, Any], steps: list[Step]
+) -> Approximation:
+    """Forced, order >= 2: :math:`\\nu` from the first-order cosine condition, the
+    :math:`\\delta_n` from the higher ones, the sine conditions of all orders summed into the
+    phase equation; the result step and the Approximation."""
+    A, nu, w2, Omega, alpha, phi = s.A, s.nu, s.w2, s.Omega, s.alpha, s.phi
+    s1 = o.first[1]
+    sin_res = (s1 * LaurentPolynomial.atom(nu)).to_sympy()  # mu Omega A + F sin(phi)
+    nu_value = (o.g1.to_sympy() - s.F * sp.cos(phi)) / A
+    phase_terms = [
+        sol.beta ** (n - 1) * (sv * LaurentPolynomial.atom(nu, n)).to_sympy()
+        for n, sv in sorted(o.sines.items())
+    ]
+    residuals = (
+        ((w2 + nu) * sol.freq_factor - Omega**2).xreplace({nu: nu_value}),
+        (sin_res + sp.Add(*phase_terms)).xreplace({nu: nu_value}),
+    )
+    waveform = sol.waveform_in(s.tau + phi).xreplace({nu: nu_value})
+    S = {n: sp.Symbol(f"S_{n}") for n in o.sines}
+    steps.append(
+        derivation_step(
+            f"Order-{s.order} result",
             (
                 equation(nu, nu_value),
                 equation(alpha, nu / (w2 + nu)),
                 equation(
                     Omega**2,
-                    (w2 + nu) * (1 + sp.Add(*(deltas[n] * alpha**n for n in delta_val))),
+                    (w2 + nu) * (1 + sp.Add(*(s.deltas[n] * alpha**n for n in o.delta_val))),
                 ),
                 equation(
-                    sin_res + sp.Add(*(alpha ** (n - 1) * nu * S[n] for n in sorted(sines))),
+                    sin_res + sp.Add(*(alpha ** (n - 1) * nu * S[n] for n in sorted(o.sines))),
                     0,
                 ),
                 *(
                     equation(S[n], tidy_coefficient(sv))
-                    for n, sv in sorted(sines.items())
+                    for n, sv in sorted(o.sines.items())
                     if is_short(tidy_coefficient(sv), 30)
                 ),
-                shown_wave(tau + phi),
+                sol.shown_wave(s.tau + phi),
             ),
             "$\\nu$ follows from the first-order cosine condition and the $\\delta_n$ from the "
             "higher ones; the sine conditions of all orders ($S_n$, the coefficient of "
@@ -633,15 +817,15 @@ def modified_lindstedt(
         )
     )
     return Approximation(
-        oscillator=osc,
+        oscillator=s.osc,
         method="mlp",
         options=MappingProxyType(options),
         unknowns=(A, phi),
         residuals=residuals,
         waveform=waveform,
-        tau=tau,
+        tau=s.tau,
         frequency=Omega,
         amplitude=A,
-        fourier=MappingProxyType(fourier),
+        fourier=MappingProxyType(o.fourier),
         steps=tuple(steps),
     )
