@@ -11,6 +11,7 @@ from scipy.optimize import brentq
 
 from perturb.errors import ParameterError
 from perturb.numeric.roots import (
+    NewtonOptions,
     damped_newton,
     illinois,
     illinois_vectorized,
@@ -209,3 +210,34 @@ def test_newton_direction_paths():
     # singular: minimum-norm least squares
     S = np.array([[1.0, 1.0], [1.0, 1.0]])
     np.testing.assert_allclose(newton_direction(S, np.array([2.0, 2.0])), [1.0, 1.0])
+
+
+def test_newton_options_object_equals_keywords():
+    """``options=`` and the keywords of the same names are one call; keywords override."""
+
+    def fun(z):
+        return np.array([math.atan(z[0])]), np.array([[1.0 / (1.0 + z[0] ** 2)]]), None
+
+    kw = damped_newton(fun, np.array([4.0]), tol=1e-14, max_iter=50, max_halvings=8)
+    opt = damped_newton(
+        fun, np.array([4.0]), options=NewtonOptions(tol=1e-14, max_iter=50, max_halvings=8)
+    )
+    assert kw.status == opt.status == "residual"
+    assert np.array_equal(kw.z, opt.z) and kw.iterations == opt.iterations
+    assert abs(opt.z[0]) <= 1e-14  # the root of atan, independently known
+    # a keyword replaces the field: no halvings means the undamped Newton diverging from 4
+    over = damped_newton(fun, np.array([4.0]), options=NewtonOptions(tol=1e-14), max_halvings=0)
+    assert not over.converged and over.status == "no_decrease"
+    assert NewtonOptions().max_halvings == 12  # the object itself is not changed
+
+
+def test_newton_options_rejects_unknown_keyword_and_bad_object():
+    def fun(z):
+        return z, np.eye(1), None
+
+    with pytest.raises(ParameterError, match="max_iters"):
+        damped_newton(fun, np.array([1.0]), max_iters=3)
+    with pytest.raises(ParameterError, match="NewtonOptions"):
+        damped_newton(fun, np.array([1.0]), options={"tol": 1e-3})
+    with pytest.raises(ParameterError, match="max_iter"):
+        damped_newton(fun, np.array([1.0]), options=NewtonOptions(max_iter=-1))

@@ -18,7 +18,9 @@ Damped Newton (:func:`damped_newton`)
     (:math:`\phi = \|r\|_2` unless a merit function is given), convergence on the residual
     (:math:`\|r\|_\infty \le \text{tol}\cdot\text{scale}`) or on the step, and caps on the
     iterations and on the halvings per iteration.  Failures are reported in the result
-    (``status``), never raised, so each caller keeps its own error type and message.
+    (``status``), never raised, so each caller keeps its own error type and message.  The
+    tuning knobs (tolerances, caps, halvings, ...) are the fields of :class:`NewtonOptions`,
+    passed as ``options=`` or as keywords of the same names.
 
 This module belongs to the numeric layer: it imports only numpy, scipy and
 :mod:`perturb.errors`.
@@ -28,7 +30,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -41,6 +43,7 @@ __all__ = [
     "RootResult",
     "VectorRootResult",
     "NewtonResult",
+    "NewtonOptions",
     "illinois",
     "illinois_vectorized",
     "damped_newton",
@@ -351,31 +354,94 @@ def _norm2(z: np.ndarray, r: np.ndarray) -> float:
     return float(np.linalg.norm(r))
 
 
+@dataclass(frozen=True)
+class NewtonOptions:
+    r"""Tuning knobs of :func:`damped_newton` (its stopping rules, caps and damping).
+
+    :func:`damped_newton` takes them as ``options=`` and also as keyword arguments of the
+    same names, which replace the fields of ``options`` (so ``damped_newton(f, z0, tol=1e-12)``
+    and ``damped_newton(f, z0, options=NewtonOptions(tol=1e-12))`` are the same call); any
+    other keyword is a :class:`~perturb.errors.ParameterError` naming it.  The defaults are
+    those of :func:`damped_newton` before the options object existed.
+
+    Attributes
+    ----------
+    tol : float
+        Residual tolerance relative to ``scale`` (0: only an exact zero).
+    max_iter : int
+        Cap on Newton steps (>= 0).
+    scale : float or callable
+        ``s(z)``: the scale of the tolerances and of the step cap (e.g. ``max(1, |z|)``).
+    step_tol, step_residual_tol : float
+        Correction test (step 3 of :func:`damped_newton`; ``step_tol = 0`` disables it).
+    take_final_step : bool
+        Whether a correction-test solution includes the final correction.
+    floor_step_tol : float, optional
+        Accept a negligible correction when the line search fails (the residual floor of a
+        problem whose residual cannot decrease below rounding); None: never.
+    max_step : float, optional
+        Step cap relative to ``s(z)`` (None: uncapped).
+    max_halvings : int
+        Cap on step halvings per iteration (>= 0).
+    decrease : float
+        Armijo constant ``c``.
+    """
+
+    tol: float = 0.0
+    max_iter: int = 50
+    scale: float | Callable[[np.ndarray], float] = 1.0
+    step_tol: float = 0.0
+    step_residual_tol: float = math.inf
+    take_final_step: bool = False
+    floor_step_tol: float | None = None
+    max_step: float | None = None
+    max_halvings: int = 12
+    decrease: float = 1e-4
+
+
+_NEWTON_FIELDS = frozenset(NewtonOptions.__dataclass_fields__)
+_DEFAULT_NEWTON = NewtonOptions()
+
+
+def _newton_options(options: NewtonOptions | None, knobs: dict[str, Any]) -> NewtonOptions:
+    """``options`` (default: the defaults) with the keyword arguments ``knobs`` in place of
+    its fields; an unknown keyword is a ParameterError naming it."""
+    if options is None:
+        options = _DEFAULT_NEWTON
+    elif not isinstance(options, NewtonOptions):
+        raise ParameterError(
+            f"damped_newton: options = {options!r}: expected a NewtonOptions (or keywords)"
+        )
+    if not knobs:
+        return options
+    unknown = sorted(set(knobs) - _NEWTON_FIELDS)
+    if unknown:
+        raise ParameterError(
+            f"damped_newton: unknown keyword argument(s) {', '.join(unknown)}; expected "
+            f"{', '.join(sorted(_NEWTON_FIELDS))} (fields of NewtonOptions) or jac, options, "
+            "merit, modify_step, admissible, bounds, solve, catch"
+        )
+    return replace(options, **knobs)
+
+
 def damped_newton(
     fun: Callable[[np.ndarray], Any],
     z0: np.ndarray,
     *,
     jac: Callable[[np.ndarray], Any] | None = None,
-    tol: float = 0.0,
-    max_iter: int = 50,
-    scale: float | Callable[[np.ndarray], float] = 1.0,
-    step_tol: float = 0.0,
-    step_residual_tol: float = math.inf,
-    take_final_step: bool = False,
-    floor_step_tol: float | None = None,
-    max_step: float | None = None,
-    max_halvings: int = 12,
-    decrease: float = 1e-4,
+    options: NewtonOptions | None = None,
     merit: Callable[[np.ndarray, np.ndarray], float] | None = None,
     modify_step: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
     admissible: Callable[[np.ndarray], bool] | None = None,
     bounds: tuple[Any, Any] | None = None,
     solve: Callable[[Any, np.ndarray], np.ndarray] = newton_direction,
     catch: tuple[type[BaseException], ...] = (),
+    **knobs: Any,
 ) -> NewtonResult:
     r"""Damped (safeguarded) Newton / Gauss-Newton for ``r(z) = 0``.
 
-    Each iteration at the current ``z`` (residual ``r``, Jacobian ``J``):
+    Each iteration at the current ``z`` (residual ``r``, Jacobian ``J``), with the fields
+    ``tol``, ``max_iter``, ... of :class:`NewtonOptions`:
 
     1. converged (``"residual"``) if :math:`\|r\|_\infty \le \text{tol}\cdot s(z)`;
        stop (``"max_iter"``) after ``max_iter`` steps;
@@ -402,25 +468,13 @@ def damped_newton(
         Initial guess.
     jac : callable, optional
         Separate Jacobian (see ``fun``).
-    tol : float
-        Residual tolerance relative to ``scale`` (0: only an exact zero).
-    max_iter : int
-        Cap on Newton steps.
-    scale : float or callable
-        ``s(z)``: the scale of the tolerances and of the step cap (e.g. ``max(1, |z|)``).
-    step_tol, step_residual_tol : float
-        Correction test of step 3 (0 disables it).
-    take_final_step : bool
-        Whether a correction-test solution includes the final correction.
-    floor_step_tol : float, optional
-        Accept a negligible correction when the line search fails (the residual floor of a
-        problem whose residual cannot decrease below rounding).
-    max_step : float, optional
-        Step cap relative to ``s(z)`` (None: uncapped).
-    max_halvings : int
-        Cap on step halvings per iteration.
-    decrease : float
-        Armijo constant ``c``.
+    options : NewtonOptions, optional
+        The tuning knobs (default ``NewtonOptions()``): tolerances, caps, step cap,
+        halvings, Armijo constant.
+    **knobs
+        Fields of :class:`NewtonOptions` (``tol``, ``max_iter``, ``scale``, ``step_tol``,
+        ``step_residual_tol``, ``take_final_step``, ``floor_step_tol``, ``max_step``,
+        ``max_halvings``, ``decrease``) as keywords, replacing those of ``options``.
     merit : callable, optional
         ``merit(z, r)`` of the line search (default :math:`\|r\|_2`).
     modify_step : callable, optional
@@ -441,7 +495,21 @@ def damped_newton(
     -------
     NewtonResult
         Never raises for a failure of the iteration; see ``status``.
+
+    Raises
+    ------
+    ParameterError
+        An unknown keyword, ``options`` not a :class:`NewtonOptions`, or a negative
+        ``max_iter`` / ``max_halvings``.
     """
+    o = _newton_options(options, knobs)
+    tol, max_iter, scale, max_halvings = o.tol, o.max_iter, o.scale, o.max_halvings
+    step_tol, step_residual_tol, take_final_step = (
+        o.step_tol,
+        o.step_residual_tol,
+        o.take_final_step,
+    )
+    floor_step_tol, max_step, decrease = o.floor_step_tol, o.max_step, o.decrease
     if max_iter < 0 or max_halvings < 0:
         raise ParameterError(
             f"damped_newton: max_iter = {max_iter!r} and max_halvings = {max_halvings!r} "

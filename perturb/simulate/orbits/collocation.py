@@ -68,7 +68,6 @@ from perturb.simulate.orbits.shooting import (
     check_flow,
     check_positive,
     is_autonomous,
-    make_orbit,
     reject_equilibrium,
     resolve_forcing_period,
     shooting_newton,
@@ -343,7 +342,7 @@ def collocation_orbit(
         reject_equilibrium(flow, y0, P, what, out.rnorm, out.iterations)
     # multipliers: one flow pass with the variational equations from the collocation state
     M = np.asarray(flow(y0, t0, t0 + P, sensitivity=True).sensitivity, dtype=float)
-    return make_orbit(
+    return PeriodicOrbit.from_solution(
         dense=_TrigDense(X, t0, P),
         y0=y0,
         t0=t0,

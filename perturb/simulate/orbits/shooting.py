@@ -80,7 +80,7 @@ import scipy.sparse as sps
 from numpy.typing import ArrayLike
 
 from perturb.errors import ParameterError, PerturbError
-from perturb.numeric.roots import NewtonResult, damped_newton
+from perturb.numeric.roots import NewtonOptions, NewtonResult, damped_newton
 from perturb.simulate.flows.base import Flow, as_flow
 
 __all__ = [
@@ -243,6 +243,88 @@ class PeriodicOrbit:
             "iterations": self.iterations,
             "method": self.method,
         }
+
+    @classmethod
+    def from_solution(
+        cls,
+        *,
+        dense: Any,
+        y0: np.ndarray,
+        t0: float,
+        P: float,
+        m: int,
+        forcing_period: float | None,
+        monodromy: np.ndarray,
+        residual: float,
+        iterations: int,
+        method: str,
+        unit_tol: float,
+        nodes: np.ndarray | None = None,
+        flow: Any = None,
+    ) -> PeriodicOrbit:
+        """The orbit a solver found, with its derived data: the one constructor the solvers of
+        this package (single and multiple shooting, collocation) share.
+
+        The keywords are the solver's raw results; the multipliers (from ``monodromy``, with the
+        flow's exact sensitivity determinant when ``flow`` is given: see
+        :func:`monodromy_multipliers`), the stability label (:func:`classify_multipliers` with
+        ``unit_tol``) and the summary numbers (amplitude, first harmonic, mean: sampled from
+        ``dense``, see the module docstring) are computed here, and the arrays are made
+        read-only.
+
+        Parameters
+        ----------
+        dense : callable
+            ``dense(t) -> (2, n)`` states at the times ``t`` (what :meth:`sample` evaluates).
+        y0, t0, P, m, forcing_period, monodromy, residual, iterations, method, nodes
+            As the attributes ``y0``, ``t0``, ``period``, ``m``, ``forcing_period``,
+            ``monodromy``, ``residual``, ``iterations``, ``method``, ``nodes`` (``forcing_period``
+            None: autonomous).
+        unit_tol : float
+            Distance from the unit circle marking a bifurcation.
+        flow : Flow, optional
+            The flow, for the exact determinant of the monodromy.
+
+        Raises
+        ------
+        PerturbError
+            Non-finite orbit data (a NaN orbit is never returned).
+        """
+        autonomous = forcing_period is None
+        determinant = None if flow is None else flow.sensitivity_determinant(t0, t0 + P)
+        mu = monodromy_multipliers(monodromy, None if determinant is None else float(determinant))
+        stability, max_mu = classify_multipliers(mu, autonomous=autonomous, unit_tol=unit_tol)
+        amp, first, mean = _statistics(dense, t0, P, 1 if autonomous else m)
+        values = [*y0, P, *monodromy.ravel(), amp, first, mean, residual]
+        if not np.all(np.isfinite(values)) or not np.all(np.isfinite(mu)):
+            raise PerturbError(
+                f"{method}: non-finite orbit data (y0 = {y0.tolist()}, period = {P})"
+            )
+        for arr in (y0, monodromy, mu):
+            arr.setflags(write=False)
+        if nodes is not None:
+            nodes = np.array(nodes, dtype=float)
+            nodes.setflags(write=False)
+        return cls(
+            y0=y0,
+            t0=float(t0),
+            period=float(P),
+            m=int(m),
+            forcing_period=None if forcing_period is None else float(forcing_period),
+            autonomous=autonomous,
+            monodromy=monodromy,
+            multipliers=mu,
+            stability=stability,
+            max_multiplier=max_mu,
+            amplitude=amp,
+            first_harmonic_amplitude=first,
+            mean=mean,
+            residual=float(residual),
+            iterations=int(iterations),
+            method=method,
+            nodes=nodes,
+            _dense=dense,
+        )
 
     def __str__(self) -> str:
         kind = "autonomous" if self.autonomous else f"forced, m = {self.m}"
@@ -469,57 +551,6 @@ def monodromy_multipliers(M: np.ndarray, det: float | None = None) -> np.ndarray
     return mu[np.argsort(-np.abs(mu), kind="stable")]
 
 
-def make_orbit(
-    *,
-    dense: Any,
-    y0: np.ndarray,
-    t0: float,
-    P: float,
-    m: int,
-    forcing_period: float | None,
-    monodromy: np.ndarray,
-    residual: float,
-    iterations: int,
-    method: str,
-    unit_tol: float,
-    nodes: np.ndarray | None = None,
-    flow: Any = None,
-) -> PeriodicOrbit:
-    autonomous = forcing_period is None
-    determinant = None if flow is None else flow.sensitivity_determinant(t0, t0 + P)
-    mu = monodromy_multipliers(monodromy, None if determinant is None else float(determinant))
-    stability, max_mu = classify_multipliers(mu, autonomous=autonomous, unit_tol=unit_tol)
-    amp, first, mean = _statistics(dense, t0, P, 1 if autonomous else m)
-    values = [*y0, P, *monodromy.ravel(), amp, first, mean, residual]
-    if not np.all(np.isfinite(values)) or not np.all(np.isfinite(mu)):
-        raise PerturbError(f"{method}: non-finite orbit data (y0 = {y0.tolist()}, period = {P})")
-    for arr in (y0, monodromy, mu):
-        arr.setflags(write=False)
-    if nodes is not None:
-        nodes = np.array(nodes, dtype=float)
-        nodes.setflags(write=False)
-    return PeriodicOrbit(
-        y0=y0,
-        t0=float(t0),
-        period=float(P),
-        m=int(m),
-        forcing_period=None if forcing_period is None else float(forcing_period),
-        autonomous=autonomous,
-        monodromy=monodromy,
-        multipliers=mu,
-        stability=stability,
-        max_multiplier=max_mu,
-        amplitude=amp,
-        first_harmonic_amplitude=first,
-        mean=mean,
-        residual=float(residual),
-        iterations=int(iterations),
-        method=method,
-        nodes=nodes,
-        _dense=dense,
-    )
-
-
 # ---------------------------------------------------------------------------------------------
 # input checks
 # ---------------------------------------------------------------------------------------------
@@ -615,9 +646,7 @@ def shooting_newton(
         The flow failed or gave a non-finite residual at ``z0``, a singular Newton system, no
         decrease along the Newton direction, or no convergence in ``max_iter`` steps.
     """
-    out = damped_newton(
-        evaluate,
-        z0,
+    options = NewtonOptions(
         tol=tol,
         max_iter=max_iter,
         scale=scale,
@@ -628,6 +657,11 @@ def shooting_newton(
         step_residual_tol=math.sqrt(tol),
         max_step=_MAX_STEP,
         max_halvings=round(-math.log2(_MIN_ALPHA)),
+    )
+    out = damped_newton(
+        evaluate,
+        z0,
+        options=options,
         admissible=admissible,
         catch=(PerturbError,),  # a trial where the flow fails is a rejected step
     )
@@ -752,7 +786,7 @@ def periodic_orbit(
     )
     y0 = out.z.copy()
     dense = _FlowDense(flow, y0[None, :], np.array([t0, t0 + P]))
-    return make_orbit(
+    return PeriodicOrbit.from_solution(
         dense=dense,
         y0=y0,
         t0=t0,
@@ -935,7 +969,7 @@ def limit_cycle(
         except ShootingError:
             raise first from None
     dense = _FlowDense(flow, y0[None, :], np.array([0.0, P]))
-    return make_orbit(
+    return PeriodicOrbit.from_solution(
         dense=dense,
         y0=y0,
         t0=0.0,
@@ -1088,7 +1122,7 @@ def multiple_shooting(
     times = t0 + P * np.arange(N + 1) / N
     times[-1] = t0 + P
     dense = _FlowDense(flow, nodes, times)
-    return make_orbit(
+    return PeriodicOrbit.from_solution(
         dense=dense,
         y0=nodes[0].copy(),
         t0=t0,
