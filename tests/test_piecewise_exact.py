@@ -35,6 +35,7 @@ from scipy.optimize import brentq
 
 from perturb.errors import ParameterError, PerturbError
 from perturb.simulate.flows.piecewise_exact import (
+    PieceEvaluator,
     PWLSystem,
     SwitchEvent,
     Trajectory,
@@ -615,15 +616,22 @@ def test_scalar_and_vector_closed_forms_agree():
         for t in (3.0, 11.0, 20.0):
             (xp, _), (xm, _), (_, v0) = traj(t + hh), traj(t - hh), traj(t)
             assert (xp - xm) / (2 * hh) == pytest.approx(v0, rel=1e-8, abs=1e-8)
-        # a is the derivative of v, da/dt of a: the scan's own scalar outputs, which the
-        # Trajectory does not expose (private evaluator; see the report of issue #14)
-        piece = traj._evaluators[0]
+        # a is the derivative of v, da/dt of a: the scan's own scalar outputs (the piece's
+        # evaluator; the dense output returns x and v only)
+        piece = traj.piece_evaluator(0)
+        assert piece.segment == traj.pieces[0].segment and piece.t0 == traj.pieces[0].t0
         for t in (3.0, 11.0, 20.0):
-            _, vp, ap, _ = piece.eval1(t + hh)
-            _, vm, am, _ = piece.eval1(t - hh)
-            _, _, a0, j0 = piece.eval1(t)
+            _, vp, ap, _ = piece.derivatives(t + hh)
+            _, vm, am, _ = piece.derivatives(t - hh)
+            x0_, v0_, a0, j0 = piece.derivatives(t)
             assert (vp - vm) / (2 * hh) == pytest.approx(a0, rel=1e-8, abs=1e-8)
             assert (ap - am) / (2 * hh) == pytest.approx(j0, rel=1e-7, abs=1e-7)
+            # the scalar and the array paths of the evaluator agree with the dense output
+            xa, va, aa = piece(np.array([t]))
+            assert (xa[0], va[0], aa[0]) == pytest.approx((x0_, v0_, a0), rel=1e-13, abs=1e-13)
+            assert (x0_, v0_) == pytest.approx(tuple(traj(t)), rel=1e-13, abs=1e-13)
+        with pytest.raises(ParameterError, match="index"):
+            traj.piece_evaluator(1)
 
 
 def test_max_events_and_escape_raise():
@@ -783,17 +791,14 @@ def test_acceleration_bound_holds_on_dense_samples(s, mu, W, x0, v0, t0):
     # The scan jumps over stretches where g + g' h - A h^2/2 stays above 2 tol: A must bound
     # |x''| there.  Oracle: x'' = load - mu v - s x sampled densely on the closed form (itself
     # checked against DOP853 above), for real, repeated and complex roots and near resonance.
-    from perturb.simulate.flows.piecewise_exact import _accel_bound, _model_of, _Piece
-
     system = PWLSystem([], [s], [0.3], damping=mu, forcing=((1.5, W, 0.4),), static_force=0.2)
-    seg = _model_of(system).segments[0]
-    piece = _Piece(seg, t0, x0, v0)
+    piece = PieceEvaluator(system, 0, t0, x0, v0)
     assume(piece.bounded)
     for ta, tb in ((0.0, 0.7), (0.3, 2.0), (1.0, 1.2)):
         tau = np.linspace(ta, tb, 401)
-        x, v = piece.eval(tau)
+        x, v, _ = piece(tau)
         a = 0.2 - 0.3 + 1.5 * np.cos(W * (t0 + tau) + 0.4) - mu * v - s * x
-        bound = _accel_bound(piece, ta, tb)
+        bound = piece.acceleration_bound(ta, tb)
         assert np.max(np.abs(a)) <= bound * (1 + 1e-9) + 1e-12
 
 
@@ -914,3 +919,20 @@ def test_continuity_and_scalar_field_against_hand_values():
         want = 2.0 * math.cos(0.6 * t) - 0.05 * v - f
         got = s.field1(t, x, v)
         assert got[0] == v and math.isclose(got[1], want, rel_tol=1e-14, abs_tol=1e-14)
+
+
+def test_piece_evaluator_validates_and_matches_a_closed_form():
+    # Oracle: x'' + x = 0 from (1, 0): x = cos(tau), v = -sin(tau), a = -cos(tau).
+    system = PWLSystem([], [1.0], [0.0])
+    piece = PieceEvaluator(system, 0, 2.0, 1.0, 0.0)
+    tau = np.linspace(0.0, 7.0, 29)
+    x, v, a = piece(tau)
+    np.testing.assert_allclose(x, np.cos(tau), atol=1e-14)
+    np.testing.assert_allclose(v, -np.sin(tau), atol=1e-14)
+    np.testing.assert_allclose(a, -np.cos(tau), atol=1e-14)
+    assert piece.derivatives(1.0)[3] == pytest.approx(math.sin(1.0), abs=1e-14)
+    assert piece.bounded and piece.acceleration_bound(0.0, 7.0) >= 1.0
+    with pytest.raises(ParameterError, match="segment"):
+        PieceEvaluator(system, 1, 0.0, 1.0, 0.0)
+    with pytest.raises(ParameterError, match="x0"):
+        PieceEvaluator(system, 0, 0.0, float("nan"), 0.0)

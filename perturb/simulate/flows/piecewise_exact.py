@@ -123,6 +123,7 @@ __all__ = [
     "PWLSystem",
     "SwitchEvent",
     "Piece",
+    "PieceEvaluator",
     "PropagationStats",
     "Trajectory",
     "propagate",
@@ -565,6 +566,17 @@ class Trajectory:
                 out[0, sel] = xk
                 out[1, sel] = vk
         return out[:, 0] if scalar else out
+
+    def piece_evaluator(self, index: int) -> PieceEvaluator:
+        """The closed form of piece ``index`` (of :attr:`pieces`) as a
+        :class:`PieceEvaluator`: the one the dense output evaluates, with the acceleration
+        and its time derivative that :meth:`__call__` does not return."""
+        pieces = self._evaluators
+        if isinstance(index, bool) or not isinstance(index, int | np.integer):
+            raise ParameterError(f"index = {index!r}: expected an integer")
+        if not -len(pieces) <= index < len(pieces):
+            raise ParameterError(f"index = {index!r}: the trajectory has {len(pieces)} pieces")
+        return PieceEvaluator._of(pieces[int(index)])
 
     def transition_matrices(self) -> list[tuple[float, float, float, float]]:
         r"""The exact :math:`e^{A_k h_k}` of every piece, row-major ``(m00, m01, m10, m11)``.
@@ -1240,6 +1252,84 @@ def _accel_bound(piece: _Piece, ta: float, tb: float) -> float:
     ec = 0.5 * (e1 + math.exp(seg.lam2 * ta))
     es = min(tb * ec, e1 / (2.0 * seg.beta))
     return ec * al + es * ga + seg.a_part
+
+
+class PieceEvaluator:
+    r"""The closed-form solution in one segment of a :class:`PWLSystem`, from ``(x0, v0)`` at
+    ``t0``: the object :func:`propagate` evaluates for its dense output and its switch scan.
+
+    Build one for any segment and initial state with ``PieceEvaluator(system, segment, t0,
+    x0, v0)``, or get those of a trajectory with :meth:`Trajectory.piece_evaluator`.  The
+    solution is that of the linear equation of ``segment`` *as if the segment extended
+    everywhere* (the evaluator does not stop at the segment's breakpoints).  Times are local:
+    ``tau = t - t0``.
+
+    Parameters
+    ----------
+    system : PWLSystem
+    segment : int
+        Index of the segment (``0 .. system.n_segments - 1``).
+    t0, x0, v0 : float
+        Start time and state.
+    """
+
+    __slots__ = ("_piece",)
+
+    def __init__(self, system: PWLSystem, segment: int, t0: float, x0: float, v0: float) -> None:
+        if not isinstance(system, PWLSystem):
+            raise ParameterError(f"system = {system!r}: expected a PWLSystem")
+        if (
+            isinstance(segment, bool)
+            or not isinstance(segment, int | np.integer)
+            or not 0 <= segment < system.n_segments
+        ):
+            raise ParameterError(
+                f"segment = {segment!r}: expected an integer in 0 .. {system.n_segments - 1}"
+            )
+        seg = _model_of(system).segments[int(segment)]
+        self._piece = _Piece(
+            seg, _finite_float("t0", t0), _finite_float("x0", x0), _finite_float("v0", v0)
+        )
+
+    @classmethod
+    def _of(cls, piece: _Piece) -> PieceEvaluator:
+        out = cls.__new__(cls)
+        out._piece = piece
+        return out
+
+    @property
+    def t0(self) -> float:
+        """Start time."""
+        return self._piece.t0
+
+    @property
+    def segment(self) -> int:
+        """Index of the segment."""
+        return self._piece.seg.idx
+
+    @property
+    def bounded(self) -> bool:
+        """Whether :meth:`acceleration_bound` is a finite bound: False for a constant load
+        on a segment in its zero-initial-condition form (``s`` near 0) and for a forcing
+        harmonic in exact resonance with the segment, whose responses grow without bound."""
+        return self._piece.bounded
+
+    def __call__(self, tau: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(x, v, a)`` at the local times ``tau`` (arrays, vectorised): position,
+        velocity and acceleration ``a = load - mu v - f(x)``."""
+        return self._piece.eval(np.asarray(tau, dtype=float), accel=True)
+
+    def derivatives(self, tau: float) -> tuple[float, float, float, float]:
+        """``(x, v, a, da/dt)`` at one local time ``tau``, in scalar arithmetic (the path
+        of the root finders)."""
+        return self._piece.eval1(float(tau))
+
+    def acceleration_bound(self, tau_a: float, tau_b: float) -> float:
+        """An upper bound of ``|a(tau)|`` for ``tau_a <= tau <= tau_b`` (local times, ``0 <=
+        tau_a <= tau_b``): what lets the switch scan step over stretches where ``x`` cannot
+        reach a breakpoint.  ``inf`` when none is known; only meaningful when
+        :attr:`bounded`."""
+        return _accel_bound(self._piece, float(tau_a), float(tau_b))
 
 
 def _safe_length(g: float, gp: float, amax: float, margin: float) -> float:
