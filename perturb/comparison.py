@@ -745,10 +745,60 @@ def compare(
     tolerance = _check_fraction(tolerance, "tolerance", upper=None)
     min_share = _check_fraction(min_share, "min_share", upper=1.0)
     fold_overshoot = _check_fraction(fold_overshoot, "fold_overshoot", upper=None)
+    fold_distance, special = _check_exclusions(fold_distance, special_frequencies)
+
+    ref_cur = _curves(reference, quantity, refine_folds=True)
+    pts = _compared_points(response, ref_cur, quantity, tolerance)
+    votes = _votes(pts, len(response.branches), len(reference.branches))
+    matched, spurious, uncompared = _match_branches(pts, votes, min_share)
+    om = _against_matched(
+        pts, reference, quantity, matched, ref_cur.folds, tolerance, fold_overshoot
+    )
+    dis, differ, excluded = _stability(pts, om, ref_cur.folds, fold_distance, special)
+    branches = _branch_rows(response, pts, om, matched, differ)
+    ref_rows, missed, outside = _reference_rows(
+        response, reference, ref_cur, pts.w, quantity, tolerance, min_share, matched, votes
+    )
+
+    pts.err.setflags(write=False)
+    return Comparison(
+        method=response.method,
+        reference_method=reference.method,
+        quantity=quantity,
+        tolerance=tolerance,
+        min_share=min_share,
+        fold_distance=fold_distance,
+        branches=branches,
+        reference_branches=ref_rows,
+        missed=missed,
+        spurious=spurious,
+        uncompared=uncompared,
+        outside=outside,
+        stability_disagreements=dis,
+        excluded=int(excluded.sum()),
+        folds=tuple(ref_cur.folds),
+        rel_errors=pts.err,
+    )
+
+
+# =============================================================================================
+# the stages of compare
+# =============================================================================================
+def _check_exclusions(
+    fold_distance: object, special_frequencies: Sequence[float]
+) -> tuple[float | None, np.ndarray]:
+    """``fold_distance`` (None, or a number >= 0) and ``special_frequencies`` (positive,
+    only with ``fold_distance``) checked: ``(fold_distance, special as a flat array)``.
+
+    Raises
+    ------
+    ParameterError
+        Naming the bad value.
+    """
     if fold_distance is not None:
         given = fold_distance
         try:
-            fold_distance = float(given)
+            fold_distance = float(given)  # type: ignore[arg-type]
         except (TypeError, ValueError):
             fold_distance = float("nan")
         if isinstance(given, bool) or not (np.isfinite(fold_distance) and fold_distance >= 0):
@@ -763,25 +813,65 @@ def compare(
         raise ParameterError(
             f"special_frequencies = {list(special_frequencies)!r}: expected positive numbers"
         )
+    return fold_distance, special  # type: ignore[return-value]
 
-    ref_cur = _curves(reference, quantity, refine_folds=True)
+
+@dataclass(frozen=True)
+class _Compared:
+    """Every point of the response, in row order, against the nearest reference solution
+    of any branch (the first stage of :func:`compare`)."""
+
+    w: np.ndarray  # frequency
+    a: np.ndarray  # compared amplitude
+    owner: np.ndarray  # its branch
+    index: np.ndarray  # its index along the branch
+    stable: np.ndarray  # its own stability flag
+    near: _Nearest  # the nearest reference solution at its frequency
+    err: np.ndarray  # relative error against it (NaN: no reference solution there)
+    within: np.ndarray  # bool: a reference solution there, within tolerance
+
+
+def _compared_points(
+    response: Response, ref_cur: _Curves, quantity: str, tolerance: float
+) -> _Compared:
+    """Stage 1: each point of ``response`` against the nearest reference solution at its
+    frequency (the ``rel_errors`` of the result)."""
     w, a, owner = _points(response, quantity)
     near = _nearest(w, a, ref_cur)
     err = np.where(near.found, _rel(a, near.value), np.nan)
-    within = near.found & (err <= tolerance)
-    stable = np.concatenate([b.stable for b in response.branches])
-    index = np.concatenate([np.arange(len(b)) for b in response.branches])
+    return _Compared(
+        w=w,
+        a=a,
+        owner=owner,
+        index=np.concatenate([np.arange(len(b)) for b in response.branches]),
+        stable=np.concatenate([b.stable for b in response.branches]),
+        near=near,
+        err=err,
+        within=near.found & (err <= tolerance),
+    )
 
-    # -- branches of the response: errors, votes, match
-    n_ref = len(reference.branches)
-    votes = np.zeros((len(response.branches), n_ref), int)
-    np.add.at(votes, owner[within], near.ties[within].astype(int))
+
+def _votes(pts: _Compared, n_branches: int, n_ref: int) -> np.ndarray:
+    """``votes[i, j]``: points of response branch ``i`` within tolerance whose nearest
+    reference solution is on branch ``j`` (a tie of mirror images votes for each)."""
+    votes = np.zeros((n_branches, n_ref), int)
+    np.add.at(votes, pts.owner[pts.within], pts.near.ties[pts.within].astype(int))
+    return votes
+
+
+def _match_branches(
+    pts: _Compared, votes: np.ndarray, min_share: float
+) -> tuple[list[int | None], tuple[int, ...], tuple[int, ...]]:
+    """Stage 2: ``(matched, spurious, uncompared)`` -- each response branch's reference branch
+    (the one most of its points within tolerance vote for, when at least ``min_share`` of its
+    compared points are within tolerance; else None), the branches without a counterpart, and
+    those with no compared point."""
     matched: list[int | None] = []
     spurious, uncompared = [], []
-    for i in range(len(response.branches)):
-        sel = owner == i
-        n_c = int(near.found[sel].sum())
-        n_in = int(within[sel].sum())
+    for i in range(votes.shape[0]):
+        sel = pts.owner == i
+        n_c = int(pts.near.found[sel].sum())
+        n_in = int(pts.within[sel].sum())
         if n_c == 0:
             matched.append(None)
             uncompared.append(i)
@@ -790,21 +880,46 @@ def compare(
             spurious.append(i)
         else:
             matched.append(int(np.argmax(votes[i])))
+    return matched, tuple(spurious), tuple(uncompared)
 
-    # -- stability: each point of a matched branch against the matched reference branch
-    # (the nearest solution overall may sit on another branch that happens to pass closer)
-    folds = ref_cur.folds
-    beyond = np.zeros(w.size, bool)
-    check = np.zeros(w.size, bool)
-    ref_value = np.full(w.size, np.nan)
-    ref_stable = np.zeros(w.size, bool)
-    ref_branch = np.full(w.size, -1)
-    on_match = np.zeros(w.size, bool)
-    err_match = np.full(w.size, np.nan)
+
+@dataclass(frozen=True)
+class _OnMatch:
+    """Every point of a matched branch against its matched reference branch alone (NaN,
+    False or -1 at points of unmatched branches)."""
+
+    on_match: np.ndarray  # bool: covered (a solution of the matched branch, no fold overshoot)
+    err_match: np.ndarray  # relative error against it (NaN: not covered)
+    check: np.ndarray  # bool: covered and within tolerance (its stability is compared)
+    ref_value: np.ndarray  # the nearest solution of the matched branch
+    ref_stable: np.ndarray  # its stability flag
+    ref_branch: np.ndarray  # the matched reference branch
+
+
+def _against_matched(
+    pts: _Compared,
+    reference: Response,
+    quantity: str,
+    matched: Sequence[int | None],
+    folds: Sequence[tuple[int, float, float]],
+    tolerance: float,
+    fold_overshoot: float,
+) -> _OnMatch:
+    """Stage 3: each point of a matched branch against the matched reference branch only
+    (the nearest solution overall may sit on another branch that happens to pass closer);
+    points at the overshooting tip of a displaced fold are not covered."""
+    w, a, n = pts.w, pts.a, pts.w.size
+    beyond = np.zeros(n, bool)
+    check = np.zeros(n, bool)
+    ref_value = np.full(n, np.nan)
+    ref_stable = np.zeros(n, bool)
+    ref_branch = np.full(n, -1)
+    on_match = np.zeros(n, bool)
+    err_match = np.full(n, np.nan)
     for i, j in enumerate(matched):
         if j is None:
             continue
-        sel = np.nonzero(owner == i)[0]
+        sel = np.nonzero(pts.owner == i)[0]
         alone = Response((reference.branches[j],), reference.method)
         one = _nearest(w[sel], a[sel], _curves(alone, quantity, refine_folds=True))
         e_one = np.where(one.found, _rel(a[sel], one.value), np.nan)
@@ -822,47 +937,93 @@ def compare(
         err_match[sel] = np.where(on_match[sel], e_one, np.nan)
         check[sel] = one.found & (err_match[sel] <= tolerance)
         ref_value[sel], ref_stable[sel], ref_branch[sel] = one.value, one.stable, j
+    return _OnMatch(on_match, err_match, check, ref_value, ref_stable, ref_branch)
+
+
+def _stability(
+    pts: _Compared,
+    om: _OnMatch,
+    folds: Sequence[tuple[int, float, float]],
+    fold_distance: float | None,
+    special: np.ndarray,
+) -> tuple[tuple[StabilityDisagreement, ...], np.ndarray, np.ndarray]:
+    """Stage 4: ``(disagreements, differ, excluded)`` -- the checked points whose stability
+    flag differs from the matched reference branch's, leaving out (``excluded``) those within
+    ``fold_distance`` of a fold of their reference branch or of a special frequency."""
+    w = pts.w
     excluded = np.zeros(w.size, bool)
     if fold_distance is not None:
         for j, wf, _ in folds:
-            excluded |= (ref_branch == j) & (np.abs(w - wf) <= fold_distance * wf)
+            excluded |= (om.ref_branch == j) & (np.abs(w - wf) <= fold_distance * wf)
         for ws in special:
             excluded |= np.abs(w - ws) <= fold_distance * ws
-        excluded &= check
-    differ = check & ~excluded & (stable != ref_stable)
+        excluded &= om.check
+    differ = om.check & ~excluded & (pts.stable != om.ref_stable)
     dis = tuple(
         StabilityDisagreement(
-            branch=int(owner[k]),
-            index=int(index[k]),
+            branch=int(pts.owner[k]),
+            index=int(pts.index[k]),
             omega=float(w[k]),
-            amplitude=float(a[k]),
-            stable=bool(stable[k]),
-            reference_branch=int(ref_branch[k]),
-            reference_amplitude=float(ref_value[k]),
-            reference_stable=bool(ref_stable[k]),
+            amplitude=float(pts.a[k]),
+            stable=bool(pts.stable[k]),
+            reference_branch=int(om.ref_branch[k]),
+            reference_amplitude=float(om.ref_value[k]),
+            reference_stable=bool(om.ref_stable[k]),
         )
         for k in np.nonzero(differ)[0]
     )
+    return dis, differ, excluded
 
+
+def _branch_rows(
+    response: Response,
+    pts: _Compared,
+    om: _OnMatch,
+    matched: Sequence[int | None],
+    differ: np.ndarray,
+) -> tuple[BranchComparison, ...]:
+    """Stage 5: one :class:`BranchComparison` per response branch -- errors of a matched
+    branch over its covered points against its reference branch, of any other branch over
+    its compared points against the nearest reference solution."""
     branches = []
     for i, b in enumerate(response.branches):
-        mine = owner == i
-        e = err_match[mine & on_match] if matched[i] is not None else err[mine & near.found]
+        mine = pts.owner == i
+        if matched[i] is not None:
+            e = om.err_match[mine & om.on_match]
+        else:
+            e = pts.err[mine & pts.near.found]
         branches.append(
             BranchComparison(
                 branch=i,
                 points=len(b),
-                compared=int((mine & near.found).sum()),
-                within=int((within & mine).sum()),
+                compared=int((mine & pts.near.found).sum()),
+                within=int((pts.within & mine).sum()),
                 matched=matched[i],
-                covered=int((mine & on_match).sum()),
+                covered=int((mine & om.on_match).sum()),
                 max_error=float(e.max()) if e.size else float("nan"),
                 rms_error=float(np.sqrt(np.mean(e * e))) if e.size else float("nan"),
-                stability_disagreements=int((differ & (owner == i)).sum()),
+                stability_disagreements=int((differ & (pts.owner == i)).sum()),
             )
         )
+    return tuple(branches)
 
-    # -- reference branches: solutions at the response's frequencies, reproduced or not
+
+def _reference_rows(
+    response: Response,
+    reference: Response,
+    ref_cur: _Curves,
+    w: np.ndarray,
+    quantity: str,
+    tolerance: float,
+    min_share: float,
+    matched: Sequence[int | None],
+    votes: np.ndarray,
+) -> tuple[tuple[ReferenceBranchComparison, ...], tuple[int, ...], tuple[int, ...]]:
+    """Stage 6: ``(rows, missed, outside)`` -- each reference branch's solutions at the
+    response's frequencies ``w`` and how many of them the response reproduces within
+    tolerance; a branch is missed when fewer than ``min_share`` of them are (or none is
+    compared inside the response's span), outside when it lies beyond that span."""
+    n_ref = len(reference.branches)
     rw = np.unique(w)
     span = (float(rw[0]), float(rw[-1]))
     ref_compared = np.zeros(n_ref, int)
@@ -895,23 +1056,4 @@ def compare(
             outside.append(j)
         elif ref_compared[j] == 0 or ref_reproduced[j] < min_share * ref_compared[j]:
             missed.append(j)
-
-    err.setflags(write=False)
-    return Comparison(
-        method=response.method,
-        reference_method=reference.method,
-        quantity=quantity,
-        tolerance=tolerance,
-        min_share=min_share,
-        fold_distance=fold_distance,
-        branches=tuple(branches),
-        reference_branches=tuple(ref_rows),
-        missed=tuple(missed),
-        spurious=tuple(spurious),
-        uncompared=tuple(uncompared),
-        outside=tuple(outside),
-        stability_disagreements=dis,
-        excluded=int(excluded.sum()),
-        folds=tuple(folds),
-        rel_errors=err,
-    )
+    return tuple(ref_rows), tuple(missed), tuple(outside)
