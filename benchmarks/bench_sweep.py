@@ -44,7 +44,7 @@ def nothing(a: float) -> float:
 
 
 def timed(fn, *args, **kw):
-    ps._KERNELS.clear()  # every run builds its own kernel, as a fresh process would
+    ps.clear_kernel_cache()  # every run builds its own kernel, as a fresh process would
     info: dict = {}
     t = time.perf_counter()
     ds = fn(*args, run_info=info, **kw)
@@ -59,7 +59,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--mu", type=int, default=20, help="mu values (default 20)")
     ap.add_argument("--k", type=int, default=25, help="k values (default 25)")
-    ap.add_argument("--workers", type=int, default=ps._machine_workers())
+    ap.add_argument("--workers", type=int, default=ps.machine_workers())
     ap.add_argument("--repeat", type=int, default=2, help="runs of each, fastest kept")
     ap.add_argument("--tiny", type=int, default=200, help="empty tasks for the Dask overhead")
     ap.add_argument("--no-dask", action="store_true")

@@ -83,13 +83,13 @@ def test_grid_validation():
 
 
 def test_chunk_size_keeps_tasks_above_100ms():
-    assert ps._chunk_size(None, 1000, 2, 0.25) == 1  # probes
-    n = ps._chunk_size(0.003, 2000, 2, 0.25)
+    assert ps.chunk_cells(None, 1000, 2, 0.25) == 1  # probes
+    n = ps.chunk_cells(0.003, 2000, 2, 0.25)
     assert n * 0.003 >= ps.MIN_TASK_SECONDS and n == 84
     # few cells left: smaller for balance, but not below 100 ms
-    n = ps._chunk_size(0.003, 100, 2, 0.25)
+    n = ps.chunk_cells(0.003, 100, 2, 0.25)
     assert n * 0.003 >= ps.MIN_TASK_SECONDS and n < 84
-    assert ps._chunk_size(5.0, 100, 2, 0.25) == 1  # an expensive cell is a task of its own
+    assert ps.chunk_cells(5.0, 100, 2, 0.25) == 1  # an expensive cell is a task of its own
 
 
 # ----------------------------------------------------------------------------- scenes --
@@ -226,21 +226,15 @@ def test_bifurcation_columns():
 def test_cell_errors_become_nan_and_failed(monkeypatch):
     scene = _peak_scene()
     ds0 = ps.sweep(scene, {"mu": [0.1, 0.2]}, "serial")  # builds and caches the kernel
-    kernel = next(
-        k
-        for k in ps._KERNELS.values()
-        if isinstance(k, ps._ApproximationKernel)
-        and k.names == ["mu"]
-        and k.quantity == scene.quantity
-    )
-    real = kernel._peak
+    real = ps.ApproximationKernel.peak
 
-    def flaky(p):
+    def flaky(self, p):
         if p[0] == 0.2:
             raise PerturbError("unbounded")
-        return real(p)
+        return real(self, p)
 
-    monkeypatch.setattr(kernel, "_peak", flaky)
+    # patched on the class: the second sweep reuses the kernel the first one cached
+    monkeypatch.setattr(ps.ApproximationKernel, "peak", flaky)
     ds = ps.sweep(scene, {"mu": [0.1, 0.2]}, "serial")
     assert ds.failed.values.tolist() == [0, 1] and ds.attrs["failed_cells"] == 1
     assert "unbounded" in ds.attrs["first_error"]

@@ -51,25 +51,31 @@ the kernel signals them; everywhere a watchdog thread polls the parent).
 What a scene sweep computes per cell (``[sweep] quantity`` / ``solver``)
 ----------------------------------------------------------------------
 ``solver = "approximation"`` (default) uses the scene's ``[method]`` (``hb1`` by default),
-derived once with the swept parameters left symbolic and compiled to numpy; its
-phase-eliminated amplitude equation :math:`c_0(A) + c_1(A)W + c_2(A)W^2 = 0`,
-:math:`W = \Omega^2`, is scanned on 2000 amplitudes :math:`10^{-8} \dots 10^8` per cell.
+derived once with the swept parameters left symbolic and compiled once by the amplitude
+parametrisation of :mod:`perturb.numeric.amplitude` (``compile_response(..., parameters=...)``,
+the swept parameters as arguments); its phase-eliminated amplitude equation
+:math:`c_0(A) + c_1(A)W + c_2(A)W^2 = 0`, :math:`W = \Omega^2`, is scanned on 2000 amplitudes
+:math:`10^{-8} \dots 10^8` per cell.
 
 * ``peak_amplitude`` / ``peak_restoring_force``: the largest amplitude of the response in the
   scene's frequency window (the resonance peak: the fold of a hardening branch or the top of
   a detached loop), refined to rounding by nested grids; reported as ``peak_amplitude``
   (:math:`\max|x(t)|` of the waveform there), ``peak_omega`` and ``peak_restoring_force``
   (:math:`\max|f(x(t))|` over that orbit, with :math:`f` the restoring force: the largest
-  :math:`|f|` on :math:`[\min x, \max x]`, exact at the breakpoints of a PWL force).  About
-  25 ms of CPU per cell for ``hb1`` on ``nsd`` (a 2000-cell map in under a minute on one
-  core), mostly the fixed cost of a call of the closed-form Fourier functions, of which a
-  cell makes eight; building the kernel takes 1–3 s once per worker.  The approximation's
+  :math:`|f|` on :math:`[\min x, \max x]`, exact at the breakpoints of a PWL force; the
+  extremes of :math:`x` at the waveform's critical points).  About 6 ms of CPU per cell for
+  ``hb1`` on ``nsd`` (a 2000-cell map in well under a minute on one core), mostly the fixed
+  cost of the calls of the closed-form Fourier functions, of which a cell makes eight rounds;
+  building the kernel takes 1–3 s once per worker.  The approximation's
   peak is checked against the simulated one in ``tests/test_sweep.py``; super- and
   subharmonic resonances, which a single-harmonic method does not see, are not included.
 * ``frequency_response``: every solution at ``omega_points`` equally spaced frequencies of the
   window, amplitudes sorted in decreasing order and padded with NaN to ``max_solutions``
   (dimensions ``Omega``, ``solution``); no stability (use the simulation solver for what is
-  reached in practice).  About 85 ms of CPU per cell with 101 frequencies.
+  reached in practice).  The roots are those of
+  :meth:`~perturb.numeric.amplitude.FrequencyResponseSolver.roots_at` on the 2000-amplitude
+  scan, without its search for root pairs closer than the scan's spacing (which would cost
+  several times the rest of a cell).  About 20 ms of CPU per cell with 41 frequencies.
 
 ``solver = "simulation"`` integrates the equation of motion (the exact piecewise-linear flow
 for PWL models, else DOP853) as a stepped-sine sweep over ``omega_points`` frequencies
@@ -444,6 +450,12 @@ def _spec_oscillator(spec: Mapping[str, Any]):
     return builtin_model(spec["model"], **spec["params"])
 
 
+def clear_kernel_cache() -> None:
+    """Forget the compiled kernels of this process: the next sweep builds its own, as a fresh
+    worker process would (for benchmarks)."""
+    _KERNELS.clear()
+
+
 def _kernel(spec_json: str) -> tuple[Any, bool]:
     kernel = _KERNELS.get(spec_json)
     if kernel is not None:
@@ -454,7 +466,7 @@ def _kernel(spec_json: str) -> tuple[Any, bool]:
     elif spec["solver"] == "simulation":
         kernel = _SimulationKernel(spec)
     else:
-        kernel = _ApproximationKernel(spec)
+        kernel = ApproximationKernel(spec)
     _KERNELS[spec_json] = kernel
     return kernel, True
 
@@ -515,58 +527,31 @@ class _ForceRange:
         return float(np.max(np.abs(fx)))
 
 
-def _quadratic_roots(c0, c1, c2):
-    """Both roots of ``c2 W^2 + c1 W + c0`` (NaN where complex), without cancellation."""
-    with np.errstate(all="ignore"):
-        disc = c1 * c1 - 4.0 * c2 * c0
-        sq = np.sqrt(np.where(disc >= 0, disc, np.nan))
-        q = -0.5 * (c1 + np.copysign(sq, c1))
-        r1, r2 = q / c2, c0 / q
-        linear = c2 == 0
-        r1 = np.where(linear, -c0 / c1, r1)
-        r2 = np.where(linear, np.nan, r2)
-    return np.fmin(r1, r2), np.fmax(r1, r2)
+class ApproximationKernel:
+    """Peaks and frequency responses of a scene's approximation over a parameter grid: one
+    cell per call, ``kernel(values)`` with the values of the swept parameters.
 
+    The method is derived once with the swept parameters left symbolic and compiled once by
+    :func:`perturb.numeric.amplitude.compile_response` with them as free parameters; the
+    amplitude parametrisation itself (amplitude equation, its roots in ``Omega**2``, roots at
+    given frequencies, the orbit's extremes) is that solver's. What is specific to a sweep is
+    here: the largest amplitude in the window (:meth:`peak`) and the fixed-size table of
+    solutions per frequency (:meth:`frequency_response`).
 
-def _illinois(f, a: np.ndarray, b: np.ndarray, fa: np.ndarray, iterations: int = 60):
-    """Roots of ``f`` in the brackets ``[a, b]`` (``fa = f(a)``), all at once, by the
-    Illinois variant of regula falsi: superlinear, and every iterate stays bracketed."""
-    a, b = a.copy(), b.copy()
-    fa = fa.copy()
-    fb = f(b)
-    side = np.zeros(a.size, int)
-    for _ in range(iterations):
-        with np.errstate(all="ignore"):
-            c = np.where(fb != fa, (a * fb - b * fa) / (fb - fa), 0.5 * (a + b))
-        bad = ~((c > np.minimum(a, b)) & (c < np.maximum(a, b)))
-        c = np.where(bad, 0.5 * (a + b), c)
-        fc = f(c)
-        same = np.sign(fc) == np.sign(fa)
-        # replace the end of the same sign; halve the kept end's value when it is kept twice
-        a_new = np.where(same, c, a)
-        fa_new = np.where(same, fc, np.where(side == -1, 0.5 * fa, fa))
-        b_new = np.where(same, b, c)
-        fb_new = np.where(same, np.where(side == 1, 0.5 * fb, fb), fc)
-        side = np.where(same, 1, -1)
-        a, fa, b, fb = a_new, fa_new, b_new, fb_new
-        if np.all((np.abs(b - a) <= 4 * np.finfo(float).eps * np.abs(b)) | (fc == 0)):
-            break
-    return np.where(np.abs(fa) <= np.abs(fb), a, b)
+    Parameters
+    ----------
+    spec : mapping
+        The task specification of :func:`sweep` (model, parameter values, window, method,
+        quantity, options and the names of the swept parameters).
+    """
 
-
-class _ApproximationKernel:
-    """Peaks and frequency responses of an approximation, compiled once in the swept
-    parameters (the derivation runs with them left symbolic)."""
-
-    _SCAN = np.geomspace(1e-8, 1e8, 2000)
-    _SAMPLES = 256
+    #: the amplitude scan of a cell: logarithmic, 1e-8 to 1e8
+    SCAN = np.geomspace(1e-8, 1e8, 2000)
 
     def __init__(self, spec: Mapping[str, Any]) -> None:
-        import sympy as sp
-
         from perturb.methods.registry import spec as method_spec
         from perturb.model.parsing import real_symbol
-        from perturb.numeric.compile import bind_parameters, lambdify
+        from perturb.numeric.amplitude import compile_response
 
         self.spec = spec
         self.names = list(spec["swept"])
@@ -585,29 +570,19 @@ class _ApproximationKernel:
                 f"method {method!r} gives no amplitude equation of degree <= 2 in Omega^2 with "
                 "an amplitude and a phase: use hb1, shb, kb, ms or mlp, or solver = 'simulation'"
             )
-        A, Om, phase, tau = approx.amplitude, approx.frequency, approx.unknowns[1], approx.tau
         syms = [real_symbol(n) for n in self.names]
-        keep = (A, Om, phase, tau, *syms)
-        coeffs = list(approx.frequency_polynomial) + [sp.Integer(0)] * (
-            3 - len(approx.frequency_polynomial)
-        )
-        self._poly = lambdify((A, *syms), bind_parameters(approx, coeffs, keep))
-        pc, ps = bind_parameters(approx, list(approx.phase_from or (1, 0)), keep)
-        self._phase = lambdify((A, Om, *syms), [pc, ps])
-        wave = bind_parameters(approx, [approx.waveform], keep)[0]
-        args = (tau, A, phase, Om, *syms)
-        self._wave = lambdify(args, [wave, sp.diff(wave, tau), sp.diff(wave, tau, 2)])
+        # no stability is computed: "slow_flow" only asks for a valid approximation
+        self.solver = compile_response(approx, "slow_flow", parameters=syms)
         self._force = _ForceRange(free, self.names)
-        lo, hi = spec["omega"]
-        self.window = (lo * lo, hi * hi)
+        self.window = (float(spec["omega"][0]), float(spec["omega"][1]))
         self.quantity = spec["quantity"]
         self.options = spec["options"]
-        self.frequency_name = Om.name
+        self.frequency_name = approx.frequency.name
         if self.quantity == "frequency_response":
-            self.omegas = np.linspace(lo, hi, self.options["omega_points"])
+            self.omegas = np.linspace(*self.window, self.options["omega_points"])
 
-    # -- schema ---------------------------------------------------------------------------------
     def schema(self) -> dict[str, tuple[tuple[str, ...], dict[str, np.ndarray]]]:
+        """Per output: its dimensions beyond the grid's and their coordinates."""
         if self.quantity == "frequency_response":
             dims = (self.frequency_name, "solution")
             coords = {
@@ -621,40 +596,22 @@ class _ApproximationKernel:
             }
         return {name: ((), {}) for name in _PEAK_VARS}
 
-    # -- pieces ---------------------------------------------------------------------------------
     def _in_window(self, a: np.ndarray, p: Sequence[float]) -> tuple[np.ndarray, ...]:
-        c0, c1, c2 = self._poly(a, *p)
-        wlo, whi = _quadratic_roots(c0, c1, c2)
-        lo, hi = self.window
-        return (wlo >= lo) & (wlo <= hi), (whi >= lo) & (whi <= hi), wlo, whi
+        wlo, whi, in_lo, in_hi = self.solver.window_roots(a, *self.window, *p)
+        return in_lo, in_hi, wlo, whi
 
-    def _extremes(self, a, w, p) -> tuple[np.ndarray, np.ndarray]:
-        """min and max of x(tau) over a period for each (A, Omega): the best of 256 samples,
-        polished by Newton steps on dx/dtau = 0 (samples alone are low by up to
-        A (1 - cos(pi/256)))."""
-        pc, ps = self._phase(a, w, *p)
-        phi = np.arctan2(ps, pc)
-        phi = np.where(np.isfinite(phi), phi, 0.0)
-        tau = np.linspace(0.0, 2 * np.pi, self._SAMPLES, endpoint=False)
-        a2, phi2, w2 = a[:, None], phi[:, None], w[:, None]
-        xs = self._wave(tau[None, :], a2, phi2, w2, *p)[0]
-        step = tau[1] - tau[0]
-        out = []
-        for pick in (np.argmin, np.argmax):
-            t = tau[pick(xs, axis=1)]
-            for _ in range(8):
-                _, d1, d2 = self._wave(t, a, phi, w, *p)
-                with np.errstate(all="ignore"):
-                    dt = np.where(d2 != 0, -d1 / d2, 0.0)
-                t = t + np.clip(np.nan_to_num(dt), -step, step)
-            out.append(self._wave(t, a, phi, w, *p)[0])
-        xmin = np.minimum(out[0], xs.min(axis=1))
-        xmax = np.maximum(out[1], xs.max(axis=1))
-        return xmin, xmax
+    def peak(self, p: Sequence[float]) -> dict[str, float]:
+        """The resonance peak at the swept values ``p``: the largest amplitude with a solution
+        in the window, its ``max |x|``, frequency and the largest restoring force over that
+        orbit (NaN when the window has no solution).
 
-    def _peak(self, p: Sequence[float]) -> dict[str, float]:
+        Raises
+        ------
+        PerturbError
+            When the response grows past the scan (no damping).
+        """
         nan = {k: math.nan for k in _PEAK_VARS}
-        scan = self._SCAN
+        scan = self.SCAN
         in_lo, in_hi, _, _ = self._in_window(scan, p)
         hits = np.flatnonzero(in_lo | in_hi)
         if hits.size == 0:
@@ -679,7 +636,7 @@ class _ApproximationKernel:
         lo_ok, hi_ok, wlo, whi = self._in_window(arr, p)
         W = float(wlo[0] if lo_ok[0] else whi[0])
         w = math.sqrt(W)
-        xmin, xmax = self._extremes(arr, np.array([w]), p)
+        xmin, xmax = self.solver.extremes(arr, np.array([w]), *p)
         lo_x, hi_x = float(xmin[0]), float(xmax[0])
         return {
             "peak_amplitude": max(abs(lo_x), abs(hi_x)),
@@ -687,27 +644,19 @@ class _ApproximationKernel:
             "peak_restoring_force": self._force(lo_x, hi_x, p),
         }
 
-    def _residual(self, a: np.ndarray, W: np.ndarray, p: Sequence[float]) -> np.ndarray:
-        d0, d1, d2 = self._poly(a, *p)
-        return d0 + d1 * W + d2 * W * W
-
-    def _frequency_response(self, p: Sequence[float]) -> dict[str, np.ndarray]:
-        scan = self._SCAN
+    def frequency_response(self, p: Sequence[float]) -> dict[str, np.ndarray]:
+        """Every solution at the ``omega_points`` frequencies at the swept values ``p``: per
+        frequency the ``max_solutions`` largest ``max |x|`` (NaN-padded), their first-harmonic
+        amplitudes and the number of solutions."""
         nw, S = self.omegas.size, self.options["max_solutions"]
-        c0, c1, c2 = self._poly(scan, *p)
-        W = (self.omegas**2)[:, None]
-        with np.errstate(all="ignore"):
-            vals = c0[None, :] + c1[None, :] * W + c2[None, :] * W * W
-        iw, ia = np.nonzero(np.sign(vals[:, :-1]) * np.sign(vals[:, 1:]) < 0)
-        lo_a, hi_a = scan[ia], scan[ia + 1]
-        f_lo = vals[iw, ia]
-        Wr = W[iw, 0]
-        roots = _illinois(lambda a: self._residual(a, Wr, p), lo_a, hi_a, f_lo)
+        # no search for root pairs between two scan points: it would cost several times the
+        # rest of a cell
+        iw, roots = self.solver.roots_at(self.omegas, *p, points=self.SCAN.size, pairs=False)
         amp = np.full((nw, S), np.nan)
         first = np.full((nw, S), np.nan)
         count = np.zeros(nw)
         if roots.size:
-            xmin, xmax = self._extremes(roots, self.omegas[iw], p)
+            xmin, xmax = self.solver.extremes(roots, self.omegas[iw], *p)
             size = np.maximum(np.abs(xmin), np.abs(xmax))
             for j in range(nw):
                 sel = np.flatnonzero(iw == j)
@@ -719,8 +668,8 @@ class _ApproximationKernel:
 
     def __call__(self, p: Sequence[float]) -> dict[str, Any]:
         if self.quantity == "frequency_response":
-            return self._frequency_response(p)
-        return self._peak(p)
+            return self.frequency_response(p)
+        return self.peak(p)
 
 
 class _SimulationKernel:
@@ -994,7 +943,8 @@ def _process_pool(n: int) -> cf.ProcessPoolExecutor:
     return cf.ProcessPoolExecutor(n, initializer=_worker_init, initargs=(os.getpid(),))
 
 
-def _machine_workers() -> int:
+def machine_workers() -> int:
+    """The cores this process may run on (the default size of :func:`sweep`'s pool)."""
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not on Linux
@@ -1008,7 +958,7 @@ def _is_dask_client(obj: Any) -> bool:
 def _open_executor(executor: Any) -> tuple[cf.Executor, int, bool, str]:
     """(executor, number of workers, whether we own it, description; "dask ..." for Dask)."""
     if executor is None:
-        n = _machine_workers()
+        n = machine_workers()
         return _process_pool(n), n, True, f"process pool ({n} workers)"
     if isinstance(executor, str):
         if executor == "serial":
@@ -1026,7 +976,7 @@ def _open_executor(executor: Any) -> tuple[cf.Executor, int, bool, str]:
         n = max(1, sum(executor.nthreads().values()))
         return executor.get_executor(pure=False), n, False, f"dask ({n} worker threads)"
     if isinstance(executor, cf.Executor):
-        n = int(getattr(executor, "_max_workers", 0) or _machine_workers())
+        n = int(getattr(executor, "_max_workers", 0) or machine_workers())
         return executor, n, False, type(executor).__name__
     raise ParameterError(
         f"executor = {executor!r}: expected None, 'serial', a number of processes, a "
@@ -1283,7 +1233,28 @@ def _applies(quantity: str, solver: str, key: str) -> bool:
     return key in _check_options(quantity, solver, {})
 
 
-def _chunk_size(per_cell: float | None, left: int, workers: int, target: float) -> int:
+def chunk_cells(per_cell: float | None, left: int, workers: int, target: float) -> int:
+    """How many cells the next task of :func:`sweep` gets.
+
+    Parameters
+    ----------
+    per_cell : float or None
+        Measured seconds per cell so far; None before any task finished (then 1: probe
+        tasks, whose timing sets the size of the rest).
+    left : int
+        Cells not yet submitted.
+    workers : int
+        Workers of the executor.
+    target : float
+        Seconds a task should take (``chunk_seconds``).
+
+    Returns
+    -------
+    int
+        ``target / per_cell`` cells, fewer when that leaves workers idle at the end (half a
+        worker's share of the cells left), but never so few that a task lasts less than
+        :data:`MIN_TASK_SECONDS` (unless a cell alone takes longer); between 1 and 100000.
+    """
     if per_cell is None:
         return 1  # probe tasks: their timing sets the size of the rest
     per_cell = max(per_cell, 1e-6)
@@ -1472,7 +1443,7 @@ def sweep(
                     bar.update(len(done))
                 while queue or inflight:
                     while queue and len(inflight) < max_inflight:
-                        n = chunk_size or _chunk_size(per_cell, len(queue), workers, target)
+                        n = chunk_size or chunk_cells(per_cell, len(queue), workers, target)
                         chunk = [queue.popleft() for _ in range(min(n, len(queue)))]
                         fut = ex.submit(task, *task_args, [cell(i) for i in chunk])
                         inflight[fut] = chunk

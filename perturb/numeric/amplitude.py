@@ -60,6 +60,8 @@ __all__ = [
 _SCAN_POINTS = 6000
 _SCAN_RANGE = (1e-8, 1e8)
 WAVEFORM_SAMPLES = 128
+#: samples of a waveform that is not a trigonometric polynomial, for its extremes
+EXTREMES_SAMPLES = 256
 FLOQUET_SAMPLES = 512
 _CHUNK = 512
 _STABILITY = ("hill", "floquet", "slow_flow")
@@ -99,6 +101,13 @@ def _roots(c0: np.ndarray, c1: np.ndarray, c2: np.ndarray) -> tuple[np.ndarray, 
         r2 = np.where(linear, np.nan, r2)
     lo, hi = np.fmin(r1, r2), np.fmax(r1, r2)
     return lo, hi, disc
+
+
+def _in_window(wlo: np.ndarray, whi: np.ndarray, lo: float, hi: float) -> tuple[np.ndarray, ...]:
+    """Whether each root ``W`` lies in ``[lo**2, hi**2]`` (frequencies ``lo`` to ``hi``)."""
+    in_lo = (wlo >= lo * lo) & (wlo <= hi * hi)
+    in_hi = (whi >= lo * lo) & (whi <= hi * hi)
+    return in_lo, in_hi
 
 
 def bracketed_roots(
@@ -367,7 +376,8 @@ def solutions_at(
     a_lo, a_hi = (float(a) for a in amplitude_range)
     if not (0 < a_lo < a_hi and np.isfinite(a_hi)):
         raise ParameterError(f"amplitude_range = {amplitude_range!r}: expected 0 < low < high")
-    wr, roots = _roots_at(cp, w_all, a_lo, a_hi)
+    iw, roots = _roots_at(cp, w_all, a_lo, a_hi)
+    wr = w_all[iw]
     # Link the solutions into branches along the amplitude-parametrised curve: each solution
     # joins the traced branch passing nearest to it, ordered by position along that branch
     # (nearest-amplitude linking between frequencies fails on coarse grids near folds).
@@ -398,23 +408,37 @@ def solutions_at(
 
 
 def _roots_at(
-    cp: FrequencyResponseSolver, w_all: np.ndarray, a_lo: float, a_hi: float
+    cp: FrequencyResponseSolver,
+    w_all: np.ndarray,
+    a_lo: float,
+    a_hi: float,
+    params: Sequence[float] = (),
+    points: int = _SCAN_POINTS,
+    pairs: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Every root ``A`` of the amplitude equation at each frequency of ``w_all``:
-    ``(frequencies, amplitudes)``, one entry per root, bracketed on a logarithmic scan of
-    ``[a_lo, a_hi]`` and refined to full precision."""
-    poly = cp.poly
-    if (a_lo, a_hi) == _SCAN_RANGE:
+    """Every root ``A`` of the amplitude equation at each frequency of ``w_all`` (with the
+    free parameters at ``params``): ``(frequency indices, amplitudes)``, one entry per root,
+    bracketed on a logarithmic scan of ``[a_lo, a_hi]`` with ``points`` amplitudes and refined
+    to full precision; ``pairs``: also the root pairs between two scan points
+    (:func:`_hidden_root_pairs`)."""
+
+    def poly(x: np.ndarray) -> list[np.ndarray]:
+        return cp.poly(x, *params)
+
+    if (a_lo, a_hi) == _SCAN_RANGE and points == _SCAN_POINTS and cp.scan is not None:
         grid, (c0, c1, c2) = cp.scan
     else:
-        grid = np.geomspace(a_lo, a_hi, _SCAN_POINTS)
+        grid = np.geomspace(a_lo, a_hi, points)
         c0, c1, c2 = poly(grid)
     W = (w_all**2)[:, None]
     vals = c0[None, :] + c1[None, :] * W + c2[None, :] * W * W
     iw, ia = np.nonzero(np.sign(vals[:, :-1]) * np.sign(vals[:, 1:]) < 0)
     lo_a, hi_a = grid[ia], grid[ia + 1]
     f_lo, f_hi = vals[iw, ia], vals[iw, ia + 1]
-    hidden = _hidden_root_pairs(poly, grid, vals, W)
+    if pairs:
+        hidden = _hidden_root_pairs(poly, grid, vals, W)
+    else:
+        hidden = (np.empty(0, int),)
     if hidden[0].size:
         iw = np.concatenate([iw, hidden[0], hidden[0]])
         lo_a = np.concatenate([lo_a, hidden[1], hidden[2]])
@@ -432,7 +456,7 @@ def _roots_at(
 
     lo_a, hi_a, _, _ = bracketed_roots(residual, lo_a, hi_a, f_lo, f_hi)
     roots = 0.5 * (lo_a + hi_a)
-    return w_all[iw], roots
+    return iw, roots
 
 
 def _hidden_root_pairs(poly, grid: np.ndarray, vals: np.ndarray, W: np.ndarray):
@@ -508,9 +532,7 @@ class _Grid:
 
     def roots(self, lo: float, hi: float) -> tuple[np.ndarray, ...]:
         wlo, whi, disc = _roots(*self.c)
-        in_lo = (wlo >= lo * lo) & (wlo <= hi * hi)
-        in_hi = (whi >= lo * lo) & (whi <= hi * hi)
-        return wlo, whi, disc, in_lo, in_hi
+        return (wlo, whi, disc, *_in_window(wlo, whi, lo, hi))
 
 
 def approximation_response(
@@ -563,8 +585,7 @@ def approximation_response(
     if amplitude_range is None:
         scan, coeffs = cp.scan
         wlo, whi, _ = _roots(*coeffs)
-        in_lo = (wlo >= lo * lo) & (wlo <= hi * hi)
-        in_hi = (whi >= lo * lo) & (whi <= hi * hi)
+        in_lo, in_hi = _in_window(wlo, whi, lo, hi)
         # a root may also cross the window between two scan points without landing in it
         # (a narrow window, or Omega -> 0 where W = Omega**2 is tiny)
         through = _passes_window(wlo, whi, lo * lo, hi * hi)
@@ -653,7 +674,8 @@ def _fixed_frequency_response(
     frequency has the same number of solutions they are joined in amplitude order."""
     approx = cp.approx
     w_grid = np.linspace(lo, hi, _FIXED_FREQUENCIES)
-    wr, roots = _roots_at(cp, w_grid, *_SCAN_RANGE)
+    iw, roots = _roots_at(cp, w_grid, *_SCAN_RANGE)
+    wr = w_grid[iw]
     counts = np.array([np.count_nonzero(wr == w) for w in w_grid])
     branches: list[Branch] = []
     notes: tuple[str, ...] = ()
@@ -1063,11 +1085,22 @@ class Waveform:
     ``atoms`` (:class:`_Atoms` of the amplitude ``A``) the coefficients are also compiled with
     the amplitude's Fourier coefficients as inputs (``coefficients(..., U=...)``)."""
 
-    def __init__(self, approx: Approximation, A, phase, Omega, atoms: _Atoms | None = None):
+    def __init__(
+        self,
+        approx: Approximation,
+        A,
+        phase,
+        Omega,
+        atoms: _Atoms | None = None,
+        parameters: Sequence[sp.Symbol] = (),
+    ):
         tau = approx.tau
-        keep = (A, Omega, phase, tau)
+        keep = (A, Omega, phase, tau, *parameters)
         wave = bind_parameters(approx, [approx.waveform], keep)[0]
-        self.args = (A, phase, Omega)
+        self.args = (A, phase, Omega, *parameters)
+        self._tau = tau
+        self._expr = wave
+        self._d2fn: Callable | None = None
         self.terms: list[tuple[int, bool]] | None = None
         self.fn_atoms: _Compiled | None = None
         atoms_ = sorted(
@@ -1110,14 +1143,14 @@ class Waveform:
         """The atoms :meth:`coefficients` needs with ``U``."""
         return [] if self.fn_atoms is None else self.fn_atoms.rows
 
-    def coefficients(self, a, phi, w, U: AtomValues | None = None):
-        """``C, S`` of shape ``(n, order + 1)``."""
+    def coefficients(self, a, phi, w, U: AtomValues | None = None, params: Sequence[float] = ()):
+        """``C, S`` of shape ``(n, order + 1)`` (``params``: values of the free parameters)."""
         assert self.terms is not None
         a = np.asarray(a, float)
         if U is not None and self.fn_atoms is not None:
-            out = self.fn_atoms(U, a, phi, w)
+            out = self.fn_atoms(U, a, phi, w, *params)
         else:
-            out = self.fn(a, phi, w)
+            out = self.fn(a, phi, w, *params)
         m = len(self.terms)
         C = np.zeros((a.size, self.order + 1))
         S = np.zeros_like(C)
@@ -1133,13 +1166,15 @@ class Waveform:
                 S[:, n] -= coef * sc
         return C, S
 
-    def samples(self, a, phi, w, count: int, coefs=None) -> tuple[np.ndarray, np.ndarray]:
+    def samples(
+        self, a, phi, w, count: int, coefs=None, params: Sequence[float] = ()
+    ) -> tuple[np.ndarray, np.ndarray]:
         """``x`` and ``dx/dtau`` at ``count`` equally spaced phases, shape ``(n, count)``."""
         if self.terms is None:
             tau = np.linspace(0, 2 * np.pi, count, endpoint=False)
-            args = (tau[None, :], a[:, None], phi[:, None], w[:, None])
+            args = (tau[None, :], a[:, None], phi[:, None], w[:, None], *params)
             return self.fn(*args), self.dfn(*args)
-        C, S = self.coefficients(a, phi, w) if coefs is None else coefs
+        C, S = self.coefficients(a, phi, w, params=params) if coefs is None else coefs
         n = np.arange(C.shape[1])
         if count <= 2 * (C.shape[1] - 1):  # too few samples for the FFT: sum directly
             tau = np.linspace(0, 2 * np.pi, count, endpoint=False)
@@ -1148,6 +1183,45 @@ class Waveform:
                 "ik,kj->ij", S * n, ct
             ) - np.einsum("ik,kj->ij", C * n, st)
         return _trig_samples(C, S, count), _trig_samples(S * n, -C * n, count)
+
+    def extremes(
+        self, a, phi, w, U: AtomValues | None = None, params: Sequence[float] = ()
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``min x`` and ``max x`` over a period for each orbit ``(a, phi, w)``.
+
+        A trigonometric polynomial: the extreme values at its critical points (see
+        :func:`critical_points`; the constant where there is none). Otherwise the best of
+        ``EXTREMES_SAMPLES`` samples, each polished by Newton steps on ``dx/dtau = 0`` kept
+        within a sample spacing (samples alone are low by up to ``A (1 - cos(pi / count))``).
+        """
+        a = np.asarray(a, float)
+        if self.terms is not None:
+            C, S = self.coefficients(a, phi, w, U, params)
+            rows, _, xe = critical_points(C, S)
+            lo, hi = C[:, 0].copy(), C[:, 0].copy()
+            if rows.size:
+                first = np.ones(rows.size, bool)
+                first[1:] = rows[1:] != rows[:-1]
+                starts = np.nonzero(first)[0]
+                lo[rows[starts]] = np.minimum.reduceat(xe, starts)
+                hi[rows[starts]] = np.maximum.reduceat(xe, starts)
+            return lo, hi
+        if self._d2fn is None:
+            self._d2fn = lambdify((self._tau, *self.args), sp.diff(self._expr, self._tau, 2))
+        tau = np.linspace(0.0, 2 * np.pi, EXTREMES_SAMPLES, endpoint=False)
+        xs = self.fn(tau[None, :], a[:, None], phi[:, None], w[:, None], *params)
+        step = tau[1] - tau[0]
+        out = []
+        for pick in (np.argmin, np.argmax):
+            t = tau[pick(xs, axis=1)]
+            for _ in range(8):  # Newton on dx/dtau = 0, capped at 8 steps
+                d1 = self.dfn(t, a, phi, w, *params)
+                d2 = self._d2fn(t, a, phi, w, *params)
+                with np.errstate(all="ignore"):
+                    dt = np.where(d2 != 0, -d1 / d2, 0.0)
+                t = t + np.clip(np.nan_to_num(dt), -step, step)
+            out.append(self.fn(t, a, phi, w, *params))
+        return np.minimum(out[0], xs.min(axis=1)), np.maximum(out[1], xs.max(axis=1))
 
     def max_abs(self, a, phi, w, xs: np.ndarray, coefs=None) -> np.ndarray:
         """max |x(tau)|: the largest value at the critical points of the trigonometric
@@ -1368,45 +1442,124 @@ def hill1_exponents(q0, qc1, qs1, qc2, qs2, w, p) -> np.ndarray:
 
 
 class FrequencyResponseSolver:
-    """An approximation compiled for :func:`approximation_response` and :func:`solutions_at`.
+    """An approximation compiled for amplitude parametrisation: the amplitude equation, the
+    phase and the waveform as numpy functions of the amplitude (and frequency, phase).
 
     Compiling (SymPy to numpy, with common subexpressions, and the amplitude polynomial on
     the fixed amplitude scan) costs far more than tracing a response; build one solver with
     :func:`compile_response` and pass it instead of the approximation when tracing many
     windows or parameter values' worth of responses.
+
+    Parameters
+    ----------
+    approx : Approximation
+        With ``frequency_polynomial``, ``amplitude``, ``phase_from`` and ``waveform``.
+    parameters : sequence of sympy.Symbol, optional
+        Oscillator parameters left free (their values ``None`` in ``approx.oscillator``):
+        every compiled function then takes their values as trailing arguments, so one solver
+        serves a whole parameter grid (:func:`perturb.apps.grid.sweep` builds it once per
+        worker). A solver with free parameters answers :meth:`poly`, :meth:`window_roots`,
+        :meth:`roots_at` and :meth:`extremes`; :func:`approximation_response` and
+        :func:`solutions_at` need every value bound (no ``parameters``).
     """
 
-    def __init__(self, approx: Approximation) -> None:
+    def __init__(self, approx: Approximation, parameters: Sequence[sp.Symbol] = ()) -> None:
         self.approx = approx
+        self.parameters = tuple(parameters)
+        P = self.parameters
         self.A, self.Omega = approx.amplitude, approx.frequency
         self.phase = approx.unknowns[1] if len(approx.unknowns) > 1 else sp.Symbol("phi")
-        keep = (self.A, self.Omega, self.phase, approx.tau)
+        keep = (self.A, self.Omega, self.phase, approx.tau, *P)
         self.atoms = _Atoms(self.A)
         coeffs = list(approx.frequency_polynomial or ())
         coeffs += [sp.Integer(0)] * (3 - len(coeffs))
-        self.poly_u = _Compiled(self.atoms, (self.A,), bind_parameters(approx, coeffs, (self.A,)))
+        self.poly_u = _Compiled(
+            self.atoms, (self.A, *P), bind_parameters(approx, coeffs, (self.A, *P))
+        )
         self.poly_rows = self.poly_u.rows
         cos_part, sin_part = bind_parameters(approx, list(approx.phase_from or (1, 0)), keep)
-        self.phase_u = _Compiled(self.atoms, (self.A, self.Omega), [cos_part, sin_part])
-        self.wave = Waveform(approx, self.A, self.phase, self.Omega, atoms=self.atoms)
+        self.phase_u = _Compiled(self.atoms, (self.A, self.Omega, *P), [cos_part, sin_part])
+        self.wave = Waveform(approx, self.A, self.phase, self.Omega, atoms=self.atoms, parameters=P)
         self._jac: _Compiled | None = None
-        self.hill = _PWLHill.build(approx.oscillator, self.Omega)
-        scan = np.geomspace(*_SCAN_RANGE, _SCAN_POINTS)
-        self.scan = scan, tuple(self.poly(scan))
+        # Hill's fast path and the precomputed scan need every parameter's value
+        self.hill = None if P else _PWLHill.build(approx.oscillator, self.Omega)
+        self.scan: tuple[np.ndarray, tuple[np.ndarray, ...]] | None = None
+        if not P:
+            scan = np.geomspace(*_SCAN_RANGE, _SCAN_POINTS)
+            self.scan = scan, tuple(self.poly(scan))
 
-    def poly(self, a: np.ndarray) -> list[np.ndarray]:
-        """``c0, c1, c2`` of the amplitude equation ``c0 + c1 W + c2 W^2`` at amplitudes ``a``."""
+    def poly(self, a: np.ndarray, *params: float) -> list[np.ndarray]:
+        """``c0, c1, c2`` of the amplitude equation ``c0 + c1 W + c2 W^2`` at amplitudes ``a``
+        (and the values ``params`` of the free :attr:`parameters`)."""
         a = np.asarray(a, float)
-        return self.poly_u(self.atoms.evaluate(a, self.poly_rows), a)
+        return self.poly_u(self.atoms.evaluate(a, self.poly_rows), a, *params)
+
+    def window_roots(self, a: np.ndarray, lo: float, hi: float, *params: float):
+        """Both roots ``W_- <= W_+`` (``W = Omega**2``, NaN where complex) of the amplitude
+        equation at amplitudes ``a``, and whether each lies in ``[lo**2, hi**2]``.
+
+        Returns
+        -------
+        wlo, whi, in_lo, in_hi : ndarray
+        """
+        wlo, whi, _ = _roots(*self.poly(a, *params))
+        return (wlo, whi, *_in_window(wlo, whi, lo, hi))
+
+    def roots_at(
+        self,
+        omegas: np.ndarray,
+        *params: float,
+        amplitude_range: Sequence[float] = _SCAN_RANGE,
+        points: int = _SCAN_POINTS,
+        pairs: bool = True,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Every root ``A`` of the amplitude equation at each frequency of ``omegas``.
+
+        Bracketed on ``points`` amplitudes spaced logarithmically over ``amplitude_range``
+        and refined to full precision. With ``pairs`` (as :func:`solutions_at`), also the
+        root pairs closer than that spacing (near a double root), by a search for the minimum
+        of ``|P|`` between the samples: up to ~90 more evaluations of the amplitude equation,
+        which a parameter sweep may not afford per cell.
+
+        Returns
+        -------
+        index, amplitude : ndarray
+            One entry per root: the index of its frequency in ``omegas`` (increasing) and the
+            amplitude.
+        """
+        w_all = np.asarray(omegas, dtype=float).reshape(-1)
+        a_lo, a_hi = (float(a) for a in amplitude_range)
+        return _roots_at(self, w_all, a_lo, a_hi, params, int(points), pairs)
+
+    def phases(self, a: np.ndarray, w: np.ndarray, *params: float, U=None) -> np.ndarray:
+        """The phase of the orbit at amplitudes ``a`` and frequencies ``w``, from
+        ``phase_from`` (0 where it is undefined); ``U``: the atoms at ``a`` if at hand."""
+        a = np.asarray(a, float)
+        if U is None:
+            U = self.atoms.evaluate(a, self.phase_u.rows)
+        pc, ps = self.phase_u(U, a, w, *params)
+        phi = np.arctan2(ps, pc)
+        return np.where(np.isfinite(phi), phi, 0.0)
+
+    def extremes(self, a: np.ndarray, w: np.ndarray, *params: float):
+        """``min x`` and ``max x`` over a period of the orbits at amplitudes ``a`` and
+        frequencies ``w``: at the waveform's critical points (:meth:`Waveform.extremes`)."""
+        a = np.asarray(a, float)
+        w = np.asarray(w, float)
+        rows = sorted(set(self.phase_u.rows) | set(self.wave.rows))
+        U = self.atoms.evaluate(a, rows)
+        phi = self.phases(a, w, *params, U=U)
+        return self.wave.extremes(a, phi, w, U, params)
 
     def jacobian(self) -> _Compiled:
-        """The slow-flow Jacobian in ``(A, phase, Omega)`` and the atoms (compiled on use:
-        only ``stability="slow_flow"`` needs it)."""
+        """The slow-flow Jacobian in ``(A, phase, Omega, *parameters)`` and the atoms
+        (compiled on use: only ``stability="slow_flow"`` needs it)."""
         if self._jac is None:
-            keep = (self.A, self.Omega, self.phase, self.approx.tau)
+            P = self.parameters
+            keep = (self.A, self.Omega, self.phase, self.approx.tau, *P)
             flow = bind_parameters(self.approx, list(self.approx.slow_flow or ()), keep)
             jac = sp.Matrix(flow).jacobian(sp.Matrix(self.approx.unknowns))
-            self._jac = _Compiled(self.atoms, (self.A, self.phase, self.Omega), list(jac))
+            self._jac = _Compiled(self.atoms, (self.A, self.phase, self.Omega, *P), list(jac))
         return self._jac
 
     def branch_rows(self, stability: str) -> list[int]:
@@ -1418,19 +1571,34 @@ class FrequencyResponseSolver:
 
 
 def compile_response(
-    approximation: Approximation | FrequencyResponseSolver, stability: str = "hill"
+    approximation: Approximation | FrequencyResponseSolver,
+    stability: str = "hill",
+    *,
+    parameters: Sequence[sp.Symbol] = (),
 ) -> FrequencyResponseSolver:
     """Compile ``approximation`` for tracing (a solver passes through unchanged).
+
+    ``parameters``: oscillator parameters left free, given as arguments to the compiled
+    functions (see :class:`FrequencyResponseSolver`); a solver passed in must have the same.
 
     Raises
     ------
     PerturbError
         If the approximation has no amplitude equation in ``Omega**2`` of degree <= 2.
     ParameterError
-        For an unknown ``stability`` or parameters without values.
+        For an unknown ``stability``, parameters without values, or a solver compiled with
+        other free parameters.
     """
+    parameters = tuple(parameters)
     if isinstance(approximation, FrequencyResponseSolver):
         _check_approximation(approximation.approx, stability)
+        if approximation.parameters != parameters:
+            raise ParameterError(
+                "the solver was compiled with free parameters "
+                f"{[s.name for s in approximation.parameters]}, not "
+                f"{[s.name for s in parameters]}: compile one with the parameter values to "
+                "trace a response"
+            )
         return approximation
     if not isinstance(approximation, Approximation):
         raise ParameterError(
@@ -1438,7 +1606,7 @@ def compile_response(
             "perturb.methods) or a compiled FrequencyResponseSolver"
         )
     _check_approximation(approximation, stability)
-    return FrequencyResponseSolver(approximation)
+    return FrequencyResponseSolver(approximation, parameters)
 
 
 def _branches(
@@ -1452,9 +1620,7 @@ def _branches(
     """Branch statistics of all points at once (``U``: the atoms at ``a``), split into
     branches of ``sizes`` points."""
     approx = cp.approx
-    pc, ps = cp.phase_u(U, a, w)
-    phi = np.arctan2(ps, pc)
-    phi = np.where(np.isfinite(phi), phi, 0.0)
+    phi = cp.phases(a, w, U=U)
     wave = cp.wave
     coefs = wave.coefficients(a, phi, w, U) if wave.terms is not None else None
     extrema = None
