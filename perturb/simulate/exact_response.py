@@ -164,6 +164,7 @@ from scipy.optimize import brentq
 
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
+from perturb.model.segments import SegmentSteadyState, segment_steady_states
 from perturb.numeric.continuation import (
     FloquetCrossings,
     FoldTest,
@@ -1046,51 +1047,39 @@ def _hermite5_extremum(x0, d0, s0, x1, d1, s1, sign) -> tuple[float, float]:
 # =============================================================================================
 # closed-form orbits inside one linear segment
 # =============================================================================================
+def _segment_state(sys_: Any, seg: int) -> SegmentSteadyState | None:
+    """The closed-form steady state of linear segment ``seg`` (:mod:`perturb.model.segments`,
+    the one place the formula is written), or None."""
+    return segment_steady_states(
+        sys_.breakpoints,
+        sys_.slopes,
+        sys_.offsets,
+        sys_.damping,
+        sys_.forcing,
+        sys_.static_force,
+    )[seg]
+
+
 def _segment_orbit(sys_: Any, seg: int, P: float, t: np.ndarray) -> tuple[np.ndarray, ...] | None:
     """(x, v) of the steady state of linear segment ``seg`` at times ``t``, or None."""
-    s, o = float(sys_.slopes[seg]), float(sys_.offsets[seg])
-    mu = float(sys_.damping)
-    if s == 0.0:
-        return None
-    xc = (sys_.static_force - o) / s
-    x = np.full(np.shape(t), xc, dtype=float)
-    v = np.zeros(np.shape(t))
-    for F, w, ph in sys_.forcing:
-        den = s - w * w + 1j * mu * w
-        if den == 0:
-            return None
-        Z = F / den
-        e = Z * np.exp(1j * (w * np.asarray(t) + ph))
-        x = x + e.real
-        v = v + (1j * w * e).real
-    return x, v
+    state = _segment_state(sys_, seg)
+    return None if state is None else state.states(t)
 
 
 def _segment_info(sys_: Any, seg: int, P: float) -> tuple[float, float, float, float] | None:
     """(margin, xmin, xmax, xc) of segment ``seg``'s steady state; margin > 0 when it stays
     inside the segment."""
-    s, o = float(sys_.slopes[seg]), float(sys_.offsets[seg])
-    if s == 0.0:
+    state = _segment_state(sys_, seg)
+    if state is None:
         return None
-    mu = float(sys_.damping)
-    xc = (sys_.static_force - o) / s
-    if len(sys_.forcing) == 1:
-        F, w, _ = sys_.forcing[0]
-        den = s - w * w + 1j * mu * w
-        if den == 0:
-            return None
-        amp = abs(F / den)
-        xmin, xmax = xc - amp, xc + amp
+    if len(state.forcing) == 1:
+        xmin, xmax = state.xmin, state.xmax  # exact for one load
     else:
-        t = np.linspace(0.0, P, 513)
-        out = _segment_orbit(sys_, seg, P, t)
-        if out is None:
-            return None
-        xmin, xmax = float(out[0].min()), float(out[0].max())
-    bps = sys_.breakpoints
-    lo = -math.inf if seg == 0 else float(bps[seg - 1])
-    hi = math.inf if seg == len(bps) else float(bps[seg])
-    return min(hi - xmax, xmin - lo), xmin, xmax, xc
+        # several loads: the extremes of the sampled orbit (the segment's half_range is only
+        # a bound there)
+        x, _ = state.states(np.linspace(0.0, P, 513))
+        xmin, xmax = float(x.min()), float(x.max())
+    return min(state.upper - xmax, xmin - state.lower), xmin, xmax, state.centre
 
 
 class _Closed:
