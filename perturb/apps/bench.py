@@ -547,8 +547,8 @@ def limit_cycle_exact(prob: Problem, grid: np.ndarray) -> tuple[np.ndarray, np.n
     import numpy as np
 
     from perturb.model.builtins import builtin_model
-    from perturb.simulate.orbits.shooting import limit_cycle
     from perturb.simulate.flows.factory import make_flow
+    from perturb.simulate.orbits.shooting import limit_cycle
 
     amp, per = np.empty(grid.size), np.empty(grid.size)
     # the small-eps cycle is x = 2 cos t
