@@ -501,3 +501,73 @@ def test_old_name_warns_and_answers_the_same():
         b.amplitude.tolist() for b in new.branches
     ]
     assert "frequency_response" not in fr.__all__
+
+
+# ---------------------------------------------------------------- free parameters --
+def _free_nsd(method):
+    from perturb.model.parsing import real_symbol
+
+    osc = builtin_model("nsd", k=-2.0, mu=0.05, F=2.0).with_params({"mu": None, "k": None})
+    return method(osc), [real_symbol("mu"), real_symbol("k")]
+
+
+@pytest.mark.parametrize(("mu", "k"), [(0.05, -2.0), (0.2, -0.5), (0.1, 1.5)])
+def test_solver_with_free_parameters_finds_the_papers_roots(mu, k):
+    # compiled once with mu and k free (the sweep's case), evaluated at given values: every
+    # root at each frequency against the paper's amplitude equation, solved by brentq on a
+    # dense scan of its own
+    from perturb.numeric.amplitude import compile_response
+
+    approx, syms = _free_nsd(single_harmonic_balance)
+    solver = compile_response(approx, "slow_flow", parameters=syms)
+    omegas = np.linspace(0.3, 1.9, 9)
+    iw, roots = solver.roots_at(omegas, mu, k)
+    grid = np.geomspace(1e-3, 1e3, 20001)
+    for j, w in enumerate(omegas):
+        f = functools.partial(nsd_amplitude_equation, W=w, k=k, mu=mu, F=2.0)
+        v = f(grid)
+        sc = np.nonzero(np.sign(v[:-1]) * np.sign(v[1:]) < 0)[0]
+        want = [brentq(f, grid[i], grid[i + 1], xtol=1e-14, rtol=1e-14) for i in sc]
+        got = np.sort(roots[iw == j])
+        assert got.size == len(want)
+        np.testing.assert_allclose(got, want, rtol=1e-10)
+
+
+def test_solver_with_free_parameters_extremes_match_dense_samples():
+    # min/max of x over a period at the waveform's critical points, against 20000 samples of
+    # the waveform expression itself (sampling error ~ A (pi / 20000)^2 / 2)
+    import sympy as sp
+
+    from perturb.fourier.symbols import NUMERIC_IMPLEMENTATIONS
+    from perturb.methods import modified_lindstedt
+    from perturb.numeric.amplitude import compile_response
+
+    approx, syms = _free_nsd(lambda osc: modified_lindstedt(osc, 1))
+    solver = compile_response(approx, "slow_flow", parameters=syms)
+    mu, k = 0.1, -1.0
+    a = np.array([0.5, 1.5, 3.0, 8.0])
+    w = np.array([0.4, 0.9, 1.2, 0.95])
+    lo, hi = solver.extremes(a, w, mu, k)
+    phi = solver.phases(a, w, mu, k)
+    keep = {*syms, approx.frequency}
+    values = {s: v for s, v in approx.oscillator.substitutions().items() if s not in keep}
+    wave = sp.sympify(approx.waveform).xreplace(values | {syms[0]: mu, syms[1]: k})
+    args = (approx.tau, approx.amplitude, approx.unknowns[1], approx.frequency)
+    fn = sp.lambdify(args, wave, modules=[NUMERIC_IMPLEMENTATIONS, "numpy"])
+    tau = np.linspace(0, 2 * np.pi, 20000, endpoint=False)
+    for i in range(a.size):
+        xs = np.broadcast_to(fn(tau, a[i], phi[i], w[i]), tau.shape)
+        scale = np.max(np.abs(xs))
+        assert lo[i] <= xs.min() + 1e-12 * scale and hi[i] >= xs.max() - 1e-12 * scale
+        np.testing.assert_allclose([lo[i], hi[i]], [xs.min(), xs.max()], rtol=0, atol=1e-7 * scale)
+
+
+def test_solver_with_free_parameters_does_not_trace():
+    from perturb.numeric.amplitude import compile_response, solutions_at
+
+    approx, syms = _free_nsd(single_harmonic_balance)
+    solver = compile_response(approx, "slow_flow", parameters=syms)
+    with pytest.raises(ParameterError, match="free parameters"):
+        approximation_response(solver, (0.2, 2.0))
+    with pytest.raises(ParameterError, match="free parameters"):
+        solutions_at(solver, [1.0])
