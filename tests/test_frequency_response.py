@@ -571,3 +571,24 @@ def test_solver_with_free_parameters_does_not_trace():
         approximation_response(solver, (0.2, 2.0))
     with pytest.raises(ParameterError, match="free parameters"):
         solutions_at(solver, [1.0])
+
+
+def test_extremes_of_a_waveform_that_is_no_trigonometric_polynomial():
+    # a waveform not linear in cos/sin(n tau + c) takes the sampled path with Newton
+    # polishing (samples alone would be low by ~1e-4 here); the oracle is the closed form:
+    # x = A exp(cos(tau + phi)) has max A e and min A / e
+    import dataclasses
+
+    import sympy as sp
+
+    from perturb.numeric.amplitude import Waveform
+
+    approx = single_harmonic_balance(builtin_model("nsd", k=-2.0, mu=0.05, F=2.0))
+    A, phase, tau = approx.amplitude, approx.unknowns[1], approx.tau
+    odd = dataclasses.replace(approx, waveform=A * sp.exp(sp.cos(tau + phase)))
+    wave = Waveform(odd, A, phase, approx.frequency)
+    assert wave.terms is None
+    a = np.array([0.5, 2.0, 7.0])
+    lo, hi = wave.extremes(a, np.array([0.3, -1.0, 2.5]), np.ones(3))
+    np.testing.assert_allclose(hi, a * np.e, rtol=1e-14)
+    np.testing.assert_allclose(lo, a / np.e, rtol=1e-14)
