@@ -861,6 +861,62 @@ def _split_arg(arg: sp.Expr, t: sp.Symbol) -> tuple[sp.Expr, sp.Expr]:
     return w, rest
 
 
+@dataclass
+class _Problem:
+    """The model in multiple-scales form: bookkeeping parameter, resonance, linear operator
+    and the perturbation ``R = sum eps^k R_k`` (monomials), hard forcing and the first-order
+    nonsmooth force."""
+
+    osc: Oscillator
+    order: int
+    taken: set[str]
+    eps: sp.Symbol
+    named: sp.Symbol | None
+    Omega: sp.Expr | None
+    pq: tuple[int, int] | None
+    freq_symbol: sp.Symbol
+    detuning: str = ""
+    stiff: dict[int, sp.Expr] = field(default_factory=dict)
+    L0: sp.Expr = sp.Integer(0)
+    omega0: sp.Expr = sp.Integer(0)
+    nu: sp.Expr = sp.Integer(0)
+    monos: list[_Monomial] = field(default_factory=list)
+    hard: list[tuple[sp.Expr, sp.Expr, sp.Expr]] = field(default_factory=list)
+    hard_const: sp.Expr = sp.Integer(0)
+    Delta: sp.Symbol | None = None
+    ns_first: sp.Expr = sp.Integer(0)
+
+    @property
+    def forced(self) -> bool:
+        return self.pq is not None
+
+    @property
+    def p(self) -> int:
+        return self.pq[0] if self.pq is not None else 1
+
+    @property
+    def q(self) -> int:
+        return self.pq[1] if self.pq is not None else 1
+
+    @property
+    def sigma_form(self) -> bool:
+        """Frequency detuning of a forced model: the slow phase carries ``sigma``."""
+        return self.detuning == "frequency" and self.forced
+
+
+@dataclass
+class _FastForm:
+    """The perturbation on fast Fourier modes in ``tau = nu t``: opaque coefficients, the
+    engine that solved the orders, the hard-forcing amplitudes ``Lambda`` and ``sh`` (the
+    ring generator of ``sigma/nu``)."""
+
+    opaque: _Opaque
+    engine: _Engine
+    sh: sp.Symbol
+    lambdas: list[sp.Symbol]
+    definitions: list[sp.Equality]
+
+
 def _derive(
     osc: Oscillator,
     order: int,
@@ -869,10 +925,53 @@ def _derive(
     detuning: str,
     hard_forcing: bool | None,
 ) -> ModulationEquations:
+    """The method, stage by stage: ordering of the terms, resonance and detuning, the
+    perturbation on fast Fourier modes, the orders (secular conditions → modulation equations
+    of B), then the polar/Cartesian slow flow, the response, the backbone and the steps."""
     t_start = _time.perf_counter()
     order = check_order("ms", order)
     if detuning not in _DETUNINGS:
         raise ParameterError(f"detuning = {detuning!r}: expected one of {', '.join(_DETUNINGS)}")
+    prob = _resonance_problem(osc, order, resonance, epsilon)
+    _linear_operator(prob, detuning)
+    prob.monos = _perturbation(prob)
+    _forcing_terms(prob, hard_forcing)
+    prob.ns_first = _nonsmooth_first(prob)
+    fast = _solve_orders(prob)
+    fields, a1_name = _modulation_fields(prob, fast)
+    context = _StepContext(
+        monos=[m for m in prob.monos if m.order <= order],
+        wave_parts=fields.pop("wave_parts"),
+        hard=prob.hard,
+        hard_const=prob.hard_const,
+        L0=prob.L0,
+        ns_first=prob.ns_first,
+        engine=fast.engine,
+        rest_syms=fields.pop("rest_syms"),
+        Omega=prob.Omega,
+        named=prob.named,
+    )
+    a, phase_sym = fields["amplitude"], fields["phase"]
+    fields["steps"] = _steps(
+        {
+            **fields,
+            "polar_names": tuple(sp.Symbol(f"\\dot{{{sp.latex(s_)}}}") for s_ in (a, phase_sym)),
+        },
+        context,
+    )
+    a1_value = fields["fourier"].get("a_1")
+    if a1_value is not None:
+        _concrete_a1(fields, a1_name, a1_value, a)
+    fields["timings"] = (*fast.engine.timings, _time.perf_counter() - t_start)
+    return ModulationEquations(**fields)
+
+
+def _resonance_problem(
+    osc: Oscillator, order: int, resonance: Any, epsilon: str | None
+) -> _Problem:
+    """Bookkeeping parameter (a named model parameter, or a fresh one for the automatic
+    weak-nonlinearity scaling) and the resonance ``q Omega ~ p omega0`` of the forcing and
+    parametric frequencies."""
     x, v, t = osc.x, osc.v, osc.t
     taken = set(osc.params) | {x.name, v.name, t.name}
     if epsilon is not None:
@@ -892,12 +991,10 @@ def _derive(
             "here handles polynomial and piecewise-linear terms (expand the function into a "
             "polynomial in the model if that is intended)"
         )
-
     # a static load or a one-sided piecewise-linear force: the orbit's mean is of order one
     # (the nonsmooth terms are expanded about x = a cos(psi), first order only)
     require_centred(osc, "multiple scales (ms)")
 
-    # ---- frequencies -----------------------------------------------------------------
     freqs = [h.frequency for h in osc.forcing.harmonics]
     for f in osc.parametric.atoms(sp.cos, sp.sin):
         if f.has(t):
@@ -907,8 +1004,7 @@ def _derive(
             f"a forcing or parametric frequency of model {osc.name!r} depends on {named}: write "
             "the frequency as a parameter (e.g. Omega); the detuning is derived from it"
         )
-    forced = bool(freqs)
-    if forced:
+    if freqs:
         Omega = _base_frequency(freqs)
         pq = _parse_resonance(
             resonance
@@ -925,18 +1021,21 @@ def _derive(
         Omega = None
         pq = None
         freq_symbol = _fresh("omega", taken)
-    p, q = pq if pq is not None else (1, 1)
+    return _Problem(osc, order, taken, eps, named, Omega, pq, freq_symbol)
 
-    # ---- linear operator -------------------------------------------------------------
-    stiff = _eps_split(osc.linear_stiffness * x, named, "linear stiffness")
-    L0 = (stiff.pop(0, sp.Integer(0)) / x) if named is not None else osc.linear_stiffness
-    if named is None:
-        stiff = {}
-    nonsmooth = osc.nonsmooth
+
+def _linear_operator(prob: _Problem, detuning: str) -> None:
+    """The operator at order one, ``x'' + omega0**2 x``, and the detuning form: frequency
+    (``nu = omega0``) or stiffness (``nu = (q/p) Omega``, the operator at the response
+    frequency); sets ``L0``, ``detuning``, ``omega0``, ``nu`` and the stiffness split."""
+    osc, named, forced = prob.osc, prob.named, prob.forced
+    stiff = _eps_split(osc.linear_stiffness * osc.x, named, "linear stiffness")
+    L0 = (stiff.pop(0, sp.Integer(0)) / osc.x) if named is not None else osc.linear_stiffness
+    prob.stiff = stiff if named is not None else {}
     L0_value = L0.xreplace(osc.substitutions()) if L0 != 0 else sp.Integer(0)
     if detuning == "auto":
         nonpositive = L0_value.is_number and L0_value <= 0
-        detuning = "stiffness" if forced and (nonsmooth != 0 or nonpositive) else "frequency"
+        detuning = "stiffness" if forced and (osc.nonsmooth != 0 or nonpositive) else "frequency"
     if detuning == "stiffness" and not forced:
         raise ParameterError(
             f"detuning = 'stiffness' needs a forcing or parametric frequency; model {osc.name!r} "
@@ -950,15 +1049,21 @@ def _derive(
                 + ": the frequency detuning needs omega0**2 > 0; use detuning='stiffness' "
                 "(the operator at the response frequency) for a forced model"
             )
-        omega0 = _positive_sqrt(L0)
-        nu = omega0
+        prob.omega0 = _positive_sqrt(L0)
+        prob.nu = prob.omega0
     else:
-        omega0 = _positive_sqrt(L0) if L0 != 0 else sp.Integer(0)
-        nu = sp.Rational(q, p) * Omega
+        prob.omega0 = _positive_sqrt(L0) if L0 != 0 else sp.Integer(0)
+        prob.nu = sp.Rational(prob.q, prob.p) * prob.Omega
+    prob.L0, prob.detuning = L0, detuning
 
-    # ---- the perturbation R = sum eps^k R_k --------------------------------------------
+
+def _perturbation(prob: _Problem) -> list[_Monomial]:
+    """The perturbation ``R = sum eps^k R_k`` as monomials: stiffness beyond order one,
+    damping, polynomial, velocity and parametric terms (each must be at order >= 1)."""
+    osc, named, eps = prob.osc, prob.named, prob.eps
+    x, v, t = osc.x, osc.v, osc.t
     monos: list[_Monomial] = []
-    for k, c in stiff.items():
+    for k, c in prob.stiff.items():
         monos += _monomials(-c, k, x, v, t, "linear stiffness")
     damping = _eps_split(osc.damping * v, named, "damping")
     if 0 in damping:
@@ -986,12 +1091,17 @@ def _derive(
                 f"the parametric term {c} of model {osc.name!r} is at order one: scale it by {eps}"
             )
         monos += _monomials(-c, k, x, v, t, "parametric")
+    return monos
 
-    # forcing: hard (order one) -> exact particular response x_p; soft -> perturbation
+
+def _forcing_terms(prob: _Problem, hard_forcing: bool | None) -> None:
+    """Forcing: hard (order one) harmonics and constant go to the exact particular response
+    ``x_p`` (``prob.hard``, ``prob.hard_const``); soft ones join the perturbation. With the
+    stiffness detuning the mismatch ``Delta x`` joins it too."""
+    osc, named, pq = prob.osc, prob.named, prob.pq
+    x, v, t = osc.x, osc.v, osc.t
     if hard_forcing is None:
-        hard_forcing = pq is not None and p != q and bool(osc.forcing.harmonics)
-    hard: list[tuple[sp.Expr, sp.Expr, sp.Expr]] = []  # (amplitude, frequency, phase)
-    hard_const: sp.Expr = sp.Integer(0)
+        hard_forcing = pq is not None and prob.p != prob.q and bool(osc.forcing.harmonics)
     for h in osc.forcing.harmonics:
         if named is not None:
             split = _eps_split(h.amplitude, named, "forcing")
@@ -999,9 +1109,10 @@ def _derive(
             split = {0 if hard_forcing else 1: h.amplitude}
         for k, amp in split.items():
             if k == 0:
-                hard.append((amp, h.frequency, h.phase))
+                prob.hard.append((amp, h.frequency, h.phase))
             else:
-                monos += _monomials(amp * sp.cos(h.frequency * t + h.phase), k, x, v, t, "forcing")
+                wave = amp * sp.cos(h.frequency * t + h.phase)
+                prob.monos += _monomials(wave, k, x, v, t, "forcing")
     if osc.forcing.constant != 0:
         split = (
             _eps_split(osc.forcing.constant, named, "forcing")
@@ -1010,87 +1121,114 @@ def _derive(
         )
         for k, c in split.items():
             if k == 0:
-                hard_const += c
+                prob.hard_const += c
             else:
-                monos += _monomials(c, k, x, v, t, "forcing")
-    if detuning == "stiffness":
-        Delta = _fresh("Delta", taken)
-        monos.append(_Monomial(1, 1, 0, (), Delta))
+                prob.monos += _monomials(c, k, x, v, t, "forcing")
+    if prob.detuning == "stiffness":
+        prob.Delta = _fresh("Delta", prob.taken)
+        prob.monos.append(_Monomial(1, 1, 0, (), prob.Delta))
 
-    # nonsmooth restoring terms: first order only, through a_1(a)
+
+def _nonsmooth_first(prob: _Problem) -> sp.Expr:
+    """The piecewise-linear restoring terms at first order (they enter through their first
+    Fourier coefficient ``a_1(a)``); refused above first order and with a hard forcing."""
+    osc, nonsmooth = prob.osc, prob.osc.nonsmooth
     ns_first: sp.Expr = sp.Integer(0)
-    if nonsmooth != 0:
-        if nonsmooth.has(v) or nonsmooth.has(t):
+    if nonsmooth == 0:
+        return ns_first
+    if nonsmooth.has(osc.v) or nonsmooth.has(osc.t):
+        raise ModelError(
+            f"the nonsmooth term {nonsmooth} of model {osc.name!r} depends on x' or t: only "
+            "piecewise-linear restoring terms f(x) are supported"
+        )
+    for term in sp.Add.make_args(nonsmooth):
+        k, c = _eps_order(term, prob.named, "nonsmooth")
+        if k == 0:
             raise ModelError(
-                f"the nonsmooth term {nonsmooth} of model {osc.name!r} depends on x' or t: only "
-                "piecewise-linear restoring terms f(x) are supported"
+                f"the nonsmooth term {term} of model {osc.name!r} is at order one: scale it "
+                f"by {prob.eps}, or use epsilon=None"
             )
-        for term in sp.Add.make_args(nonsmooth):
-            k, c = _eps_order(term, named, "nonsmooth")
-            if k == 0:
-                raise ModelError(
-                    f"the nonsmooth term {term} of model {osc.name!r} is at order one: scale it "
-                    f"by {eps}, or use epsilon=None"
-                )
-            if k == 1:
-                ns_first += c
-        if order > 1:
-            raise ModelError(
-                f"model {osc.name!r} has nonsmooth terms: multiple scales is provided at first "
-                "order for them (higher orders need Dirac-delta terms); use order=1"
-            )
-        if hard or hard_const != 0:
-            raise ModelError(
-                f"model {osc.name!r} combines nonsmooth terms with a hard forcing: the Fourier "
-                "engine expands f(a cos psi), not a two-frequency argument; use a soft forcing"
-            )
+        if k == 1:
+            ns_first += c
+    if prob.order > 1:
+        raise ModelError(
+            f"model {osc.name!r} has nonsmooth terms: multiple scales is provided at first "
+            "order for them (higher orders need Dirac-delta terms); use order=1"
+        )
+    if prob.hard or prob.hard_const != 0:
+        raise ModelError(
+            f"model {osc.name!r} combines nonsmooth terms with a hard forcing: the Fourier "
+            "engine expands f(a cos psi), not a two-frequency argument; use a soft forcing"
+        )
+    return ns_first
 
-    # ---- nondimensional time tau = nu t; opaque coefficients ----------------------------
-    opaque = _Opaque()
+
+def _fast_monomials(prob: _Problem, opaque: _Opaque) -> list[tuple]:
+    """Each monomial up to the order in ``tau = nu t``: its opaque coefficient (times
+    ``nu**(vdeg - 2)``) and its forcing/parametric factor as Fourier modes."""
     mono_specs = []
-    for mono in monos:
-        if mono.order > order:
+    for mono in prob.monos:
+        if mono.order > prob.order:
             continue
-        coeff = opaque.get(mono.coeff * nu ** (mono.vdeg - 2), mono.tag)
+        coeff = opaque.get(mono.coeff * prob.nu ** (mono.vdeg - 2), mono.tag)
         trig_modes: dict[int, sp.Expr] = {0: sp.Integer(1)}
         for f in mono.trig:
-            w, phase = _split_arg(f.args[0], t)
-            modes = _harmonic_modes(w, phase, Omega, p, opaque, sine=isinstance(f, sp.sin))
+            w, phase = _split_arg(f.args[0], prob.osc.t)
+            modes = _harmonic_modes(
+                w, phase, prob.Omega, prob.p, opaque, sine=isinstance(f, sp.sin)
+            )
             new: dict[int, sp.Expr] = {}
             for m1, c1 in trig_modes.items():
                 for m2, c2 in modes.items():
                     new[m1 + m2] = new.get(m1 + m2, 0) + c1 * c2
             trig_modes = new
         mono_specs.append((mono.order, mono.xdeg, mono.vdeg, trig_modes, coeff))
+    return mono_specs
+
+
+def _hard_response(prob: _Problem, opaque: _Opaque) -> tuple[dict, dict, list, list]:
+    """Order one with a hard forcing: the exact particular response ``x_p = 2 Lambda cos(w t +
+    phase)`` (Nayfeh & Mook's Lambda, kept as a symbol) and its velocity, as Fourier modes;
+    refused at the resonant frequency."""
     xp_modes: dict[int, sp.Expr] = {}
     vp_modes: dict[int, sp.Expr] = {}
     lambdas: list[sp.Symbol] = []
     definitions: list[sp.Equality] = []
+    hard = prob.hard
     for j, (amp, w, phase) in enumerate(hard):
-        m = int(sp.nsimplify(w / Omega)) * p
-        if abs(m) == q:
+        m = int(sp.nsimplify(w / prob.Omega)) * prob.p
+        if abs(m) == prob.q:
             raise ModelError(
-                f"the hard forcing {amp}*cos({w}*t) of model {osc.name!r} is at the resonant "
-                "frequency: its order-one response is unbounded; scale the forcing by "
-                f"{eps} (soft forcing) or choose the resonance it excites"
+                f"the hard forcing {amp}*cos({w}*t) of model {prob.osc.name!r} is at the "
+                "resonant frequency: its order-one response is unbounded; scale the forcing by "
+                f"{prob.eps} (soft forcing) or choose the resonance it excites"
             )
         # Nayfeh & Mook's Lambda, kept as a symbol: x_p = 2 Lambda cos(w t + phase)
-        lam_sym = _fresh("Lambda" if len(hard) == 1 else f"Lambda_{j + 1}", taken)
+        lam_sym = _fresh("Lambda" if len(hard) == 1 else f"Lambda_{j + 1}", prob.taken)
         lambdas.append(lam_sym)
-        definitions.append(_eq(lam_sym, amp / (2 * (L0 - w**2))))
+        definitions.append(_eq(lam_sym, amp / (2 * (prob.L0 - w**2))))
         lam = opaque.get(lam_sym, "forcing")
-        what = opaque.get(w / nu)
+        what = opaque.get(w / prob.nu)
         e_plus = _phase_factor(phase, opaque)
         e_minus = sp.conjugate(e_plus)
         for mm, e in ((m, e_plus), (-m, e_minus)):
             xp_modes[mm] = xp_modes.get(mm, 0) + lam * e
             vp_modes[mm] = vp_modes.get(mm, 0) + sp.sign(mm) * sp.I * what * lam * e
-    if hard_const != 0:
-        xp_modes[0] = xp_modes.get(0, 0) + opaque.get(hard_const / L0, "forcing")
+    if prob.hard_const != 0:
+        xp_modes[0] = xp_modes.get(0, 0) + opaque.get(prob.hard_const / prob.L0, "forcing")
+    return xp_modes, vp_modes, lambdas, definitions
 
+
+def _solve_orders(prob: _Problem) -> _FastForm:
+    """Orders ``eps^1 .. eps^N`` on fast Fourier modes: at each the secular coefficient of
+    ``exp(i theta)`` gives ``D_k B`` (the modulation equation) and the other modes ``y_k``
+    (the engine, in a polynomial ring over QQ(i))."""
+    opaque = _Opaque()
+    mono_specs = _fast_monomials(prob, opaque)
+    xp_modes, vp_modes, lambdas, definitions = _hard_response(prob, opaque)
     B_sym, Bb_sym = sp.Dummy("B"), sp.Dummy("Bb")
     sh = sp.Dummy("sh", real=True)
-    gens = [B_sym, Bb_sym] + ([sh] if detuning == "frequency" and forced else [])
+    gens = [B_sym, Bb_sym] + ([sh] if prob.sigma_form else [])
     gens += list(opaque.symbols.values())
     ring = PolyRing(gens, QQ_I)
     conv = ring.from_expr
@@ -1102,35 +1240,112 @@ def _derive(
     terms = [(o, a, b, fast(tm), conv(c)) for o, a, b, tm, c in mono_specs]
     engine = _Engine(
         ring,
-        q,
-        p,
-        ring.gens[2] if detuning == "frequency" and forced else None,
+        prob.q,
+        prob.p,
+        ring.gens[2] if prob.sigma_form else None,
         terms,
         fast(xp_modes),
         fast(vp_modes),
     )
-    for k in range(1, order + 1):
-        engine.order(k, need_solution=k < order)
+    for k in range(1, prob.order + 1):
+        engine.order(k, need_solution=k < prob.order)
+    return _FastForm(opaque, engine, sh, lambdas, definitions)
 
-    # ---- back to expressions ------------------------------------------------------------
-    sigma = _fresh("sigma", taken) if detuning == "frequency" and forced else None
-    back = opaque.back
-    back[sh] = sigma / nu if sigma is not None else sp.Integer(0)
+
+def _modulation_fields(prob: _Problem, fast: _FastForm) -> tuple[dict[str, Any], Any]:
+    """Back to expressions: the fields of :class:`ModulationEquations` (complex, polar and
+    Cartesian slow flow, detuning relation, waveform, response, backbone), plus the wave parts
+    and ring symbols the steps need; returns the fields and the ``a_1`` function name."""
+    osc, order, taken, eps, nu = prob.osc, prob.order, prob.taken, prob.eps, prob.nu
+    engine = fast.engine
+    sigma = _fresh("sigma", taken) if prob.sigma_form else None
+    back = fast.opaque.back
+    back[fast.sh] = sigma / nu if sigma is not None else sp.Integer(0)
     a = _fresh("a", taken, positive=True)
-    phase_sym = _fresh("gamma" if forced else "beta", taken)
+    phase_sym = _fresh("gamma" if prob.forced else "beta", taken)
     u_sym, v_sym = _fresh("u", taken), _fresh("v", taken)
     Bc = _fresh("B", taken, complex=True)
-    Bbar = sp.conjugate(Bc)
+    rest_syms = [sym.xreplace(back) for sym in engine.R.symbols[2:]]
+    slow = _polar_flow(prob, engine, rest_syms, Bc, a, phase_sym)
+    cart_orders = _cartesian(engine, order, u_sym, v_sym, nu, back)
+    if slow["a1"] is not None:
+        r = sp.sqrt(u_sym**2 + v_sym**2)
+        a1_uv = slow["a1_name"](r)
+        # dB/dt gains i a_1 B/(2 nu a) with B = (u - i v)/2: du/dt = 2 Re, dv/dt = -2 Im
+        cart_orders[0] = (
+            cart_orders[0][0] + v_sym * a1_uv / (2 * nu * r),
+            cart_orders[0][1] - u_sym * a1_uv / (2 * nu * r),
+        )
+    cart = tuple(
+        sp.Add(*(eps ** (k + 1) * co[i] for k, co in enumerate(cart_orders))) for i in (0, 1)
+    )
+    rel, det_symbol = _detuning_relation(prob, sigma)
+    tau = _fresh("tau", taken)
+    wave_parts, waveform = _waveform_of(prob, fast, a, phase_sym, tau, back)
+    response, coeffs = _eliminate_phase(slow["harm"], a, eps, sigma, order == 1)
+    backbone = None
+    if prob.detuning == "frequency":
+        off = fast.opaque.tagged("forcing") | fast.opaque.tagged("damping") | {fast.sh}
+        backbone = _backbone(engine, order, a, prob.omega0, nu, eps, back, off)
+        if backbone is not None and slow["a1"] is not None:
+            backbone += eps * slow["a1"] / (2 * nu * a)
+    fourier = {"a_1": slow["a1_value"]} if slow["a1_value"] is not None else {}
+    fields: dict[str, Any] = dict(
+        oscillator=osc,
+        order=order,
+        epsilon=eps,
+        scaled=prob.named is None,
+        resonance=prob.pq,
+        detuning=prob.detuning,
+        omega0=prob.omega0,
+        nu=nu,
+        frequency=prob.freq_symbol,
+        sigma=det_symbol,
+        detuning_relation=rel,
+        B=Bc,
+        Bbar=sp.conjugate(Bc),
+        complex_orders=tuple(slow["complex_orders"]),
+        amplitude=a,
+        phase=phase_sym,
+        polar=slow["polar"],
+        polar_orders=slow["polar_orders"],
+        u=u_sym,
+        v=v_sym,
+        cartesian=cart,
+        cartesian_orders=tuple(cart_orders),
+        response=response,
+        backbone=backbone,
+        waveform=waveform,
+        tau=tau,
+        fourier=MappingProxyType(fourier),
+        sizes=tuple(len(engine.G[k][0]) for k in range(1, order + 1)),
+        response_coefficients=coeffs,
+        definitions=tuple(fast.definitions),
+        a_phase_rate=slow["a_phase_rate"],
+    )
+    return {**fields, "wave_parts": wave_parts, "rest_syms": rest_syms}, slow["a1_name"]
 
-    # complex modulation equations in t-units: dB/dt = nu * G(tau)
-    rest_syms = [sym.xreplace(back) for sym in ring.symbols[2:]]
+
+def _polar_flow(
+    prob: _Problem,
+    engine: _Engine,
+    rest_syms: list[sp.Expr],
+    Bc: sp.Symbol,
+    a: sp.Symbol,
+    phase_sym: sp.Symbol,
+) -> dict[str, Any]:
+    """The complex modulation equations ``dB/dt = nu G(tau)`` order by order (with the
+    nonsmooth secular term ``-a_1(a) B/a`` at first order), and their polar form: the
+    harmonics of ``da/dt`` and ``d(phase)/dt``, summed, and ``a d(phase)/dt``."""
+    osc, order, eps, nu, forced = prob.osc, prob.order, prob.eps, prob.nu, prob.forced
+    Bbar = sp.conjugate(Bc)
     complex_orders = [
         _poly_expr(engine.G[k][0], [Bc, Bbar, *rest_syms], nu) for k in range(1, order + 1)
     ]
-    a1 = a1_value = None
-    if ns_first != 0:
+    a1 = a1_value = a1_name = None
+    if prob.ns_first != 0:
         values = {n: val for n, val in osc.params.items() if val is not None}
-        a1_value = series_coefficient(ns_first, x, 1, a, 0, values=values)
+        a1_value = series_coefficient(prob.ns_first, osc.x, 1, a, 0, values=values)
         # written by name, a_1(a), as a paper would; the coefficient goes in at the end
         a1_name = sp.Function("a_1")
         a1 = a1_name(a)
@@ -1138,15 +1353,14 @@ def _derive(
         complex_orders[0] += (
             sp.I * a1_name(2 * sp.sqrt(Bc * Bbar)) * Bc / (4 * sp.sqrt(Bc * Bbar) * nu)
         )
-
-    # polar and Cartesian forms, order by order
     harm = [
-        _polar_harmonics(engine.G[k][0], rest_syms, a, p, forced, nu) for k in range(1, order + 1)
+        _polar_harmonics(engine.G[k][0], rest_syms, a, prob.p, forced, nu)
+        for k in range(1, order + 1)
     ]
     if a1 is not None:
         # -a_1 B/a in the secular term -> d(phase)/dt gains a_1/(2 nu a) (sign by phase form)
         harm[0][1][("c", 0)] = harm[0][1].get(("c", 0), sp.Integer(0)) + (
-            -p if forced else 1
+            -prob.p if forced else 1
         ) * a1 / (2 * nu * a)
     polar_orders = tuple((_trig_expr(h[0], phase_sym), _trig_expr(h[1], phase_sym)) for h in harm)
     polar = (
@@ -1164,122 +1378,68 @@ def _derive(
             for k, h in enumerate(harm)
         )
     )
-    cart_orders = _cartesian(engine, order, u_sym, v_sym, nu, back)
-    if a1 is not None:
-        r = sp.sqrt(u_sym**2 + v_sym**2)
-        a1_uv = a1_name(r)
-        # dB/dt gains i a_1 B/(2 nu a) with B = (u - i v)/2: du/dt = 2 Re, dv/dt = -2 Im
-        cart_orders[0] = (
-            cart_orders[0][0] + v_sym * a1_uv / (2 * nu * r),
-            cart_orders[0][1] - u_sym * a1_uv / (2 * nu * r),
-        )
-    cart = tuple(
-        sp.Add(*(eps ** (k + 1) * co[i] for k, co in enumerate(cart_orders))) for i in (0, 1)
-    )
-
-    # detuning relation
-    if sigma is not None:
-        rel = _eq(sigma, (q * Omega - p * omega0) / eps)
-        det_symbol: sp.Symbol | None = sigma
-    elif detuning == "stiffness":
-        rel = _eq(Delta, (nu**2 - L0) / eps)
-        det_symbol = Delta
-    else:
-        rel, det_symbol = None, None
-
-    # waveform, steady-state relation, backbone
-    tau = _fresh("tau", taken)
-    wave_parts = _waveform(engine, order, a, phase_sym, p, q, forced, tau, back)
-    waveform = sp.Add(*(eps**k * part for k, part in enumerate(wave_parts)))
-    for lam_sym, (_, w, ph) in zip(lambdas, hard, strict=True):
-        waveform += 2 * lam_sym * sp.cos(sp.nsimplify(w / Omega) * tau + ph)
-    if hard_const != 0:
-        waveform += hard_const / L0
-    response, coeffs = _eliminate_phase(harm, a, eps, sigma, order == 1)
-    backbone = None
-    if detuning == "frequency":
-        off = opaque.tagged("forcing") | opaque.tagged("damping") | {sh}
-        backbone = _backbone(engine, order, a, omega0, nu, eps, back, off)
-        if backbone is not None and a1 is not None:
-            backbone += eps * a1 / (2 * nu * a)
-
-    fourier = {"a_1": a1_value} if a1_value is not None else {}
-    sizes = tuple(len(engine.G[k][0]) for k in range(1, order + 1))
-    fields: dict[str, Any] = dict(
-        oscillator=osc,
-        order=order,
-        epsilon=eps,
-        scaled=named is None,
-        resonance=pq,
-        detuning=detuning,
-        omega0=omega0,
-        nu=nu,
-        frequency=freq_symbol,
-        sigma=det_symbol,
-        detuning_relation=rel,
-        B=Bc,
-        Bbar=Bbar,
-        complex_orders=tuple(complex_orders),
-        amplitude=a,
-        phase=phase_sym,
-        polar=polar,
+    return dict(
+        complex_orders=complex_orders,
+        a1=a1,
+        a1_value=a1_value,
+        a1_name=a1_name,
+        harm=harm,
         polar_orders=polar_orders,
-        u=u_sym,
-        v=v_sym,
-        cartesian=cart,
-        cartesian_orders=tuple(cart_orders),
-        response=response,
-        backbone=backbone,
-        waveform=waveform,
-        tau=tau,
-        fourier=MappingProxyType(fourier),
-        sizes=sizes,
-        response_coefficients=coeffs,
-        definitions=tuple(definitions),
+        polar=polar,
         a_phase_rate=a_phase_rate,
     )
-    context = _StepContext(
-        monos=[m for m in monos if m.order <= order],
-        wave_parts=wave_parts,
-        hard=hard,
-        hard_const=hard_const,
-        L0=L0,
-        ns_first=ns_first,
-        engine=engine,
-        rest_syms=rest_syms,
-        Omega=Omega,
-        named=named,
-    )
-    fields["steps"] = _steps(
-        {
-            **fields,
-            "polar_names": tuple(sp.Symbol(f"\\dot{{{sp.latex(s_)}}}") for s_ in (a, phase_sym)),
-        },
-        context,
-    )
-    if a1_value is not None:
-        # the derivation shows a_1(.) by name; the fields carry the coefficient itself
-        def concrete(expr: Any) -> Any:
-            if isinstance(expr, tuple):
-                return tuple(concrete(e) for e in expr)
-            if isinstance(expr, sp.Basic):
-                return expr.replace(a1_name, lambda z: a1_value.xreplace({a: z}))
-            return expr
 
-        for key in (
-            "complex_orders",
-            "polar",
-            "polar_orders",
-            "cartesian",
-            "cartesian_orders",
-            "response",
-            "backbone",
-            "response_coefficients",
-            "a_phase_rate",
-        ):
-            fields[key] = concrete(fields[key])
-    fields["timings"] = (*engine.timings, _time.perf_counter() - t_start)
-    return ModulationEquations(**fields)
+
+def _detuning_relation(
+    prob: _Problem, sigma: sp.Symbol | None
+) -> tuple[sp.Equality | None, sp.Symbol | None]:
+    """The detuning relation and its symbol: ``sigma = (q Omega - p omega0)/eps`` (frequency
+    form), ``Delta = (nu**2 - omega0**2)/eps`` (stiffness form), none when autonomous."""
+    if sigma is not None:
+        return _eq(sigma, (prob.q * prob.Omega - prob.p * prob.omega0) / prob.eps), sigma
+    if prob.detuning == "stiffness":
+        return _eq(prob.Delta, (prob.nu**2 - prob.L0) / prob.eps), prob.Delta
+    return None, None
+
+
+def _waveform_of(
+    prob: _Problem, fast: _FastForm, a: sp.Symbol, phase_sym: sp.Symbol, tau: sp.Symbol, back
+) -> tuple[list[sp.Expr], sp.Expr]:
+    """The approximate solution ``x = sum eps^k y_k`` in ``tau`` plus the hard-forcing
+    response ``2 Lambda cos(...)`` and the static part; returns the parts and the sum."""
+    wave_parts = _waveform(
+        fast.engine, prob.order, a, phase_sym, prob.p, prob.q, prob.forced, tau, back
+    )
+    waveform = sp.Add(*(prob.eps**k * part for k, part in enumerate(wave_parts)))
+    for lam_sym, (_, w, ph) in zip(fast.lambdas, prob.hard, strict=True):
+        waveform += 2 * lam_sym * sp.cos(sp.nsimplify(w / prob.Omega) * tau + ph)
+    if prob.hard_const != 0:
+        waveform += prob.hard_const / prob.L0
+    return wave_parts, waveform
+
+
+def _concrete_a1(fields: dict[str, Any], a1_name: Any, a1_value: sp.Expr, a: sp.Symbol) -> None:
+    """The derivation shows ``a_1(.)`` by name; the fields carry the coefficient itself."""
+
+    def concrete(expr: Any) -> Any:
+        if isinstance(expr, tuple):
+            return tuple(concrete(e) for e in expr)
+        if isinstance(expr, sp.Basic):
+            return expr.replace(a1_name, lambda z: a1_value.xreplace({a: z}))
+        return expr
+
+    for key in (
+        "complex_orders",
+        "polar",
+        "polar_orders",
+        "cartesian",
+        "cartesian_orders",
+        "response",
+        "backbone",
+        "response_coefficients",
+        "a_phase_rate",
+    ):
+        fields[key] = concrete(fields[key])
 
 
 def _phase_factor(phase: sp.Expr, opaque: _Opaque) -> sp.Expr:
@@ -1645,27 +1805,61 @@ def _modes_expr(
     return sp.Add(*terms)
 
 
+@dataclass(frozen=True)
+class _Notation:
+    """The derivation's notation: slow times ``T_k``, derivatives ``D_k``, the orders ``y_k``
+    of the expansion and the resonant phase ``theta``."""
+
+    Ts: list[sp.Symbol]
+    Ds: list[sp.Symbol]
+    ys: list[sp.Symbol]
+    theta: sp.Symbol
+
+    @classmethod
+    def of_order(cls, N: int) -> _Notation:
+        return cls(
+            [sp.Symbol(f"T_{k}") for k in range(N + 1)],
+            [sp.Symbol(f"D_{k}") for k in range(N + 1)],
+            [sp.Symbol(f"y_{k}") for k in range(N + 1)],
+            real_symbol("theta"),
+        )
+
+
 def _steps(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, ...]:
     """The derivation as a paper writes it (rendered by :mod:`perturb.report.latex`; the text
-    is plain prose, the mathematics SymPy)."""
+    is plain prose, the mathematics SymPy): ordering, detuning, time scales, order zero, the
+    nonsmooth coefficient, each order, the reconstituted modulation equation, the polar and
+    Cartesian slow flow, steady states, stability and the approximate solution."""
+    osc: Oscillator = f["oscillator"]
+    N = f["order"]
+    nt = _Notation.of_order(N)
+    steps: list[Step] = [Step("Equation of motion", (osc.equation,)), _ordering_step(f, c)]
+    if f["resonance"] is not None:
+        steps.append(_detuning_step(f, c))
+    steps.append(_time_scales_step(f, c, nt))
+    steps.append(_order_zero_step(f, c, nt))
+    if f["fourier"]:
+        steps.append(_nonsmooth_coefficient_step(f))
+    steps += [_order_step(f, c, nt, k) for k in range(1, N + 1)]
+    steps.append(_reconstituted_step(f))
+    polar, rates = _polar_step(f, c)
+    steps += [polar, _cartesian_step(f, nt), _steady_state_step(f, rates), _stability_step(f)]
+    steps.append(_solution_step(f, c, nt))
+    return tuple(steps)
+
+
+def _ordering_step(f: Mapping[str, Any], c: _StepContext) -> Step:
+    """Step "Ordering": every term with its power of the bookkeeping parameter."""
     osc: Oscillator = f["oscillator"]
     x, v, t = osc.x, osc.v, osc.t
-    eps, nu, N = f["epsilon"], f["nu"], f["order"]
-    p, q = f["resonance"] or (1, 1)
-    forced = f["resonance"] is not None
+    eps, nu = f["epsilon"], f["nu"]
     stiffness = f["detuning"] == "stiffness"
-    xdd = real_symbol(x.name + "''")
-    a, phase, B, Bbar = f["amplitude"], f["phase"], f["B"], f["Bbar"]
-    theta = real_symbol("theta")
-    steps: list[Step] = [Step("Equation of motion", (osc.equation,))]
-
-    # ordering
     rhs = [eps**m.order * m.coeff * x**m.xdeg * v**m.vdeg * sp.Mul(*m.trig) for m in c.monos]
     if c.ns_first != 0:
         rhs.append(-eps * c.ns_first)
     rhs += [amp * sp.cos(w * t + ph) for amp, w, ph in c.hard]
     rhs.append(c.hard_const)
-    lhs = xdd + (nu**2 if stiffness else c.L0) * x
+    lhs = real_symbol(x.name + "''") + (nu**2 if stiffness else c.L0) * x
     if c.named is None:
         text = (
             "Weak-nonlinearity scaling (Nayfeh and Mook): every term except the linear operator"
@@ -1675,50 +1869,60 @@ def _steps(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, ...]:
     else:
         text = (
             f"The model's parameter ${latex(c.named)}$ is the bookkeeping parameter: each "
-            f"term's order is its power of ${latex(c.named)}$; terms beyond order ${N}$ are "
-            "dropped."
+            f"term's order is its power of ${latex(c.named)}$; terms beyond order ${f['order']}$ "
+            "are dropped."
         )
-    steps.append(Step("Ordering", (_eq(lhs, sp.Add(*rhs)),), text))
+    return Step("Ordering", (_eq(lhs, sp.Add(*rhs)),), text)
 
-    # detuning
-    if forced:
-        det = f["detuning_relation"]
-        if stiffness:
-            math_ = (_eq(f["omega0"] ** 2, nu**2 - eps * f["sigma"]), det)
-            text = (
-                "The operator is taken at the response frequency and the stiffness mismatch is "
-                "a perturbation (modified Lindstedt–Poincaré form)."
-            )
-        else:
-            math_ = (_eq(q * c.Omega, p * f["omega0"] + eps * f["sigma"]), det)
-            text = "The nearness to the resonance is expressed by the detuning $\\sigma$."
-        steps.append(Step("Resonance and detuning", math_, text))
 
-    # time scales
-    Ts = [sp.Symbol(f"T_{k}") for k in range(N + 1)]
-    Ds = [sp.Symbol(f"D_{k}") for k in range(N + 1)]
-    ys = [sp.Symbol(f"y_{k}") for k in range(N + 1)]
-    x_exp = sp.Add(*(eps**k * ys[k] for k in range(N)))
+def _detuning_step(f: Mapping[str, Any], c: _StepContext) -> Step:
+    """Step "Resonance and detuning" (forced models): frequency or stiffness detuning."""
+    eps, nu = f["epsilon"], f["nu"]
+    p, q = f["resonance"]
+    det = f["detuning_relation"]
+    if f["detuning"] == "stiffness":
+        math_ = (_eq(f["omega0"] ** 2, nu**2 - eps * f["sigma"]), det)
+        text = (
+            "The operator is taken at the response frequency and the stiffness mismatch is "
+            "a perturbation (modified Lindstedt–Poincaré form)."
+        )
+    else:
+        math_ = (_eq(q * c.Omega, p * f["omega0"] + eps * f["sigma"]), det)
+        text = "The nearness to the resonance is expressed by the detuning $\\sigma$."
+    return Step("Resonance and detuning", math_, text)
+
+
+def _time_scales_step(f: Mapping[str, Any], c: _StepContext, nt: _Notation) -> Step:
+    """Step "Time scales and expansion": slow times, derivative expansion and the ansatz."""
+    osc: Oscillator = f["oscillator"]
+    x, t = osc.x, osc.t
+    eps, N = f["epsilon"], f["order"]
+    x_exp = sp.Add(*(eps**k * nt.ys[k] for k in range(N)))
     if c.hard or c.hard_const != 0:
         x_exp = sp.Symbol("x_p") + x_exp
-    steps.append(
-        Step(
-            "Time scales and expansion",
-            (
-                _eq(Ts[1], eps * t),
-                _eq(
-                    sp.Derivative(sp.Function("x")(t), t),
-                    sp.Add(*(eps**k * Ds[k] * x for k in range(N + 1))),
-                ),
-                _eq(x, x_exp + sp.Order(eps**N)),
+    return Step(
+        "Time scales and expansion",
+        (
+            _eq(nt.Ts[1], eps * t),
+            _eq(
+                sp.Derivative(sp.Function("x")(t), t),
+                sp.Add(*(eps**k * nt.Ds[k] * x for k in range(N + 1))),
             ),
-            "Slow times $T_k = \\varepsilon^k t$ and the derivatives $D_k$ with respect to "
-            "them; the complex amplitude $B(T_1, T_2, \\ldots)$ depends on the slow times, and "
-            f"the expansion is carried to order ${N}$ in the modulation equations.",
-        )
+            _eq(x, x_exp + sp.Order(eps**N)),
+        ),
+        "Slow times $T_k = \\varepsilon^k t$ and the derivatives $D_k$ with respect to "
+        "them; the complex amplitude $B(T_1, T_2, \\ldots)$ depends on the slow times, and "
+        f"the expansion is carried to order ${N}$ in the modulation equations.",
     )
 
-    # order zero
+
+def _order_zero_step(f: Mapping[str, Any], c: _StepContext, nt: _Notation) -> Step:
+    """Step "Order 0": the generating solution ``B e^{i theta} + cc`` (and ``x_p``)."""
+    t = f["oscillator"].t
+    nu, p = f["nu"], (f["resonance"] or (1, 1))[0]
+    forced = f["resonance"] is not None
+    stiffness = f["detuning"] == "stiffness"
+    Ts, Ds, ys, theta = nt.Ts, nt.Ds, nt.ys, nt.theta
     theta_def = (
         _eq(theta, nu * Ts[0] + f["sigma"] * Ts[1] / p)
         if forced and not stiffness
@@ -1726,7 +1930,7 @@ def _steps(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, ...]:
     )
     zero = [
         _eq(Ds[0] ** 2 * ys[0] + nu**2 * ys[0], 0),
-        _eq(ys[0], B * sp.exp(sp.I * theta) + Bbar * sp.exp(-sp.I * theta)),
+        _eq(ys[0], f["B"] * sp.exp(sp.I * theta) + f["Bbar"] * sp.exp(-sp.I * theta)),
         theta_def,
     ]
     if c.hard or c.hard_const != 0:
@@ -1745,90 +1949,94 @@ def _steps(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, ...]:
         )
     if c.hard:
         text += " $x_p$ is the exact order-one response to the hard forcing."
-    steps.append(Step("Order 0", tuple(zero), text))
+    return Step("Order 0", tuple(zero), text)
 
-    # PWL coefficient
-    if f["fourier"]:
-        a1 = f["fourier"]["a_1"]
-        a1s = sp.Function("a_1")(a)
-        closed, defs, domains = closed_form(a1)
-        (closed,), defs = fold_mirror_angles((closed,), defs)
-        steps.append(
-            Step(
-                "First Fourier coefficient of the nonsmooth term",
-                (_eq(a1s, a1), _eq(a1s, closed), *(_eq(s_, e_) for s_, e_ in defs)),
-                "The nonsmooth force under $x = a\\cos\\psi$ has the first Fourier coefficient "
-                "$a_1(a)$, in closed form through the crossing angles (no Taylor series); its "
-                "secular part at order 1 is $-a_1(a)\\,B/a$"
-                + (
-                    ". Valid where " + ", ".join(f"${latex(d)}$" for d in domains) + "."
-                    if domains
-                    else "."
-                ),
-            )
-        )
 
+def _nonsmooth_coefficient_step(f: Mapping[str, Any]) -> Step:
+    """Step "First Fourier coefficient of the nonsmooth term": ``a_1(a)`` in closed form."""
+    a1 = f["fourier"]["a_1"]
+    a1s = sp.Function("a_1")(f["amplitude"])
+    closed, defs, domains = closed_form(a1)
+    (closed,), defs = fold_mirror_angles((closed,), defs)
+    return Step(
+        "First Fourier coefficient of the nonsmooth term",
+        (_eq(a1s, a1), _eq(a1s, closed), *(_eq(s_, e_) for s_, e_ in defs)),
+        "The nonsmooth force under $x = a\\cos\\psi$ has the first Fourier coefficient "
+        "$a_1(a)$, in closed form through the crossing angles (no Taylor series); its "
+        "secular part at order 1 is $-a_1(a)\\,B/a$"
+        + (
+            ". Valid where " + ", ".join(f"${latex(d)}$" for d in domains) + "." if domains else "."
+        ),
+    )
+
+
+def _order_step(f: Mapping[str, Any], c: _StepContext, nt: _Notation, k: int) -> Step:
+    """Step "Order k": the right-hand side collected by mode, its secular coefficient set to
+    zero (the modulation equation of order k) and, below the top order, ``y_k``."""
+    nu, N = f["nu"], f["order"]
+    q = (f["resonance"] or (1, 1))[1]
+    B, Bbar = f["B"], f["Bbar"]
+    Ts, Ds, ys, theta = nt.Ts, nt.Ds, nt.ys, nt.theta
     syms = [B, Bbar, *c.rest_syms]
     eng = c.engine
     Bfun = sp.Function("B")(*Ts[1:])
-    for k in range(1, N + 1):
-        S = eng.S[k]
-        full = k <= _FULL_ORDERS
-        modes = sorted(m for m in S if m >= 0) if full else [q]
-        names = {m: sp.Symbol(f"S_{{{k},{m}}}") for m in modes}
-        expo = {m: sp.exp(sp.I * sp.Rational(m, q) * theta) for m in modes}
-        rhs_k = sp.Add(*(names[m] * expo[m] for m in modes)) + sp.Symbol("cc")
-        if not full:
-            rhs_k += sp.Symbol("NST")
-        math_ = [_eq(Ds[0] ** 2 * ys[k] + nu**2 * ys[k], rhs_k)]
-        for m in modes:
-            coeff = _poly_expr(S.get(m, eng.R.zero), syms, nu**2)
-            if m == q:
-                coeff = -2 * sp.I * nu * sp.Derivative(Bfun, Ts[k]) + coeff
-                if k == 1 and f["fourier"]:
-                    modulus = 2 * sp.sqrt(B * Bbar)
-                    coeff -= sp.Function("a_1")(modulus) * B / modulus
-            math_.append(_eq(names[m], coeff))
-        math_.append(_eq(sp.Derivative(Bfun, Ts[k]), f["complex_orders"][k - 1]))
-        if k < N and full:
-            math_.append(
-                _eq(
-                    ys[k],
-                    sp.Add(
-                        *(
-                            names[m] * expo[m] / (nu**2 * (1 - sp.Rational(m * m, q * q)))
-                            for m in modes
-                            if m != q
-                        )
-                    )
-                    + sp.Symbol("cc"),
-                )
+    S = eng.S[k]
+    full = k <= _FULL_ORDERS
+    modes = sorted(m for m in S if m >= 0) if full else [q]
+    names = {m: sp.Symbol(f"S_{{{k},{m}}}") for m in modes}
+    expo = {m: sp.exp(sp.I * sp.Rational(m, q) * theta) for m in modes}
+    rhs_k = sp.Add(*(names[m] * expo[m] for m in modes)) + sp.Symbol("cc")
+    if not full:
+        rhs_k += sp.Symbol("NST")
+    math_ = [_eq(Ds[0] ** 2 * ys[k] + nu**2 * ys[k], rhs_k)]
+    for m in modes:
+        coeff = _poly_expr(S.get(m, eng.R.zero), syms, nu**2)
+        if m == q:
+            coeff = -2 * sp.I * nu * sp.Derivative(Bfun, Ts[k]) + coeff
+            if k == 1 and f["fourier"]:
+                modulus = 2 * sp.sqrt(B * Bbar)
+                coeff -= sp.Function("a_1")(modulus) * B / modulus
+        math_.append(_eq(names[m], coeff))
+    math_.append(_eq(sp.Derivative(Bfun, Ts[k]), f["complex_orders"][k - 1]))
+    if k < N and full:
+        y_k = sp.Add(
+            *(
+                names[m] * expo[m] / (nu**2 * (1 - sp.Rational(m * m, q * q)))
+                for m in modes
+                if m != q
             )
-        text = (
-            "Lower-order derivatives of $B$ are replaced by their solvability conditions (chain "
-            "rule). The coefficient of $e^{i\\theta}$ is secular; setting it to zero gives the "
-            f"modulation equation at order ${k}$"
         )
-        if k < N:
-            text += f"; the other modes, divided by their distance from resonance, give $y_{k}$"
-        if not full:
-            text += "; the non-secular terms are not printed"
-        steps.append(Step(f"Order {k}", tuple(math_), text + "."))
-
-    dB = sp.Derivative(sp.Function("B")(t), t)
-    steps.append(
-        Step(
-            "Modulation equation (reconstituted)",
-            (
-                _eq(
-                    dB,
-                    sp.Add(*(eps ** (k + 1) * g for k, g in enumerate(f["complex_orders"]))),
-                ),
-            ),
-            "The sum of the solvability conditions of all orders, in the original time.",
-        )
+        math_.append(_eq(ys[k], y_k + sp.Symbol("cc")))
+    text = (
+        "Lower-order derivatives of $B$ are replaced by their solvability conditions (chain "
+        "rule). The coefficient of $e^{i\\theta}$ is secular; setting it to zero gives the "
+        f"modulation equation at order ${k}$"
     )
-    if forced:
+    if k < N:
+        text += f"; the other modes, divided by their distance from resonance, give $y_{k}$"
+    if not full:
+        text += "; the non-secular terms are not printed"
+    return Step(f"Order {k}", tuple(math_), text + ".")
+
+
+def _reconstituted_step(f: Mapping[str, Any]) -> Step:
+    """Step "Modulation equation (reconstituted)": the solvability conditions summed."""
+    eps, t = f["epsilon"], f["oscillator"].t
+    dB = sp.Derivative(sp.Function("B")(t), t)
+    return Step(
+        "Modulation equation (reconstituted)",
+        (_eq(dB, sp.Add(*(eps ** (k + 1) * g for k, g in enumerate(f["complex_orders"])))),),
+        "The sum of the solvability conditions of all orders, in the original time.",
+    )
+
+
+def _polar_step(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, list[sp.Expr]]:
+    """Step "Slow flow, polar form" (``B = (a/2) e^{...}``); returns it and the two rates
+    (by name ``f_k``, ``g_k`` above first order) that the steady-state step reuses."""
+    t, eps, N = f["oscillator"].t, f["epsilon"], f["order"]
+    p, q = f["resonance"] or (1, 1)
+    a, phase, B = f["amplitude"], f["phase"], f["B"]
+    if f["resonance"] is not None:
         polar_def = _eq(B, a / 2 * sp.exp(-sp.I * phase / p))
         lead = a * sp.cos(sp.Rational(q, p) * c.Omega * t - phase / p)
     else:
@@ -1847,19 +2055,23 @@ def _steps(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, ...]:
         ]
         rows = [_eq(names_a[k], f["polar_orders"][k][0]) for k in range(N)]
         rows += [_eq(names_g[k], f["polar_orders"][k][1]) for k in range(N)]
-    steps.append(
-        Step(
-            "Slow flow, polar form",
-            (
-                polar_def,
-                _eq(sp.Symbol("y_0"), lead),
-                _eq(sp.Derivative(a, t), rates[0]),
-                _eq(sp.Derivative(phase, t), rates[1]),
-                *rows,
-            ),
-        )
+    step = Step(
+        "Slow flow, polar form",
+        (
+            polar_def,
+            _eq(sp.Symbol("y_0"), lead),
+            _eq(sp.Derivative(a, t), rates[0]),
+            _eq(sp.Derivative(phase, t), rates[1]),
+            *rows,
+        ),
     )
-    u, vv = f["u"], f["v"]
+    return step, rates
+
+
+def _cartesian_step(f: Mapping[str, Any], nt: _Notation) -> Step:
+    """Step "Slow flow, Cartesian form": ``B = (u - i v)/2``."""
+    t, eps, N = f["oscillator"].t, f["epsilon"], f["order"]
+    u, vv, B = f["u"], f["v"], f["B"]
     if N == 1:
         cart_rows = [
             _eq(sp.Derivative(w_, t), rate)
@@ -1874,21 +2086,23 @@ def _steps(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, ...]:
         ]
         cart_rows += [_eq(names_u[k], f["cartesian_orders"][k][0]) for k in range(N)]
         cart_rows += [_eq(names_v[k], f["cartesian_orders"][k][1]) for k in range(N)]
-    steps.append(
-        Step(
-            "Slow flow, Cartesian form",
-            (
-                _eq(B, (u - sp.I * vv) / 2),
-                _eq(sp.Symbol("y_0"), u * sp.cos(theta) + vv * sp.sin(theta)),
-                *cart_rows,
-            ),
-        )
+    return Step(
+        "Slow flow, Cartesian form",
+        (
+            _eq(B, (u - sp.I * vv) / 2),
+            _eq(sp.Symbol("y_0"), u * sp.cos(nt.theta) + vv * sp.sin(nt.theta)),
+            *cart_rows,
+        ),
     )
+
+
+def _steady_state_step(f: Mapping[str, Any], rates: list[sp.Expr]) -> Step:
+    """Step "Steady states": fixed points (forced) or limit cycles, response, backbone."""
     steady: list[sp.Basic] = []
-    if forced:
+    if f["resonance"] is not None:
         steady += [_eq(rates[0], 0), _eq(rates[1], 0)]
         text = "Steady states are the fixed points of the slow flow"
-        if f["response"] is not None and N == 1:
+        if f["response"] is not None and f["order"] == 1:
             steady.append(_eq(f["response"], 0))
             text += "; eliminating the phase gives the frequency-response equation"
         text += "."
@@ -1901,8 +2115,13 @@ def _steps(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, ...]:
     if f["backbone"] is not None:
         steady.append(_eq(real_symbol("omega"), f["backbone"]))
         text += " The backbone is the frequency of the free undamped oscillation."
-    steps.append(Step("Steady states", tuple(steady), text))
-    if N == 1:
+    return Step("Steady states", tuple(steady), text)
+
+
+def _stability_step(f: Mapping[str, Any]) -> Step:
+    """Step "Stability": the slow-flow Jacobian (by name above first order)."""
+    a, phase = f["amplitude"], f["phase"]
+    if f["order"] == 1:
         J = sp.Matrix(f["polar"]).jacobian([a, phase])
     else:  # printed by name: the entries of a high-order Jacobian fill pages
         J = sp.Matrix(
@@ -1910,32 +2129,32 @@ def _steps(f: Mapping[str, Any], c: _StepContext) -> tuple[Step, ...]:
             2,
             [sp.Derivative(e, s_, evaluate=False) for e in f["polar_names"] for s_ in (a, phase)],
         )
-    steps.append(
-        Step(
-            "Stability",
-            (_eq(sp.Symbol("J"), J),),
-            "A steady state is asymptotically stable when both eigenvalues of the slow-flow "
-            "Jacobian $J$ have negative real parts. A vanishing determinant marks a saddle-node "
-            "bifurcation, a vertical tangent of the response curve; a vanishing trace with a "
-            "positive determinant marks a Hopf bifurcation.",
-        )
+    return Step(
+        "Stability",
+        (_eq(sp.Symbol("J"), J),),
+        "A steady state is asymptotically stable when both eigenvalues of the slow-flow "
+        "Jacobian $J$ have negative real parts. A vanishing determinant marks a saddle-node "
+        "bifurcation, a vertical tangent of the response curve; a vanishing trace with a "
+        "positive determinant marks a Hopf bifurcation.",
     )
+
+
+def _solution_step(f: Mapping[str, Any], c: _StepContext, nt: _Notation) -> Step:
+    """Step "Approximate solution": the waveform (by orders ``y_k`` above first order)."""
+    x, eps, N = f["oscillator"].x, f["epsilon"], f["order"]
     wave_rows: list[sp.Basic] = []
     if N == 1:
         wave_rows.append(_eq(x, f["waveform"]))
     else:
         xp_part = f["waveform"] - sp.Add(*(eps**k * part for k, part in enumerate(c.wave_parts)))
-        wave_rows.append(_eq(x, xp_part + sp.Add(*(eps**k * ys[k] for k in range(N)))))
-        wave_rows += [_eq(ys[k], part) for k, part in enumerate(c.wave_parts)]
-    steps.append(
-        Step(
-            "Approximate solution",
-            tuple(wave_rows),
-            ("With $\\tau = \\Omega t$" if forced else "With $\\tau = \\omega t$")
-            + f", through order ${N - 1}$ in the expansion of $x$.",
-        )
+        wave_rows.append(_eq(x, xp_part + sp.Add(*(eps**k * nt.ys[k] for k in range(N)))))
+        wave_rows += [_eq(nt.ys[k], part) for k, part in enumerate(c.wave_parts)]
+    return Step(
+        "Approximate solution",
+        tuple(wave_rows),
+        ("With $\\tau = \\Omega t$" if f["resonance"] is not None else "With $\\tau = \\omega t$")
+        + f", through order ${N - 1}$ in the expansion of $x$.",
     )
-    return tuple(steps)
 
 
 # ------------------------------------------------------------------- transition curves --
