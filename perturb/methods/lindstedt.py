@@ -54,12 +54,13 @@ coefficient functions, so that no SymPy ``expand`` runs inside the loop: the ser
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
 
 import sympy as sp
 
-from perturb.approximation import Approximation
+from perturb.approximation import Approximation, Step
 from perturb.errors import ModelError, ParameterError
 from perturb.methods.applicability import check_order, require_centred
 from perturb.methods.caveats import states_caveats
@@ -73,6 +74,7 @@ from perturb.methods.series import (
     Force,
     LaurentPolynomial,
     Series,
+    SplitModel,
     check_options,
     closed_form_step,
     derivation_step,
@@ -120,6 +122,30 @@ def _require_free(osc: Oscillator, method: str) -> None:
             f"{' + '.join(str(h) for h in live)} (give the amplitude the value 0, or use the "
             "modified Lindstedt-Poincare method)"
         )
+
+
+@dataclass
+class _Setup:
+    """What the stages share: the split model, the pieces ``g_j`` of the bookkeeping, the
+    method's symbols, the frequency corrections found so far and the expansion."""
+
+    osc: Oscillator
+    order: int
+    amplitude: str
+    scaling: str
+    harmonics: int
+    model: SplitModel
+    pieces: dict[int, Force]
+    A: sp.Symbol
+    tau: sp.Symbol
+    eps: sp.Dummy
+    omega: sp.Symbol
+    om_sym: list[sp.Expr]
+    om: list[LaurentPolynomial]
+    inv_w0: LaurentPolynomial
+    inv_w2: LaurentPolynomial
+    exp: Expansion
+    xf: list[Any]
 
 
 @states_caveats
@@ -175,7 +201,20 @@ def lindstedt_poincare(
         Bad options; a piecewise-linear force above :data:`PWL_MAX_ORDER`; an order above
         :data:`~perturb.methods.applicability.ORDER_LIMITS` ``["lp"]``.
     """
-    osc = oscillator
+    s = _setup(oscillator, order, amplitude, scaling, omega0, harmonics)
+    steps = _opening_steps(s)
+    fourier = _fourier_of_g(s, steps)
+    for n in range(1, s.order + 1):
+        steps.append(_solve_order(s, n))
+    return _result(s, fourier, steps)
+
+
+def _setup(
+    osc: Oscillator, order: int, amplitude: str, scaling: str, omega0: Any, harmonics: int
+) -> _Setup:
+    """Check that the model is a free conservative one the method covers, split its restoring
+    force about :math:`\\omega_0`, order the remainder by the bookkeeping parameter (uniformly
+    or by degree) and introduce the symbols and :math:`x_0 = A\\cos\\tau`."""
     order = check_options(order, amplitude, harmonics)
     if scaling not in SCALINGS:
         raise ParameterError(f"scaling = {scaling!r}: expected one of {', '.join(SCALINGS)}")
@@ -190,7 +229,6 @@ def lindstedt_poincare(
             f"order = {order} for the piecewise-linear model {osc.name!r}: expected at most "
             f"{PWL_MAX_ORDER} (higher orders need products of whole truncated series)"
         )
-    w0, w2 = model.w0, model.w2
     if scaling == "amplitude":
         if model.ramps:
             raise ModelError(
@@ -207,26 +245,46 @@ def lindstedt_poincare(
         pieces = {m - 1: Force(((m, c),)) for m, c in sorted(model.poly.items())}
     else:
         pieces = {1: model.force}
-    nmax = harmonics if model.ramps else None
-
     A = sp.Symbol("A", positive=True)
-    tau = real_symbol("tau")
     eps = method_dummy("varepsilon")
     omega = free_symbol(osc, "omega")
-    om_sym = [w0] + [method_dummy(f"omega_{n}") for n in range(1, order + 1)]
-    w0_lp = omega0_coefficient(w0)
-    om: list[LaurentPolynomial] = [w0_lp]
+    om_sym = [model.w0] + [method_dummy(f"omega_{n}") for n in range(1, order + 1)]
+    w0_lp = omega0_coefficient(model.w0)
     inv_w0 = ONE / w0_lp
-    inv_w2 = inv_w0 * inv_w0
-    exp = Expansion({1: (LaurentPolynomial.atom(A), ZERO)}, A, nmax)
-    xf = [sp.Function(f"x_{n}") for n in range(order + 1)]
-    xpp = real_symbol(osc.x.name + "''")
-    if scaling == "amplitude":
-        g_shown = sp.Add(*(eps**j * p.expr(osc.x) for j, p in pieces.items()))
-    else:
-        g_shown = eps * model.g_written(osc)
+    return _Setup(
+        osc=osc,
+        order=order,
+        amplitude=amplitude,
+        scaling=scaling,
+        harmonics=harmonics,
+        model=model,
+        pieces=pieces,
+        A=A,
+        tau=real_symbol("tau"),
+        eps=eps,
+        omega=omega,
+        om_sym=om_sym,
+        om=[w0_lp],
+        inv_w0=inv_w0,
+        inv_w2=inv_w0 * inv_w0,
+        exp=Expansion(
+            {1: (LaurentPolynomial.atom(A), ZERO)}, A, harmonics if model.ramps else None
+        ),
+        xf=[sp.Function(f"x_{n}") for n in range(order + 1)],
+    )
 
-    steps = [
+
+def _opening_steps(s: _Setup) -> list[Step]:
+    """Derivation steps up to order zero: the equation of motion, the bookkeeping of the
+    remainder :math:`g`, strained time with the expansions of :math:`\\omega` and :math:`x`,
+    and :math:`x_0 = A\\cos\\tau`."""
+    osc, order, eps, tau, xf, w2 = s.osc, s.order, s.eps, s.tau, s.xf, s.model.w2
+    xpp = real_symbol(osc.x.name + "''")
+    if s.scaling == "amplitude":
+        g_shown = sp.Add(*(eps**j * p.expr(osc.x) for j, p in s.pieces.items()))
+    else:
+        g_shown = eps * s.model.g_written(osc)
+    return [
         derivation_step("Equation of motion", (osc.equation,)),
         derivation_step(
             "Bookkeeping",
@@ -234,7 +292,7 @@ def lindstedt_poincare(
             "The restoring force is split into a linear reference term and a remainder"
             + (
                 " (the mean stiffness of the outer segments)"
-                if model.ramps and model.default_w0
+                if s.model.ramps and s.model.default_w0
                 else ""
             )
             + ", which is ordered by the bookkeeping parameter $\\varepsilon$ (set to one at the "
@@ -242,15 +300,18 @@ def lindstedt_poincare(
             + (
                 "; the amplitude is scaled by $\\varepsilon$, so a term of degree $m$ carries "
                 "$\\varepsilon^{m - 1}$."
-                if scaling == "amplitude"
+                if s.scaling == "amplitude"
                 else "."
             ),
         ),
         derivation_step(
             "Strained time and expansions",
             (
-                equation(tau, omega * osc.t),
-                equation(omega, w0 + sp.Add(*(eps**n * om_sym[n] for n in range(1, order + 1)))),
+                equation(tau, s.omega * osc.t),
+                equation(
+                    s.omega,
+                    s.model.w0 + sp.Add(*(eps**n * s.om_sym[n] for n in range(1, order + 1))),
+                ),
                 equation(osc.x, sp.Add(*(eps**n * xf[n](tau) for n in range(order + 1)))),
             ),
             "Time is strained by the unknown frequency, which is expanded with the response; "
@@ -261,110 +322,126 @@ def lindstedt_poincare(
             "Order zero in $\\varepsilon$",
             (
                 equation(w2 * (sp.Derivative(xf[0](tau), tau, 2) + xf[0](tau)), 0),
-                equation(xf[0](tau), A * sp.cos(tau)),
+                equation(xf[0](tau), s.A * sp.cos(tau)),
             ),
             "The amplitude $A$ is "
-            + ("that of the first harmonic." if amplitude == "first_harmonic" else "$x(0)$."),
+            + ("that of the first harmonic." if s.amplitude == "first_harmonic" else "$x(0)$."),
         ),
     ]
+
+
+def _fourier_of_g(s: _Setup, steps: list[Step]) -> dict[str, sp.Expr]:
+    """The harmonics of :math:`g(A\\cos\\tau)` (the ``fourier`` field; first-order piece only)
+    and, when it has one, the closed form of the first harmonic as a derivation step."""
     fourier: dict[str, sp.Expr] = {}
-    if 1 in pieces:
-        for n, (c, _) in exp.compose(pieces[1], 0).items():
+    if 1 in s.pieces:
+        for n, (c, _) in s.exp.compose(s.pieces[1], 0).items():
             fourier[f"g_{n}"] = (2 * c if n == 0 else c).to_sympy()
         cf = closed_form_step(
-            sp.Function("g_1")(A),
+            sp.Function("g_1")(s.A),
             fourier.get("g_1", sp.Integer(0)),
             "First harmonic of $g$ in closed form",
         )
         if cf is not None:
             steps.append(cf)
+    return fourier
 
-    for n in range(1, order + 1):
-        # W_i = sum_{p+q=i} omega_p omega_q, the unknown omega_n left out of W_n
-        def W(i: int, n: int = n) -> LaurentPolynomial:
-            total = ZERO
-            for p in range(i + 1):
-                if p != n and i - p != n:
-                    total = total + om[p] * om[i - p]
-            return total
 
-        terms: list[tuple[Coeff, Series]] = [
-            (-W(i), series_derivative(exp.x[n - i], 2)) for i in range(1, n + 1)
-        ]
-        for j, piece in pieces.items():
-            if j <= n:
-                terms.append((-1, exp.compose(piece, n - j)))
-        rhs = series_combine(*terms)
-        c1, s1 = rhs.get(1, (ZERO, ZERO))
-        if s1:
-            raise ModelError(
-                f"a sine secular term {s1.to_sympy()} at order {n}: the model is not conservative"
-            )
-        # the unknown enters as -2 omega_0 omega_n x_0'' = 2 omega_0 omega_n A cos(tau)
-        wn = -c1 * inv_w0 / (2 * LaurentPolynomial.atom(A))
-        om.append(wn)
-        xn = series_solve(rhs, inv_w2)
-        if amplitude == "initial":
-            x_at0 = series_at_zero(xn)
-            if x_at0:
-                xn = series_combine((1, xn), (-x_at0, {1: (ONE, ZERO)}))
-        exp.push(xn)
-        shown_rhs = series_to_sympy(rhs, tau, tidy=True) + 2 * w0 * om_sym[n] * A * sp.cos(tau)
-        steps.append(
-            derivation_step(
-                f"Order {n} in $\\varepsilon$",
-                (
-                    equation(w2 * (sp.Derivative(xf[n](tau), tau, 2) + xf[n](tau)), shown_rhs),
-                    equation(om_sym[n], tidy_coefficient(wn)),
-                    equation(xf[n](tau), series_to_sympy(xn, tau, tidy=True)),
-                ),
-                "No secular term: the coefficient of $\\cos\\tau$ vanishes, which gives the "
-                f"frequency correction of order {n}; "
-                + (
-                    "the particular solution has no $\\cos\\tau$ part."
-                    if amplitude == "first_harmonic"
-                    else "a homogeneous term makes the correction vanish at $\\tau = 0$."
-                ),
-            )
+def _solve_order(s: _Setup, n: int) -> Step:
+    """Order :math:`\\varepsilon^n`: collect the right-hand side by harmonic, set the
+    :math:`\\cos\\tau` coefficient to zero (which gives :math:`\\omega_n`), solve for
+    :math:`x_n` (shifted to vanish at 0 for ``amplitude="initial"``); returns the step."""
+    om, exp, tau, A = s.om, s.exp, s.tau, s.A
+
+    # W_i = sum_{p+q=i} omega_p omega_q, the unknown omega_n left out of W_n
+    def W(i: int) -> LaurentPolynomial:
+        total = ZERO
+        for p in range(i + 1):
+            if p != n and i - p != n:
+                total = total + om[p] * om[i - p]
+        return total
+
+    terms: list[tuple[Coeff, Series]] = [
+        (-W(i), series_derivative(exp.x[n - i], 2)) for i in range(1, n + 1)
+    ]
+    for j, piece in s.pieces.items():
+        if j <= n:
+            terms.append((-1, exp.compose(piece, n - j)))
+    rhs = series_combine(*terms)
+    c1, s1 = rhs.get(1, (ZERO, ZERO))
+    if s1:
+        raise ModelError(
+            f"a sine secular term {s1.to_sympy()} at order {n}: the model is not conservative"
         )
+    # the unknown enters as -2 omega_0 omega_n x_0'' = 2 omega_0 omega_n A cos(tau)
+    wn = -c1 * s.inv_w0 / (2 * LaurentPolynomial.atom(A))
+    om.append(wn)
+    xn = series_solve(rhs, s.inv_w2)
+    if s.amplitude == "initial":
+        x_at0 = series_at_zero(xn)
+        if x_at0:
+            xn = series_combine((1, xn), (-x_at0, {1: (ONE, ZERO)}))
+    exp.push(xn)
+    w0, w2, xf = s.model.w0, s.model.w2, s.xf
+    shown_rhs = series_to_sympy(rhs, tau, tidy=True) + 2 * w0 * s.om_sym[n] * A * sp.cos(tau)
+    return derivation_step(
+        f"Order {n} in $\\varepsilon$",
+        (
+            equation(w2 * (sp.Derivative(xf[n](tau), tau, 2) + xf[n](tau)), shown_rhs),
+            equation(s.om_sym[n], tidy_coefficient(wn)),
+            equation(xf[n](tau), series_to_sympy(xn, tau, tidy=True)),
+        ),
+        "No secular term: the coefficient of $\\cos\\tau$ vanishes, which gives the "
+        f"frequency correction of order {n}; "
+        + (
+            "the particular solution has no $\\cos\\tau$ part."
+            if s.amplitude == "first_harmonic"
+            else "a homogeneous term makes the correction vanish at $\\tau = 0$."
+        ),
+    )
 
+
+def _result(s: _Setup, fourier: dict[str, sp.Expr], steps: list[Step]) -> Approximation:
+    """Assembly with :math:`\\varepsilon = 1`: the backbone :math:`\\omega = \\sum\\omega_n`,
+    the waveform :math:`\\sum x_n`, the result step and the Approximation."""
+    osc, tau, om = s.osc, s.tau, s.om
     backbone_lp = ZERO
     for w in om:
         backbone_lp = backbone_lp + w
     backbone = backbone_lp.to_sympy()
-    waveform = sp.Add(*(series_to_sympy(xn, tau) for xn in exp.x))
-    wave_shown = sp.Add(*(series_to_sympy(xn, tau, tidy=True) for xn in exp.x))
+    waveform = sp.Add(*(series_to_sympy(xn, tau) for xn in s.exp.x))
+    wave_shown = sp.Add(*(series_to_sympy(xn, tau, tidy=True) for xn in s.exp.x))
     if not is_short(wave_shown):  # a long waveform is in the steps above, order by order
-        wave_shown = sp.Add(*(xf[n](tau) for n in range(order + 1)))
+        wave_shown = sp.Add(*(s.xf[n](tau) for n in range(s.order + 1)))
     steps.append(
         derivation_step(
             "Result with $\\varepsilon = 1$",
             (
-                equation(omega, sp.Add(*(tidy_coefficient(w) for w in om))),
+                equation(s.omega, sp.Add(*(tidy_coefficient(w) for w in om))),
                 equation(osc.x, wave_shown),
             ),
             "The frequency-amplitude relation (backbone) and the waveform"
-            + (f"; harmonics above {harmonics} are dropped." if model.ramps else "."),
+            + (f"; harmonics above {s.harmonics} are dropped." if s.model.ramps else "."),
         )
     )
     options: dict[str, Any] = {
-        "order": order,
-        "amplitude": amplitude,
-        "scaling": scaling,
-        "omega0": w0,
+        "order": s.order,
+        "amplitude": s.amplitude,
+        "scaling": s.scaling,
+        "omega0": s.model.w0,
     }
-    if model.ramps:
-        options["harmonics"] = harmonics
+    if s.model.ramps:
+        options["harmonics"] = s.harmonics
     return Approximation(
         oscillator=osc,
         method="lp",
         options=MappingProxyType(options),
-        unknowns=(A,),
-        residuals=(omega - backbone,),
+        unknowns=(s.A,),
+        residuals=(s.omega - backbone,),
         waveform=waveform,
         tau=tau,
-        frequency=omega,
-        amplitude=A,
+        frequency=s.omega,
+        amplitude=s.A,
         backbone=backbone,
         fourier=MappingProxyType(fourier),
         steps=tuple(steps),
