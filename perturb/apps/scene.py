@@ -806,10 +806,48 @@ def _legend_label(resp, errors: dict | None) -> str:
 
 
 def _run_frequency_response(scene: Scene, osc: Oscillator, out: Path, paths: dict, say) -> dict:
-    from perturb.report.figures import equation_title, frequency_response_figure
+    """Answer a frequency-response scene: trace its method (and the ``[compare]`` methods and
+    reference), measure them against the exact reference, write the CSV, the figure and the
+    derivation; returns the report's fields.
+
+    The stages: :func:`_trace_scene_methods`, then :func:`_measure_against_exact` (with a
+    reference) or :func:`_auto_labels` (without), the CSV, :func:`_draw_frequency_response`,
+    :func:`_write_derivation`.
+    """
     from perturb.response import responses_to_csv
 
     info: dict = {"omega": list(scene.omega), "method": scene.method}
+    responses, runs, ref, approx, notes = _trace_scene_methods(scene, osc, say, info)
+    for r in responses:
+        say(f"[perturb] {r!r}".replace("\n", "\n[perturb] "))
+    if ref is not None:
+        labels, extra = _measure_against_exact(responses, runs, ref, say)
+        drawn = [*responses, ref]
+    else:
+        labels, extra = _auto_labels(info, responses), None
+        drawn = responses
+    info["responses"] = runs
+    responses_to_csv(drawn, paths["csv"], extra=extra)
+    info["legend"] = None if labels is None else list(labels)
+    _draw_frequency_response(scene, osc, responses, ref, labels, paths["png"])
+    info.update(_write_derivation(scene, approx, out, paths))
+    info["notes"] = notes
+    return info
+
+
+def _trace_scene_methods(scene: Scene, osc: Oscillator, say, info: dict) -> tuple:
+    """Stage 1: trace the scene's method, each ``[compare]`` method and the exact reference.
+
+    ``info`` (the report) gets the primary response's name and branch count, and the auto
+    choice when the method is ``auto``.
+
+    Returns
+    -------
+    (responses, runs, ref, approx, notes)
+        The traced responses (primary first), one report entry per trace (the reference's
+        last, with ``role = "reference"``), the exact reference or None, the first symbolic
+        approximation (for the derivation) or None, and the notes of every trace.
+    """
     notes: list[str] = []
     resp, approx, main = _trace(scene, osc, scene.method, say, primary=True)
     info["response"] = resp.method
@@ -831,46 +869,66 @@ def _run_frequency_response(scene: Scene, osc: Oscillator, out: Path, paths: dic
         notes += i.pop("notes")
         i["role"] = "reference"
         runs.append(i)
+    return responses, runs, ref, approx, notes
+
+
+def _measure_against_exact(responses: list, runs: list, ref, say) -> tuple[list[str], dict]:
+    """Stage 2 (with a reference): each response's errors against the exact orbits, into its
+    report entry (``against_exact``), a printed line and its legend label.
+
+    Returns
+    -------
+    (labels, extra)
+        Legend labels (the reference's last) and the CSV's extra ``rel_error`` column (0 on
+        the reference's own rows).
+    """
+    from perturb.comparison import relative_errors
+
+    say(f"[perturb] {ref!r}".replace("\n", "\n[perturb] "))
+    errors = [_errors_against(r, ref) for r in responses]
+    labels = [_legend_label(r, e) for r, e in zip(responses, errors, strict=True)]
+    labels.append(f"exact periodic orbits: {len(ref.branches)} branches (the reference)")
+    for run, e in zip(runs, errors, strict=False):
+        run["against_exact"] = e
+        found = "all" if e["found"] == e["reference_branches"] else f"{e['found']} of"
+        err = "-" if e["max_error"] is None else f"{e['max_error']:.2e}"
+        say(
+            f"[perturb] {run['response']} against exact: finds {found} "
+            f"{e['reference_branches']} exact branches, max relative error {err} on them, "
+            f"{len(e['spurious'])} spurious branches"
+        )
+    rel = []
     for r in responses:
-        say(f"[perturb] {r!r}".replace("\n", "\n[perturb] "))
-    extra = None
-    labels = None
-    if ref is not None:
-        from perturb.comparison import relative_errors
+        rel += [float(v) for v in relative_errors(r, ref)] if r.branches else []
+    rel += [0.0] * sum(len(b) for b in ref.branches)
+    return labels, {"rel_error": rel}
 
-        say(f"[perturb] {ref!r}".replace("\n", "\n[perturb] "))
-        errors = [_errors_against(r, ref) for r in responses]
-        labels = [_legend_label(r, e) for r, e in zip(responses, errors, strict=True)]
-        labels.append(f"exact periodic orbits: {len(ref.branches)} branches (the reference)")
-        for run, e in zip(runs, errors, strict=False):
-            run["against_exact"] = e
-            found = "all" if e["found"] == e["reference_branches"] else f"{e['found']} of"
-            err = "-" if e["max_error"] is None else f"{e['max_error']:.2e}"
-            say(
-                f"[perturb] {run['response']} against exact: finds {found} "
-                f"{e['reference_branches']} exact branches, max relative error {err} on them, "
-                f"{len(e['spurious'])} spurious branches"
-            )
-        rel = []
-        for r in responses:
-            rel += [float(v) for v in relative_errors(r, ref)] if r.branches else []
-        rel += [0.0] * sum(len(b) for b in ref.branches)
-        extra = {"rel_error": rel}
-        drawn = [*responses, ref]
-    else:
-        drawn = responses
-        if "auto" in info:
-            from perturb.report.figures import method_label
 
-            ch = info["auto"]
-            spot = ch["chosen"]["max_spot_error"]
-            spot_text = f"{spot:.1e}" if isinstance(spot, float) else str(spot)
-            labels = [
-                f"{method_label(resp.method)}:\n  chosen for rtol {ch['rtol']:g}, max error "
-                f"{spot_text} at {len(ch['spot_frequencies'])} exact spot checks"
-            ] + [method_label(r.method) for r in responses[1:]]
-    info["responses"] = runs
-    responses_to_csv(drawn if ref is None else [*responses, ref], paths["csv"], extra=extra)
+def _auto_labels(info: dict, responses: list) -> list[str] | None:
+    """Stage 2 (without a reference): legend labels telling an ``auto`` choice's rtol and
+    spot-check error (None when the method is not auto: the figure's own labels)."""
+    if "auto" not in info:
+        return None
+    from perturb.report.figures import method_label
+
+    ch = info["auto"]
+    spot = ch["chosen"]["max_spot_error"]
+    spot_text = f"{spot:.1e}" if isinstance(spot, float) else str(spot)
+    return [
+        f"{method_label(responses[0].method)}:\n  chosen for rtol {ch['rtol']:g}, max error "
+        f"{spot_text} at {len(ch['spot_frequencies'])} exact spot checks"
+    ] + [method_label(r.method) for r in responses[1:]]
+
+
+def _draw_frequency_response(
+    scene: Scene, osc: Oscillator, responses: list, ref, labels: list[str] | None, png: Path
+) -> None:
+    """Stage 3: the figure -- the reference (if any) underneath, thick and dark, the
+    responses on top; a logarithmic amplitude axis when amplitudes span decades (unless
+    ``[plot] log_amplitude`` says otherwise)."""
+    from perturb.report.figures import equation_title, frequency_response_figure
+
+    drawn = responses if ref is None else [*responses, ref]
     title = equation_title(osc, dict(scene.params))
     if ref is not None:
         title += "\nerrors: relative, of the amplitude $\\max\\,|x|$, against the exact orbits"
@@ -887,10 +945,9 @@ def _run_frequency_response(scene: Scene, osc: Oscillator, out: Path, paths: dic
     amps = [float(a) for r in drawn for b in r.branches for a in b.amplitude if a > 0]
     # amplitudes spanning decades (a resonance peak over small in-well orbits): log axis
     log_axis = bool(amps) and max(amps) > 30 * max(min(amps), 1e-12)
-    info["legend"] = None if labels is None else list(labels)
     fig = frequency_response_figure(
         [drawn[k] for k in order],
-        paths["png"],
+        png,
         title=title,
         zoom=scene.plot.get("zoom"),
         mean=bool(scene.plot.get("mean", False)),
@@ -901,19 +958,24 @@ def _run_frequency_response(scene: Scene, osc: Oscillator, out: Path, paths: dic
         legend_kw={"fontsize": 7, "loc": "upper right" if ref is not None else "best"},
     )
     _close(fig)
+
+
+def _write_derivation(scene: Scene, approx, out: Path, paths: dict) -> dict:
+    """Stage 4: the LaTeX derivation of the first symbolic approximation, when the scene
+    asks for one (``paths["latex"]`` set); the report's ``derivation`` field, or a ``latex``
+    field saying why none was written."""
     if approx is not None and "latex" in scene.outputs:
         from perturb.report.latex import latex_document
 
         paths["latex"] = out / scene.outputs["latex"]
         write_text(paths["latex"], latex_document(approx))
-        info["derivation"] = approx.label
-    elif "latex" in scene.outputs:
-        info["latex"] = (
-            "not written: none of the scene's methods is symbolic (add one, 'hb1' say, to "
-            "[compare] methods for its derivation)"
-        )
-    info["notes"] = notes
-    return info
+        return {"derivation": approx.label}
+    if "latex" in scene.outputs:
+        return {
+            "latex": "not written: none of the scene's methods is symbolic (add one, 'hb1' say, "
+            "to [compare] methods for its derivation)"
+        }
+    return {}
 
 
 def _numeric_force(osc: Oscillator):
