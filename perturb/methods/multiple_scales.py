@@ -2218,6 +2218,39 @@ def transition_curves(
         raise ParameterError(f"n = {n!r}: expected an integer >= 0")
     if isinstance(order, bool) or not isinstance(order, int) or order < 1:
         raise ParameterError(f"order = {order!r}: expected an integer >= 1")
+    free, delta, named, stiffness = _transition_model(osc, parameter, epsilon)
+    if n == 0:
+        return _transition_n0(free, delta, named, order)
+    p, q = 2, n
+    g = math.gcd(p, q)
+    mod = _derive(free, order, (p // g, q // g), epsilon, "stiffness", None)
+    eps = mod.epsilon
+    M = sp.Matrix(mod.cartesian).jacobian([mod.u, mod.v])
+    if M.has(mod.u, mod.v):
+        raise PerturbError("internal: the slow flow of a linear model is not linear")
+    ds = sp.symbols(f"d_1:{order + 1}")
+    series = sp.Add(*(eps**j * ds[j] for j in range(order)))
+    branches = _transition_branches(M.xreplace({mod.sigma: series}), eps, ds, order)
+    rhs = mod.nu**2 - eps * series
+    curves = []
+    for br in branches:
+        poly = sp.Poly(sp.expand(stiffness - rhs.xreplace(br)), delta)
+        if poly.degree() != 1:
+            raise PerturbError(f"cannot solve {stiffness} = {rhs} for {delta}: not linear")
+        c1, c0 = poly.all_coeffs()
+        expr = sp.expand(-c0 / c1)
+        if named is None:
+            expr = sp.expand(expr.xreplace({eps: 1}))
+        curves.append(expr)
+    return _sorted_curves(curves, named or eps)
+
+
+def _transition_model(
+    osc: Oscillator, parameter: str | None, epsilon: str | None
+) -> tuple[Oscillator, sp.Symbol, sp.Symbol | None, sp.Expr]:
+    """Check the model is linear, unforced and parametric; return it with the stiffness
+    parameter delta (and the named epsilon) left free, delta, the named epsilon and the
+    stiffness at epsilon = 0."""
     nonlinear = [
         (label, val)
         for label, val in (
@@ -2257,19 +2290,15 @@ def transition_curves(
             )
         delta = real_symbol(parameter)
     free = osc.with_params({name: None for name in (delta.name, epsilon) if name})
-    if n == 0:
-        return _transition_n0(free, delta, named, order)
-    p, q = 2, n
-    g = math.gcd(p, q)
-    mod = _derive(free, order, (p // g, q // g), epsilon, "stiffness", None)
-    eps = mod.epsilon
-    M = sp.Matrix(mod.cartesian).jacobian([mod.u, mod.v])
-    if M.has(mod.u, mod.v):
-        raise PerturbError("internal: the slow flow of a linear model is not linear")
-    Delta = mod.sigma
-    ds = sp.symbols(f"d_1:{order + 1}")
-    series = sp.Add(*(eps**j * ds[j] for j in range(order)))
-    sub = M.xreplace({Delta: series})
+    return free, delta, named, stiffness
+
+
+def _transition_branches(
+    sub: sp.Matrix, eps: sp.Symbol, ds: Sequence[sp.Symbol], order: int
+) -> list[dict[sp.Symbol, sp.Expr]]:
+    """Solve det M(Delta = d_1 + eps d_2 + ...) = 0 power by power of eps: the lowest
+    non-vanishing coefficient fixes the next d_j on each branch (a double root defers the
+    split to a higher power; an inconsistent branch is dropped)."""
     num = sp.expand(sub[0, 0] * sub[1, 1] - sub[0, 1] * sub[1, 0])
     top = 2 * order + 3
     coeffs = [sp.expand(num.coeff(eps, k)) for k in range(top + 1)]
@@ -2294,18 +2323,7 @@ def transition_curves(
                         new.append({**br, ds[j]: sp.nsimplify(root)})
                 break
         branches = new
-    rhs = mod.nu**2 - eps * series
-    curves = []
-    for br in branches:
-        poly = sp.Poly(sp.expand(stiffness - rhs.xreplace(br)), delta)
-        if poly.degree() != 1:
-            raise PerturbError(f"cannot solve {stiffness} = {rhs} for {delta}: not linear")
-        c1, c0 = poly.all_coeffs()
-        expr = sp.expand(-c0 / c1)
-        if named is None:
-            expr = sp.expand(expr.xreplace({eps: 1}))
-        curves.append(expr)
-    return _sorted_curves(curves, named or eps)
+    return branches
 
 
 def _sorted_curves(curves: list[sp.Expr], eps: sp.Symbol) -> tuple[sp.Expr, ...]:
