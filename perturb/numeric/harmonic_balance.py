@@ -153,6 +153,7 @@ from perturb.fourier.projection import (
 )
 from perturb.model.oscillator import Oscillator
 from perturb.model.pwl import NumericPWL
+from perturb.model.symmetry import mirror_harmonic
 from perturb.numeric.continuation import (
     BranchPoint,
     ContinuationCurve,
@@ -1743,6 +1744,10 @@ def odd_symmetry(system: HarmonicBalanceSystem, window: tuple[float, float]) -> 
     """The matrix ``S`` of the symmetry ``x(theta) -> -x(theta + pi/m)`` (half a forcing
     period) on the coefficients, if it maps solutions to solutions, else None.
 
+    The symmetry and its blocks on each harmonic are those of :mod:`perturb.model.symmetry`
+    (:func:`~perturb.model.symmetry.mirror_harmonic`); what is decided here is whether this
+    *discretised* system commutes with it.
+
     For an odd restoring force (and damping), no static load and forcing harmonics that the
     half-period shift negates, ``R(S u) = S R(u)``: the image of a solution is a solution.
     With ``theta -> theta + delta``, ``delta = pi/m``, harmonic ``k`` turns by ``k delta``,
@@ -1754,14 +1759,11 @@ def odd_symmetry(system: HarmonicBalanceSystem, window: tuple[float, float]) -> 
     is the identity on every solution (nothing to mirror, and no branch point can break the
     symmetry inside the basis)."""
     basis = system.basis
-    delta = math.pi / system.m
     S = np.zeros((basis.size, basis.size))
     if basis.bias:
         S[0, 0] = -1.0
     for k, ia in zip(basis.k, basis.a_index, strict=True):
-        c, sn = math.cos(k * delta), math.sin(k * delta)
-        S[ia, ia], S[ia, ia + 1] = -c, -sn
-        S[ia + 1, ia], S[ia + 1, ia + 1] = sn, -c
+        S[ia : ia + 2, ia : ia + 2] = mirror_harmonic(k, system.m)
     if np.allclose(S, np.eye(basis.size), atol=1e-12):
         return None
     rng = np.random.default_rng(2024)

@@ -14,10 +14,10 @@
 - the caller's own initial states,
 
 corrects each by shooting (multiple shooting for the strongly unstable ones), removes
-duplicates and, for a system symmetric under ``(x, t) -> (-x, t + T/2)``, adds the mirror image
-of every orbit found.  This module never imports an approximation (contract
-``independent-references``): every seed only starts Newton on the exact flow, and an orbit is
-accepted on the exact flow's residual.
+duplicates and, for a system symmetric under ``(x, t) -> (-x, t + T/2)``
+(:mod:`perturb.model.symmetry`), adds the mirror image of every orbit found.  This module
+never imports an approximation (contract ``independent-references``): every seed only starts
+Newton on the exact flow, and an orbit is accepted on the exact flow's residual.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ import numpy as np
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
 from perturb.model.segments import segment_steady_states
+from perturb.model.symmetry import is_odd_symmetric, mirror_nodes
 from perturb.simulate.flows.base import Flow, as_flow
 from perturb.simulate.flows.factory import FlowFamily
 from perturb.simulate.orbits.shooting import (
@@ -102,28 +103,19 @@ def default_extent(flow: Flow) -> float:
 
 
 def odd_symmetric(flow: Flow, T: float, extent: float) -> bool:
-    """Whether the vector field is invariant under ``(x, v, t) -> (-x, -v, t + T/2)`` (checked
-    at a few fixed points, to rounding)."""
-    rng = np.random.default_rng(1)
-    for _ in range(8):
-        t = float(rng.uniform(0.0, T))
-        y = rng.uniform(-extent, extent, 2)
-        try:
-            a = np.asarray(flow.vector_field(t, y), float)
-            b = np.asarray(flow.vector_field(t + 0.5 * T, -y), float)
-        except (PerturbError, ValueError, ArithmeticError):
-            return False
-        if not np.all(np.abs(a + b) <= 1e-9 * (1.0 + np.abs(a))):
-            return False
-    return True
+    """Whether the flow's vector field is invariant under ``(x, v, t) -> (-x, -v, t + T/2)``:
+    :func:`perturb.model.symmetry.is_odd_symmetric` (checked at a few fixed points of the box
+    ``[-extent, extent]^2``, to rounding) on ``flow.vector_field``."""
+    return is_odd_symmetric(flow.vector_field, T, extent)
 
 
 def _mirror(flow: Flow, orbit: PeriodicOrbit) -> PeriodicOrbit | None:
-    """The image ``-x(t + T/2)`` of a period-1 orbit, polished by multiple shooting."""
+    """The image ``-x(t + T/2)`` of a period-1 orbit
+    (:func:`perturb.model.symmetry.mirror_nodes` of its samples), polished by multiple
+    shooting."""
     try:
         _, x, v = orbit.sample(_NODES)
-        nodes = -np.roll(np.column_stack([x, v]), -_NODES // 2, axis=0)
-        return multiple_shooting(flow, nodes, m=1)
+        return multiple_shooting(flow, mirror_nodes(np.column_stack([x, v])), m=1)
     except (ShootingError, PerturbError):
         return None
 
