@@ -3,7 +3,11 @@
 - :mod:`perturb.model.oscillator`: :class:`Oscillator` (``x'' + g(x, x', t) = f(t)``), its
   forcing, parameters and the builtin models;
 - :mod:`perturb.model.parsing`: the safe parser of equation strings (no ``eval``);
-- :mod:`perturb.model.pwl`: the canonical piecewise-linear form of nonsmooth terms.
+- :mod:`perturb.model.pwl`: the canonical piecewise-linear form of nonsmooth terms;
+- :mod:`perturb.model.builtins`: the builtin models as data (no SymPy);
+- :mod:`perturb.model.segments`: the closed-form forced steady state of each linear segment;
+- :mod:`perturb.model.symmetry`: odd symmetry ``(x, v, t) -> (-x, -v, t + T/2)``;
+- :mod:`perturb.model.affine`: piecewise-affine systems of several states.
 """
 
 import importlib
