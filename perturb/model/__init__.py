@@ -1,7 +1,7 @@
 """The model layer: what the equation is.
 
 - :mod:`perturb.model.oscillator`: :class:`Oscillator` (``x'' + g(x, x', t) = f(t)``), its
-  forcing, parameters and the builtin models;
+  forcing and parameters;
 - :mod:`perturb.model.parsing`: the safe parser of equation strings (no ``eval``);
 - :mod:`perturb.model.pwl`: the canonical piecewise-linear form of nonsmooth terms;
 - :mod:`perturb.model.builtins`: the builtin models as data (no SymPy);
