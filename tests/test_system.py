@@ -15,7 +15,18 @@ import sympy as sp
 from perturb.errors import ModelError, ParameterError, PerturbError
 from perturb.model.builtins import builtin_model
 from perturb.model.parsing import real_symbol
-from perturb.model.system import System, coulomb, element, gap, stop
+from perturb.model.system import (
+    System,
+    coulomb,
+    dead_zone,
+    element,
+    gap,
+    polynomial,
+    pwl_spring,
+    saturation,
+    step,
+    stop,
+)
 from perturb.model.system_builtins import BUILTIN_SYSTEMS, builtin_system
 
 RNG = np.random.default_rng(20261127)
@@ -269,6 +280,7 @@ def test_mount_field_equals_the_derivation_script(derivation_module, monkeypatch
                     worst = max(worst, float(err.max()))
                 n_checked += 1
             assert n_checked > 50
+    print(f"mount: worst relative deviation from the script {worst:.3g}")
     assert worst <= 1e-9, worst
 
 
@@ -465,3 +477,68 @@ def test_parser_is_not_bypassed():
     _raises(ParseError, "unknown function 'g'", System.parse, ["x'' + g(x) = 0"])
     _raises(ParseError, "reserved", System.parse, ["x'' + x__d1 = 0"])
     _raises(ParseError, "only first", System.parse, ["x''' + x = 0"])
+
+
+# ---------------------------------------------------------------- element factories --
+@pytest.mark.parametrize(
+    ("name", "spec"),
+    [
+        ("deadzone", lambda: dead_zone("x", "d", "k2")),
+        ("saturation", lambda: saturation("x", "d", "k2")),
+        ("clearance", lambda: pwl_spring("x", ["d"], [0, "r"])),
+    ],
+)
+def test_factories_reproduce_the_sdof_builtins(name, spec):
+    osc = builtin_model(name)
+    p = {k: v for k, v in osc.params.items() if k in ("mu", "d", "k2", "r", "F", "Omega")}
+    k_lin = osc.params.get("k1", 1.0)
+    m = System.from_matrices(
+        [[1]],
+        [["mu"]],
+        [[k_lin]],
+        elements=[spec()],
+        forcing=["F*cos(Omega*t)"],
+        coordinates=["x"],
+        params=p,
+    )
+    ref = System.from_oscillator(osc)
+    a, b = m.piecewise_affine(), ref.piecewise_affine()
+    assert [sf.offset for sf in a.surfaces] == pytest.approx([sf.offset for sf in b.surfaces])
+    for _ in range(50):
+        y, t = RNG.uniform(-3, 3, size=2), RNG.uniform(0, 10)
+        assert np.allclose(a.field(t, y), b.field(t, y), rtol=1e-13, atol=1e-13)
+        assert np.allclose(m.field(t, y), ref.field(t, y), rtol=1e-13, atol=1e-13)
+
+
+def test_steps_and_smooth_polynomial_elements():
+    s = System.parse(
+        [
+            "x1'' + x1 + a*(x1 - x2)**3 + J*Heaviside(x1 - x2 - 1) = 0",
+            "x2'' + x2 - a*(x1 - x2)**3 - J*Heaviside(x1 - x2 - 1) = 0",
+        ],
+        {"a": 0.7, "J": 0.3},
+    )
+    kinds = sorted((e.kind, e.distribution) for e in s.elements)
+    assert kinds == [("nonsmooth", (1, -1)), ("smooth", (1, -1))]
+    with pytest.raises(ModelError, match=r"smooth\(x1 - x2\).*not piecewise linear"):
+        s.piecewise_affine()
+    assert not s.is_piecewise_linear
+    for _ in range(50):
+        x1, x2, v1, v2 = y = RNG.uniform(-2, 2, size=4)
+        f = 0.7 * (x1 - x2) ** 3 + 0.3 * (x1 - x2 >= 1)
+        assert np.allclose(s.field(0.0, y), [v1, v2, -x1 - f, -x2 + f], rtol=1e-14, atol=1e-14)
+    m = System.from_matrices(
+        [[1, 0], [0, 1]],
+        [[0, 0], [0, 0]],
+        [[1, 0], [0, 1]],
+        elements=[polynomial("x1 - x2", [0, 0, 0, 0.7]), step("x1 - x2", 1, 0.3)],
+    )
+    for _ in range(20):
+        y = RNG.uniform(-2, 2, size=4)
+        assert np.allclose(m.field(0.0, y), s.field(0.0, y), rtol=1e-14, atol=1e-14)
+    jump = m.piecewise_affine  # the polynomial element is not PWL
+    with pytest.raises(ModelError, match="polynomial"):
+        jump()
+    only_step = System.from_matrices([[1]], [[0.1]], [[1]], elements=[step("x1", 1, 0.3)])
+    pa = only_step.piecewise_affine()
+    assert pa.continuous == (False,) and pa.regions[(1,)].b[1] == pytest.approx(-0.3)

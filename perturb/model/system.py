@@ -641,7 +641,7 @@ class System:
                     comb = _switch_combination(term, sw, states, r)
                     found.append((r, comb, "switch", term))
                 else:
-                    found.append((r, _smooth_combination(term, states), "smooth", term))
+                    found.append((r, None, "smooth", term))
         mass = Mm.row_join(Dm)
         if mass.shape[0] == mass.shape[1]:
             det = sp.simplify(mass.det())
@@ -943,7 +943,11 @@ class System:
 
         Surfaces ``c . y = d`` at every breakpoint of every element (elements on parallel
         combinations share their surfaces; a surface listed once); regions are the sign
-        patterns that can occur (for one combination, its breakpoints are crossed in order).
+        patterns that can occur for each combination (its breakpoints are crossed in order),
+        in every product over the combinations. When the combinations' directions are
+        linearly dependent (``x1``, ``x2`` and ``x1 - x2`` all switching) some of those
+        products may be empty polyhedra; they are listed anyway (never reached, harmless).
+        The state order is :attr:`state_names`, ``(q, q', p)``.
         Harmonic forcing terms become ``inputs``, a constant forcing part enters ``b``; the
         period is that of the forcing (``None`` without harmonics).
 
@@ -1189,6 +1193,21 @@ def _group_elements(found, states, m) -> list[Element]:
     names = [s.name for s in states]
     per_key: dict[tuple, dict[int, sp.Expr]] = {}
     loose: list[tuple[int, sp.Expr]] = []
+    # smooth terms: expansion split (x1 - x2)**3 into monomials that are functions of the
+    # combination only together; try the row's sum first, then each term on its own
+    smooth: dict[int, list[sp.Expr]] = {}
+    for r, _comb, kind, term in found:
+        if kind == "smooth":
+            smooth.setdefault(r, []).append(term)
+    found = [f for f in found if f[2] != "smooth"]
+    for r, terms in smooth.items():
+        total = sp.Add(*terms)
+        comb = _smooth_combination(total, states)
+        if comb is not None:
+            found.append((r, comb, "smooth", total))
+            continue
+        for term in terms:
+            found.append((r, _smooth_combination(term, states), "smooth", term))
     for r, comb, kind, term in found:
         if comb is None:
             loose.append((r, term))
