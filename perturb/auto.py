@@ -830,28 +830,14 @@ def auto_frequency_response(
         if cand.method != "hb":
             break
         resp, raw = resp
-        est, at = window_estimate(oscillator, raw)
-        choice = dataclasses.replace(choice, window_estimate=est, window_estimate_at=at)
-        if not est > choice.rtol:
-            break
-        w_new = float(f"{at:.6g}")
-        if w_new in spots:
-            err_there = choice.chosen.spot_errors[spots.index(w_new)]
-            notes += (
-                f"the estimate along the traced curve reaches {est:.2e} at Omega = {w_new:g}, "
-                f"where the exact spot check gives {err_there:.2e} <= rtol: the estimate is "
-                "pessimistic there (or follows an orbit the exact search did not find)",
-            )
-            break
-        if attempt == max_extra_spots:
-            notes += (
-                f"between the spot frequencies the estimate reaches {est:.2e} > rtol "
-                f"(at Omega = {at:.4g}): add spot frequencies there or tighten rtol",
-            )
+        choice, w_new, notes = _traced_estimate(
+            oscillator, raw, choice, spots, last=attempt == max_extra_spots
+        )
+        if w_new is None:
             break
         msg = (
-            f"{cand.name}: estimate {est:.2e} > rtol on the traced curve at Omega = {w_new:g}: "
-            "exact spot check added there"
+            f"{cand.name}: estimate {choice.window_estimate:.2e} > rtol on the traced curve at "
+            f"Omega = {w_new:g}: exact spot check added there"
         )
         extra.append(msg)
         if log is not None:
@@ -862,8 +848,64 @@ def auto_frequency_response(
         before = choice.rejected
         ladder = ladder[i:]
     choice = _with_notes(choice, tuple(extra) + notes + _coverage_notes(resp, choice))
+    return _headed(resp, choice), choice
+
+
+def _traced_estimate(
+    oscillator: Oscillator,
+    raw,
+    choice: AutoChoice,
+    spots: tuple[float, ...],
+    *,
+    last: bool,
+) -> tuple[AutoChoice, float | None, tuple[str, ...]]:
+    """One check of a chosen numeric HB along its traced curve (:func:`window_estimate`).
+
+    Parameters
+    ----------
+    raw
+        The traced HB solution (second item of :func:`_full_response` for HB).
+    choice
+        The choice; returned with ``window_estimate`` and ``window_estimate_at`` filled in.
+    spots
+        The spot frequencies checked so far.
+    last
+        No more spot checks may be added (``max_extra_spots`` reached).
+
+    Returns
+    -------
+    (choice, w_new, notes)
+        ``w_new``: the frequency (6 significant digits) where the estimate exceeds ``rtol``,
+        to become one more spot check; None when the estimate is within ``rtol``, when that
+        frequency is already a spot (the estimate is pessimistic there), or when ``last`` --
+        the last two cases with a note saying so.
+    """
+    est, at = window_estimate(oscillator, raw)
+    choice = dataclasses.replace(choice, window_estimate=est, window_estimate_at=at)
+    if not est > choice.rtol:
+        return choice, None, ()
+    w_new = float(f"{at:.6g}")
+    if w_new in spots:
+        err_there = choice.chosen.spot_errors[spots.index(w_new)]
+        note = (
+            f"the estimate along the traced curve reaches {est:.2e} at Omega = {w_new:g}, "
+            f"where the exact spot check gives {err_there:.2e} <= rtol: the estimate is "
+            "pessimistic there (or follows an orbit the exact search did not find)"
+        )
+        return choice, None, (note,)
+    if last:
+        note = (
+            f"between the spot frequencies the estimate reaches {est:.2e} > rtol "
+            f"(at Omega = {at:.4g}): add spot frequencies there or tighten rtol"
+        )
+        return choice, None, (note,)
+    return choice, w_new, ()
+
+
+def _headed(resp: Response, choice: AutoChoice) -> Response:
+    """``resp`` with the choice's summary heading its notes (what was chosen, and why)."""
     head = tuple(choice.summary().splitlines())
-    resp = Response(
+    return Response(
         resp.branches,
         resp.method,
         resp.model,
@@ -871,7 +913,6 @@ def auto_frequency_response(
         folds=resp.folds,
         notes=head + tuple(resp.notes),
     )
-    return resp, choice
 
 
 def auto_solutions_at(
