@@ -542,3 +542,13 @@ def test_steps_and_smooth_polynomial_elements():
     only_step = System.from_matrices([[1]], [[0.1]], [[1]], elements=[step("x1", 1, 0.3)])
     pa = only_step.piecewise_affine()
     assert pa.continuous == (False,) and pa.regions[(1,)].b[1] == pytest.approx(-0.3)
+
+
+def test_constraints_and_numerically_zero_combinations():
+    (c,) = builtin_system("mount").constraints()
+    assert c.kind == "stop" and c.lower == 0.0 and c.upper == pytest.approx(1.5e-6)
+    assert np.array_equal(c.normal, [0, 1, 0, 0]) and np.array_equal(c.distribution, [0, 1])
+    (f,) = builtin_system("belt").constraints()
+    assert f.kind == "friction" and np.array_equal(f.normal, [0, 1]) and math.isnan(f.lower)
+    s = System.parse(["x'' + x + Heaviside(a*x - 1) = 0"], {"a": 0.0})
+    _raises(ModelError, r"never changes sign", s.field, 0.0, [0, 0])

@@ -74,6 +74,7 @@ from perturb.model.parsing import parse_equation, parse_expression, real_symbol
 from perturb.model.pwl import to_pwl
 
 __all__ = [
+    "Constraint",
     "Element",
     "System",
     "S",
@@ -316,6 +317,25 @@ def stop(
     if not (0.0 <= e <= 1.0):
         raise ParameterError(f"restitution = {restitution!r}: expected a number in [0, 1]")
     return _ElementSpec(name or f"stop({on})", "stop", on, sp.S.Zero, force, (lo, hi), e)
+
+
+@dataclass(frozen=True)
+class Constraint:
+    """A stop or friction contact in numbers (see :meth:`System.constraints`).
+
+    ``normal . y`` is the combination (a position for a stop, a velocity for friction; the
+    friction law's offset, e.g. the belt speed, is inside the element's ``f``); ``lower`` /
+    ``upper`` are a stop's limits (NaN for friction); ``distribution`` is how its force enters
+    the equations (one entry per equation, in the rows of ``[M D]``).
+    """
+
+    name: str
+    kind: str
+    normal: np.ndarray
+    lower: float
+    upper: float
+    restitution: float
+    distribution: np.ndarray
 
 
 # -------------------------------------------------------------------------------- system --
@@ -823,6 +843,22 @@ class System:
                 else np.array([float(sp.sympify(ci).xreplace(vals)) for ci in e.combination])
             )
             w = np.array([float(sp.sympify(wi).xreplace(vals)) for wi in e.distribution])
+            if c is not None and not np.any(c):
+                raise ModelError(
+                    f"element {e.name!r}: its combination {e.combination} is identically zero "
+                    "for the parameter values, so its switching function never changes sign; "
+                    "expected a nonzero combination of the states"
+                )
+            if c is not None:
+                # a switch whose argument loses s for these values never changes sign
+                # (Heaviside(a*s - 1) with a = 0); a zero multiplier (nsd with k = 1) is fine
+                for atom in _switch_atoms(e.function):
+                    if atom.has(S) and not atom.xreplace(vals).has(S):
+                        raise ModelError(
+                            f"element {e.name!r}: {atom} is {atom.xreplace(vals)} for the "
+                            "parameter values, so its switching function never changes sign; "
+                            "expected a switch of a nonzero combination of the states"
+                        )
             comb[e.name] = (c, w)
         out = {
             "B": B,
@@ -888,6 +924,22 @@ class System:
             Q = np.array(Wq).T
             Pv = np.eye(n2) - Q @ np.linalg.solve(Q.T @ Q, Q.T)
         return P, Pv
+
+    def constraints(self) -> tuple[Constraint, ...]:
+        """The stops and friction contacts, numeric (parameter values substituted), for the
+        event-driven solvers: where they act, their limits and how their force enters."""
+        num = self._numeric()
+        out = []
+        for e in self.elements:
+            if e.kind not in ("stop", "friction"):
+                continue
+            c, w = num["comb"][e.name]
+            if e.kind == "stop":
+                lo, hi = (float(sp.sympify(v).xreplace(num["vals"])) for v in e.limits)
+            else:
+                lo = hi = math.nan
+            out.append(Constraint(e.name, e.kind, c, lo, hi, e.restitution, w))
+        return tuple(out)
 
     def field(self, t: float, y: Sequence[float], active: Mapping[str, int] | None = None):
         """The vector field ``y'`` at time ``t`` (any elements; parameter values needed).
