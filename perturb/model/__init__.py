@@ -7,6 +7,8 @@
 - :mod:`perturb.model.builtins`: the builtin models as data (no SymPy);
 - :mod:`perturb.model.segments`: the closed-form forced steady state of each linear segment;
 - :mod:`perturb.model.symmetry`: odd symmetry ``(x, v, t) -> (-x, -v, t + T/2)``;
+- :mod:`perturb.model.system`: systems of several coordinates and first-order states
+  (builtins in :mod:`perturb.model.system_builtins`);
 - :mod:`perturb.model.affine`: piecewise-affine systems of several states.
 """
 
