@@ -101,21 +101,39 @@ def test_linear_oscillator_by_shooting_matches_closed_form():
     assert all(q.stable for q in br.points)
 
 
-def test_parameter_derivative_is_exact():
-    """d G / d Omega in closed form (no extra propagation) against central differences."""
-    from perturb.simulate.exact_response import _settings, _Tracer
+def test_tangent_matches_the_derivative_of_independent_orbits():
+    """The branch tangent (the null vector of [dG/dz | dG/dOmega], with the parameter
+    derivative in closed form) gives dy0/dOmega: against central differences of orbits found
+    independently (solve_ivp + fsolve on the period map) at Omega +- h."""
+    from scipy.optimize import fsolve
 
-    osc = builtin_model("nsd", **NSD_K3)
-    st = _settings(0.005, 1e-7, 1e-10, 100, 1e6)
-    tracer = _Tracer(FlowFamily(osc), 1, 0.0, (0.2, 2.0), st)
-    eng = tracer.eng
-    for N in (1, 3):
-        Z = tracer.propagate_nodes(0.6, np.array([11.4, 1.6]), N)
-        ev = eng.evaluate(Z, 0.6)
-        h = 1e-6
-        fd = (eng.evaluate(Z, 0.6 + h, gp=False).r - eng.evaluate(Z, 0.6 - h, gp=False).r) / (2 * h)
-        assert ev.Gp is not None
-        assert np.max(np.abs(ev.Gp - fd)) < 1e-7 * np.max(np.abs(fd))
+    k, mu, F = NSD_K3["k"], NSD_K3["mu"], NSD_K3["F"]
+    lo, hi = 0.2, 2.0
+    br = continue_orbits(builtin_model("nsd", **NSD_K3), 0.6, [11.4, 1.6], (lo, hi), ds_max=0.05)
+
+    def orbit(Om, y):
+        T = 2 * math.pi / Om
+
+        def gap(y0):
+            return integrate(nsd_rhs(k, mu, F, Om), y0, T) - y0
+
+        y1 = fsolve(gap, y, xtol=1e-13)
+        assert np.max(np.abs(gap(y1))) < 1e-9 * max(1.0, np.max(np.abs(y1)))
+        return y1
+
+    checked = 0
+    for q in br.points[::7]:
+        t = q.tangent
+        if abs(t[2]) < 0.2 or q.nodes is not None or checked == 4:
+            continue
+        # tangent in scaled (x0, v0, Omega): state over the orbit size R, Omega over the window
+        R = max(1.0, float(np.max(np.abs(q.y0))), q.amplitude)
+        dydp = t[:2] * R / (t[2] * (hi - lo))
+        h = 1e-5 * q.parameter
+        fd = (orbit(q.parameter + h, q.y0) - orbit(q.parameter - h, q.y0)) / (2 * h)
+        assert np.max(np.abs(dydp - fd)) < 1e-4 * np.max(np.abs(fd))
+        checked += 1
+    assert checked == 4
 
 
 # ------------------------------------------------------------------------------------------

@@ -165,6 +165,7 @@ from scipy.optimize import brentq
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
 from perturb.model.segments import SegmentSteadyState, segment_steady_states
+from perturb.model.symmetry import is_odd_symmetric, mirror_nodes
 from perturb.numeric.continuation import (
     FloquetCrossings,
     FoldTest,
@@ -2548,19 +2549,14 @@ def _thaw(branch: ContinuationBranch, j: int) -> _Pt:
 # symmetry of odd systems
 # =============================================================================================
 def _is_odd_symmetric(eng: _Engine) -> bool:
-    r"""True when :math:`f(t + T/2, -y) = -f(t, y)` (odd force, odd harmonics only), checked
-    on the vector field at random states and two parameter values."""
-    rng = np.random.default_rng(20240601)
+    r"""True when :math:`f(t + T/2, -y) = -f(t, y)` (odd force, odd harmonics only):
+    :func:`perturb.model.symmetry.is_odd_symmetric` on the vector field at two parameter
+    values (the symmetry may hold only for some parameters of the family), in the box
+    :math:`|x|, |v| \le 16` (past the breakpoints of the builtin models) to ``1e-10``."""
     for p in (eng.lo + 0.3 * eng.Sp, eng.lo + 0.8 * eng.Sp):
         flow = eng.flow(p)
-        T = float(flow.period)
-        for _ in range(8):
-            t = float(rng.uniform(0, T))
-            y = rng.normal(size=2) * rng.choice([0.5, 2.0, 8.0])
-            f1 = np.asarray(flow.vector_field(t + T / 2, -y), float)
-            f0 = np.asarray(flow.vector_field(t, y), float)
-            if np.max(np.abs(f1 + f0)) > 1e-10 * (1.0 + np.max(np.abs(f0))):
-                return False
+        if not is_odd_symmetric(flow.vector_field, float(flow.period), 16.0, rtol=1e-10):
+            return False
     return True
 
 
@@ -2575,7 +2571,7 @@ def _mirror_point(tracer: _Tracer, q: _Pt) -> _Pt:
         return r
     N = q.N
     if N % (2 * m) == 0:
-        Z = -np.roll(q.Z, -N // (2 * m), axis=0)
+        Z = mirror_nodes(q.Z, m)
     else:
         # node i of the image is -y(t_i + T/2): propagate from the nearest earlier node of
         # the orbit (never over a whole period: the orbit may be strongly unstable)
