@@ -23,6 +23,7 @@ from perturb.apps.scene import load_scene, parse_scene
 from perturb.auto import (
     LADDER,
     Candidate,
+    auto_frequency_response,
     candidate_spot_errors,
     check_rtol,
     choose_method,
@@ -131,6 +132,33 @@ def test_auto_report_names_the_choice_and_rejections():
     assert resp.notes[0].startswith("auto: chose exact")
     assert any("rejected hb1" in n for n in resp.notes)
     assert any("rejected hb3" in n for n in resp.notes)
+
+
+def test_auto_adds_a_spot_check_where_the_traced_hb_estimate_exceeds_rtol():
+    # one spot at 1.3: HB with 15 harmonics meets 1e-5 there, but its estimate along the
+    # traced curve exceeds rtol near the lower end of the window; that frequency becomes a
+    # spot check (exact orbits there) and the ladder resumes
+    osc = perturb.builtin_model("nsd", k=2.0, mu=0.05, F=2.0)
+    window, rtol = (0.8, 1.4), 1e-5
+    _, once = auto_frequency_response(
+        osc, window, rtol, spots=(1.3,), points=300, max_extra_spots=1
+    )
+    added = [w for w in once.spot_frequencies if w != 1.3]
+    assert len(added) == 1 and window[0] <= added[0] <= window[1]
+    assert any(f"Omega = {added[0]:g}: exact spot check added" in n for n in once.notes)
+    # the oracle: the chosen settings against exact orbits at the added frequency
+    res = candidate_spot_errors(
+        osc, once.chosen.candidate, added, exact_spot_orbits(osc, added), window
+    )
+    assert res.error <= rtol
+    # no spot may be added: the same spot alone, and a note telling where to add one
+    _, never = auto_frequency_response(
+        osc, window, rtol, spots=(1.3,), points=300, max_extra_spots=0
+    )
+    assert never.spot_frequencies == (1.3,)
+    assert never.window_estimate > rtol
+    where = f"(at Omega = {never.window_estimate_at:.4g}): add spot frequencies there"
+    assert any(where in n for n in never.notes)
 
 
 @pytest.mark.slow
