@@ -603,3 +603,47 @@ def test_compare_names_branch_numbers_not_a_bare_count():
     text = str(compare(Response((far, near), "x"), ref))
     assert "spurious branches: 1 (branch #0)" in text
     assert "missed reference branches: none" in text
+
+
+@pytest.mark.parametrize(
+    "text, fragment",
+    [
+        ("[model]\nequation=3", "[model] equation = 3: expected a string"),
+        ("[model]\nname='nsd'\n[params]\nk=true", "parameter 'k' = True"),
+        ("[ask]\npoints=5", "[ask] points = 5: expected an integer in [10, 1e6]"),
+        ("[ask]\npoints=100.0", "[ask] points = 100.0: expected an integer"),
+        ("[ask]\nkind='time_history'\ny0=[0, inf]", "[ask] y0 = [0, inf]: expected [x0, v0]"),
+        ("[ask]\nkind='time_history'\nt=[0, nan]", "[ask] t = [0, nan]: expected [low, high]"),
+        (
+            "[ask]\nkind='bifurcation_diagram'\nrecord_periods=0",
+            "[ask] record_periods = 0: expected an integer in [1, 10000]",
+        ),
+        (
+            "[ask]\nkind='bifurcation_diagram'\nparameter='2k'\nvalues=[0, 1]",
+            "[ask] parameter = '2k': expected the name of a parameter",
+        ),
+        ("[method]\norder='2'", "[method] order = '2': expected a positive integer"),
+        ("[method]\nall_branches=1", "[method] all_branches = 1: expected true or false"),
+        (
+            "[ask]\nkind='time_history'\n[method]\nname='exact'\norder=2",
+            "[method] order: not options of the integrator 'exact'",
+        ),
+        ("[compare]\nreference='hb1'", "[compare] reference = 'hb1': expected 'exact'"),
+        ("[compare]\nmethods=['nope']", "[compare] methods: 'nope' is not a method"),
+        ("[compare]\nmethods=['hb1']", "[compare] methods = ['hb1']: a method twice"),
+        ("[compare]\nreference='exact'\nmethods=['exact']", "'exact' is already the reference"),
+        ("[method]\nname='exact'\n[compare]\nreference='exact'", "compare the exact response"),
+        ("[ask]\nkind='backbone'\n[compare]\nreference='exact'", "[compare] does not apply"),
+        ("[ask]\nkind='backbone'\n[plot]\nmean=true", "[plot] does not apply to kind 'backbone'"),
+        ("[plot]\nmean=1", "[plot] mean = 1: expected true or false"),
+        ("[plot]\nzoom=[1, 0, 2, 3]", "[plot] zoom = [1, 0, 2, 3]: expected [omega_lo"),
+        ("[output]\ncsv='a.csv'\npng='a.csv'", "[output] two outputs are both written to 'a.csv'"),
+        ("[accuracy]\nspots=[0.5, 'x']", "[accuracy] spots = [0.5, 'x']: expected a list"),
+    ],
+)
+def test_each_scene_table_names_the_bad_value(text, fragment):
+    if not text.startswith("[model]"):
+        text = "[model]\nname='nsd'\n" + text
+    with pytest.raises(PerturbError) as info:
+        parse_scene(text, "t.toml")
+    assert str(info.value).startswith("scene t.toml: ") and fragment in str(info.value)
