@@ -241,3 +241,49 @@ def test_newton_options_rejects_unknown_keyword_and_bad_object():
         damped_newton(fun, np.array([1.0]), options={"tol": 1e-3})
     with pytest.raises(ParameterError, match="max_iter"):
         damped_newton(fun, np.array([1.0]), options=NewtonOptions(max_iter=-1))
+
+
+def test_damped_newton_scale_per_unknown():
+    """An array ``scale`` measures the correction componentwise (step cap, step test) and the
+    residual in its own units; equal entries behave like the scalar scale."""
+
+    def lin(target):
+        target = np.asarray(target, float)
+        return lambda z: (z - target, np.eye(z.size), None)
+
+    # step cap: max |d_i / s_i| <= max_step; d = (10, 1000) with s = (1, 1000) is cut by 0.05
+    res = damped_newton(
+        lin([10.0, 1000.0]), np.zeros(2), scale=[1.0, 1000.0], max_step=0.5, max_iter=1
+    )
+    assert res.status == "max_iter"
+    np.testing.assert_allclose(res.z, [0.5, 50.0], rtol=1e-15)
+    # (a scalar scale 1000 would not cut it at all: |d| = 1000 <= 0.5 * 1000)
+    res = damped_newton(lin([10.0, 1000.0]), np.zeros(2), scale=1000.0, max_step=1.0, max_iter=1)
+    np.testing.assert_allclose(res.z, [10.0, 1000.0], rtol=1e-15)
+
+    # residual test in the residual's own units: |r| = 1e-7 passes tol 1e-6, not tol 1e-8
+    z0 = np.array([1.0 + 1e-7])
+    res = damped_newton(lin([1.0]), z0, scale=[1e3], tol=1e-6)
+    assert res.status == "residual" and res.iterations == 0
+    res = damped_newton(lin([1.0]), z0, scale=[1e3], tol=1e-8)
+    assert res.status == "residual" and res.iterations == 1
+
+    # step test per unknown: x ~ 2e6 and y ~ 3e-6 (roots of x^2 = 4e12, y^2 = 9e-12); the
+    # correction of the small unknown is judged on its own scale, so it is resolved too
+    def f(z):
+        x, y = z
+        return np.array([x * x - 4e12, 1e12 * (y * y - 9e-12)]), np.diag([2 * x, 2e12 * y]), None
+
+    res = damped_newton(
+        f, np.array([3e6, 5e-6]), scale=[1e6, 1e-6], step_tol=1e-10, take_final_step=True
+    )
+    assert res.status == "step"
+    assert abs(res.z[0] - 2e6) <= 1e-12 * 2e6 and abs(res.z[1] - 3e-6) <= 1e-12 * 3e-6
+
+    # equal entries: the same iterates as the scalar scale (tol = 0: no residual test)
+    g = lambda z: (np.arctan(z - 0.3), np.diag(1.0 / (1.0 + (z - 0.3) ** 2)), None)  # noqa: E731
+    for kw in ({"step_tol": 1e-9}, {"max_step": 0.7, "step_tol": 1e-12}):
+        a = damped_newton(g, np.array([4.0, -3.0]), scale=2.0, **kw)
+        b = damped_newton(g, np.array([4.0, -3.0]), scale=[2.0, 2.0], **kw)
+        assert a.status == b.status and a.iterations == b.iterations
+        assert np.array_equal(a.z, b.z)

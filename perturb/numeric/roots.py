@@ -370,8 +370,13 @@ class NewtonOptions:
         Residual tolerance relative to ``scale`` (0: only an exact zero).
     max_iter : int
         Cap on Newton steps (>= 0).
-    scale : float or callable
+    scale : float, array or callable
         ``s(z)``: the scale of the tolerances and of the step cap (e.g. ``max(1, |z|)``).
+        An array (or a callable returning one), shaped like ``z``, is a scale per unknown:
+        the correction is then measured componentwise, :math:`\max_i |d_i| / s_i`, in the
+        step test, the step cap and the floor test, and the residual test is
+        :math:`\|r\|_\infty \le \text{tol}` (the residual has units of its own, not those
+        of ``z``).
     step_tol, step_residual_tol : float
         Correction test (step 3 of :func:`damped_newton`; ``step_tol = 0`` disables it).
     take_final_step : bool
@@ -515,7 +520,14 @@ def damped_newton(
             f"damped_newton: max_iter = {max_iter!r} and max_halvings = {max_halvings!r} "
             "must be >= 0"
         )
-    s_of = scale if callable(scale) else (lambda z, _s=float(scale): _s)
+    if callable(scale):
+        s_of = scale
+    else:
+        fixed = float(scale) if np.ndim(scale) == 0 else np.array(scale, dtype=float)
+
+        def s_of(z: np.ndarray, _s: Any = fixed) -> Any:
+            return _s
+
     merit_of = merit if merit is not None else _norm2
     lower, upper = bounds if bounds is not None else (None, None)
 
@@ -549,6 +561,10 @@ def damped_newton(
     for it in range(max_iter + 1):
         rn = float(np.max(np.abs(r)))
         s = s_of(z)
+        # a scale per unknown: corrections are measured in it, the residual in its own units
+        per_unknown = np.ndim(s) != 0
+        if per_unknown:
+            s_z, s = s, 1.0
         if rn <= tol * s:
             return result(z, True, "residual", it, rn)
         if it == max_iter:
@@ -559,7 +575,7 @@ def damped_newton(
             return result(z, False, "singular", it, rn)
         if not np.all(np.isfinite(dz)):
             return result(z, False, "singular", it, rn)
-        dn = float(np.max(np.abs(dz)))
+        dn = float(np.max(np.abs(dz / s_z))) if per_unknown else float(np.max(np.abs(dz)))
         if dn <= step_tol * s and rn <= step_residual_tol * s:
             return result(z + dz if take_final_step else z, True, "step", it, rn, dz)
         if modify_step is not None:

@@ -18,6 +18,7 @@ from numpy.typing import ArrayLike
 
 from perturb.errors import ParameterError
 from perturb.numeric.continuation.curve import ContinuationError, Jacobian, Residual
+from perturb.numeric.roots import damped_newton
 
 __all__ = [
     "CountedProblem",
@@ -70,8 +71,9 @@ def newton_fixed(
 ) -> tuple[np.ndarray, int]:
     """Solve :math:`F(u, \\lambda) = 0` at fixed :math:`\\lambda` by damped Newton.
 
-    Each step is cut by halving until :math:`\\|F\\|_2` decreases (Armijo, up to 20 halvings),
-    so a poor guess can still converge.
+    :func:`perturb.numeric.roots.damped_newton` with a scale per unknown: each step is cut by
+    halving until :math:`\\|F\\|_2` decreases (Armijo, up to 19 halvings), so a poor guess
+    can still converge; :math:`F_u` is evaluated only at iterates that need a correction.
 
     Parameters
     ----------
@@ -104,35 +106,34 @@ def newton_fixed(
     """
     u = np.array(u0, dtype=float).reshape(-1)
     su = np.broadcast_to(np.asarray(u_scale, dtype=float), u.shape)
-    f = np.asarray(residual(u, lam), dtype=float)
-    norm = float(np.linalg.norm(f))
-    for it in range(1, max_iterations + 1):
-        if float(np.max(np.abs(f))) <= residual_tol:
-            return u, it - 1
-        ju, _ = jacobian(u, lam)
+
+    def direction(z: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+        # the Jacobian is evaluated here, i.e. only at iterates that fail the residual test
+        ju, _ = jacobian(z, lam)
         try:
-            du = np.linalg.solve(ju, -f)
+            return np.linalg.solve(ju, rhs)
         except np.linalg.LinAlgError:
-            du = np.linalg.lstsq(ju, -f, rcond=None)[0]
-        if not np.all(np.isfinite(du)):
-            break
-        if np.max(np.abs(du / su)) <= tol:
-            # converged: the residual is at rounding level, where a line search means nothing
-            return u + du, it
-        alpha = 1.0
-        for _ in range(20):
-            trial = u + alpha * du
-            ft = np.asarray(residual(trial, lam), dtype=float)
-            nt = float(np.linalg.norm(ft))
-            if np.isfinite(nt) and nt <= (1.0 - 1e-4 * alpha) * norm:
-                break
-            alpha *= 0.5
-        else:
-            break  # no decrease along the Newton direction
-        u, f, norm = trial, ft, nt
+            return np.linalg.lstsq(ju, rhs, rcond=None)[0]
+
+    res = damped_newton(
+        lambda z: (np.asarray(residual(z, lam), dtype=float), z, None),
+        u,
+        solve=direction,  # "J" is the iterate itself: direction() evaluates F_u on demand
+        tol=residual_tol,
+        max_iter=max_iterations,
+        scale=su,  # per unknown: converged when max |du / s_u| <= tol
+        step_tol=tol,
+        # converged on the correction: the residual is at rounding level, where a line
+        # search means nothing
+        take_final_step=True,
+        max_halvings=19,
+    )
+    if res.converged:
+        # Newton steps, counting the final correction of the step test
+        return res.z, res.iterations + (res.status == "step")
     raise ContinuationError(
-        f"Newton at fixed parameter {lam!r} did not converge: residual {norm:.3g} after "
-        f"{max_iterations} iterations at most"
+        f"Newton at fixed parameter {lam!r} did not converge: residual "
+        f"{float(np.linalg.norm(res.r)):.3g} after {max_iterations} iterations at most"
     )
 
 
