@@ -385,6 +385,9 @@ class _ModalRegion:
         self.Cconst = C @ self.yconst - model.d
         self.CZ = Z @ C.T  # (K, ns)
         self.mu = np.concatenate([lam.astype(complex), [0j], 1j * om])
+        self.mupow = np.stack([np.ones_like(self.mu), self.mu, self.mu**2, self.mu**3])
+        self.amupow = np.abs(self.mupow)
+        self.res_rho = max((max(abs(r[0]), abs(r[1])) for r in res), default=0.0)
         self.res_lam = np.array([r[0] for r in res], dtype=complex)
         self.res_sig = np.array([r[1] for r in res], dtype=complex)
         self.res_vec = np.array([r[2] for r in res], dtype=complex).reshape(len(res), n).T
@@ -448,11 +451,9 @@ class _ModalPiece:
         W[:, n] = region.Cconst
         W[:, n + 1 :] = (region.CZ * ph[:, None]).T
         self.W = W
-        mu = self.mu
-        self.Wp = np.stack([W, W * mu, W * mu**2, W * mu**3])  # (4, ns, nt)
-        amu = np.abs(mu)
+        self.Wp = W[None] * region.mupow[:, None, :]  # (4, ns, nt): W mu^p
         aW = np.abs(W)
-        self.aWp = np.stack([aW, aW * amu, aW * amu**2, aW * amu**3])
+        self.aWp = aW[None] * region.amupow[:, None, :]
         self.colnorm = np.abs(Y).sum(axis=0)
         self.has_res = bool(region.res)
         if self.has_res:
@@ -470,11 +471,9 @@ class _ModalPiece:
     def step(self, tau: float) -> float:
         """Grid step ``1/(8 rho)`` from the terms that still matter at ``tau``."""
         mag = self.colnorm * np.exp(np.minimum(self.mu.real * tau, 700.0))
-        keep = mag > 1e-16 * max(float(mag.max()), 1e-300)
-        rho = float(np.max(np.abs(self.mu[keep]))) if np.any(keep) else 0.0
-        if self.has_res:
-            rho = max(rho, float(np.max(np.abs(self.region.res_lam))))
-            rho = max(rho, float(np.max(np.abs(self.region.res_sig))))
+        keep = mag > 1e-16 * float(mag.max())
+        rho = float(np.max(self.region.amupow[1][keep], initial=0.0))
+        rho = max(rho, self.region.res_rho)
         return math.inf if rho == 0.0 else 1.0 / (_STEPS_PER_SCALE * rho)
 
     # -- evaluation ---------------------------------------------------------------------------
@@ -901,6 +900,13 @@ def _first_event(piece, j, u, w, gu, gw, touching, clamp, bounds=None, depth=0):
         M2 = piece.bound(2, j, u, w)
     if min(g0u, g0w) - 0.125 * M2 * L * L > tol:
         return None
+    if g1u * g1w > 0.0 and abs(g1u) + abs(g1w) > M2 * L:
+        # g' keeps its sign: g is monotone on the interval (no extremum, no tangency inside)
+        if g1u > 0.0 or g0w > 0.0:
+            return None
+        if touching:
+            return (u, "crossing")
+        return _crossing_or_graze(piece, j, u, w, g0u, g0w, tol)
     simple = g2u * g2w > 0.0
     if simple:
         if M3 is None:
@@ -937,13 +943,7 @@ def _first_event(piece, j, u, w, gu, gw, touching, clamp, bounds=None, depth=0):
             if gmax <= 0.0:
                 return (tmax, "crossing")
             a, ga = tmax, gmax
-        root = w if g0w == 0.0 else _solve(g01, a, w, ga, g0w)
-        dd = sig * piece.derivs(j, root)
-        r1, r2 = float(dd[1]), float(dd[2])
-        if r1 < 0.0 and r2 > 0.0 and r1 * r1 <= 2.0 * r2 * tol:
-            # penetration depth r1^2 / (2 r2) below the rounding level: a tangency
-            return (root - r1 / r2, "tangency")
-        return (root, "crossing")
+        return _crossing_or_graze(piece, j, a, w, ga, g0w, tol)
     if not convex or g1u >= 0.0 or g1w <= 0.0:
         return None  # concave, or monotone, with g > 0 at both ends
     tm = _solve(g12, u, w, g1u, g1w)
@@ -953,6 +953,23 @@ def _first_event(piece, j, u, w, gu, gw, touching, clamp, bounds=None, depth=0):
     if gm >= -tol:
         return (tm, "tangency")
     return (_solve(g01, u, tm, g0u, gm), "crossing")
+
+
+def _crossing_or_graze(piece, j, a, w, ga, gw, tol):
+    """The root of ``g`` in ``(a, w]`` (``g(a) > 0 >= g(w)``): a crossing, or a tangency when
+    the penetration depth ``g'^2 / (2 g'')`` there is below the rounding level ``tol``."""
+    sig = piece.sig[j]
+
+    def g01(t: float) -> tuple[float, float]:
+        dd = piece.derivs(j, t)
+        return sig * dd[0], sig * dd[1]
+
+    root = w if gw == 0.0 else _solve(g01, a, w, ga, gw)
+    dd = sig * piece.derivs(j, root)
+    r1, r2 = float(dd[1]), float(dd[2])
+    if r1 < 0.0 and r2 > 0.0 and r1 * r1 <= 2.0 * r2 * tol:
+        return (root - r1 / r2, "tangency")
+    return (root, "crossing")
 
 
 def _scan(piece, tau_end: float, touching: set[int], budget: _Budget):
@@ -987,7 +1004,8 @@ def _scan(piece, tau_end: float, touching: set[int], budget: _Budget):
                 f"{piece.t0 + float(taus[-1])!r} (floating-point overflow); shorten the interval"
             )
         G = S * sig[None, :, None]
-        for j in range(ns):
+        starts = touch if not np.any(G[0, :, 0] < 0.0) else range(ns)
+        for j in starts:
             if j in touch:
                 G[0, j, 0] = 0.0
                 if j in clamp:
