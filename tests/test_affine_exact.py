@@ -261,6 +261,25 @@ def test_expm_and_modal_representations_agree():
     assert np.max(np.abs(a.y - b.y)) < 1e-10
     ta, tb = (np.array([t for t, _ in crossings(r)]) for r in (a, b))
     assert ta.size == tb.size and np.max(np.abs(ta - tb)) < 1e-10
+    # and so do the sensitivities (eigen-decomposition vs the Taylor-squaring exponential)
+    t1 = t0 + 2 * system.period
+    Ma = AffineExactFlow(system)(y0, t0, t1, sensitivity=True).sensitivity
+    Mb = AffineExactFlow(system, representation="expm")(y0, t0, t1, sensitivity=True).sensitivity
+    assert np.max(np.abs(Ma - Mb)) < 1e-10 * np.max(np.abs(Ma))
+
+
+def test_start_exactly_on_a_surface():
+    system, rhs, surfaces = chain()
+    # x1 - x2 = gap exactly, separating: the side the field moves into, no event at t0
+    y0 = np.array([0.2, 0.0, 0.5, 0.0])
+    res = propagate(system, y0, 0.0, 20.0)
+    assert res.events[0].time > 0.1 and res.events[0].pattern_before == (1, 1)
+    ref_y, ref_log, _ = reference(rhs, surfaces, (1, 1), y0, 0.0, 20.0)
+    assert_same_orbit(res, ref_y, ref_log, 1e-9)
+    # approaching: the region before the surface
+    y0[2] = -0.5
+    res = propagate(system, y0, 0.0, 20.0)
+    assert res.events[0].pattern_before == (-1, 1) and res.events[0].time > 0.1
 
 
 # ------------------------------------------------------------------------------------------

@@ -989,16 +989,21 @@ def _scan(piece, tau_end: float, touching: set[int], budget: _Budget):
         h = piece.step(tau)
         if not h > 8.0 * _EPS * max(abs(tau), 1.0):
             h = 8.0 * _EPS * max(abs(tau), 1.0)
-        if math.isfinite(h):
+        span = tau_end - tau
+        if h * batch < span:
             taus = tau + h * np.arange(batch + 1)
-            if taus[-1] >= tau_end:
-                taus = np.append(taus[taus < tau_end], tau_end)
+        elif h < span:
+            # the last batch: whole steps, then the remainder (a step of at least h / 2)
+            k = max(1, math.ceil(span / h - 0.5))
+            taus = tau + h * np.arange(k + 1)
+            taus[-1] = tau_end
         else:
             taus = np.array([tau, tau_end])
         budget.take(taus.size - 1, piece.t0 + tau)
         S, B = piece.grid(taus)
         B2 = B[0]
-        if not (np.all(np.isfinite(S)) and np.all(np.isfinite(B))):
+        # (an overflow anywhere makes the sums inf or nan)
+        if not math.isfinite(float(S[0].sum()) + float(B.sum())):
             raise PerturbError(
                 f"the orbit escapes to infinity in region {piece.region.key} near t = "
                 f"{piece.t0 + float(taus[-1])!r} (floating-point overflow); shorten the interval"
