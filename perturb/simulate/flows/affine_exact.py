@@ -895,9 +895,11 @@ def _first_event(piece, j, u, w, gu, gw, touching, clamp, bounds=None, depth=0):
         if clamp:
             g1u = max(g1u, 0.0)
     L = w - u
-    M2, M3 = bounds if bounds is not None else (None, None)
-    if M2 is None:
-        M2 = piece.bound(2, j, u, w)
+    if bounds is not None:
+        M2, M3 = bounds
+    else:
+        M3 = piece.bound(3, j, u, w)
+        M2 = min(piece.bound(2, j, u, w), _taylor_bound(g2u, g2w, M3, L))
     if min(g0u, g0w) - 0.125 * M2 * L * L > tol:
         return None
     if g1u * g1w > 0.0 and abs(g1u) + abs(g1w) > M2 * L:
@@ -907,11 +909,7 @@ def _first_event(piece, j, u, w, gu, gw, touching, clamp, bounds=None, depth=0):
         if touching:
             return (u, "crossing")
         return _crossing_or_graze(piece, j, u, w, g0u, g0w, tol)
-    simple = g2u * g2w > 0.0
-    if simple:
-        if M3 is None:
-            M3 = piece.bound(3, j, u, w)
-        simple = abs(g2u) + abs(g2w) > M3 * L
+    simple = g2u * g2w > 0.0 and abs(g2u) + abs(g2w) > M3 * L
     if not simple and depth < _MAX_DEPTH and L > 8.0 * _EPS * max(abs(u), abs(w), 1e-300):
         m = 0.5 * (u + w)
         gm = sig * piece.derivs(j, m)[:3]
@@ -953,6 +951,15 @@ def _first_event(piece, j, u, w, gu, gw, touching, clamp, bounds=None, depth=0):
     if gm >= -tol:
         return (tm, "tangency")
     return (_solve(g01, u, tm, g0u, gm), "crossing")
+
+
+def _taylor_bound(g2u, g2w, M3, L):
+    """A bound of ``|g''|`` on an interval of length ``L`` from its end values and the bound
+    ``M3`` of ``|g'''|``: ``|g''(t)| <= min(|g''(u)| + M3 (t - u), |g''(w)| + M3 (w - t))``,
+    whose largest value is ``(|g''(u)| + |g''(w)| + M3 L) / 2``.  Much tighter than the sum of
+    the moduli of the terms when they cancel (a homogeneous part against a large particular
+    solution right after a switch)."""
+    return 0.5 * (np.abs(g2u) + np.abs(g2w) + M3 * L)
 
 
 def _crossing_or_graze(piece, j, a, w, ga, gw, tol):
@@ -1001,7 +1008,6 @@ def _scan(piece, tau_end: float, touching: set[int], budget: _Budget):
             taus = np.array([tau, tau_end])
         budget.take(taus.size - 1, piece.t0 + tau)
         S, B = piece.grid(taus)
-        B2 = B[0]
         # (an overflow anywhere makes the sums inf or nan)
         if not math.isfinite(float(S[0].sum()) + float(B.sum())):
             raise PerturbError(
@@ -1009,6 +1015,8 @@ def _scan(piece, tau_end: float, touching: set[int], budget: _Budget):
                 f"{piece.t0 + float(taus[-1])!r} (floating-point overflow); shorten the interval"
             )
         G = S * sig[None, :, None]
+        L = np.diff(taus)
+        B2 = np.minimum(B[0], _taylor_bound(S[2, :, :-1], S[2, :, 1:], B[1], L))
         starts = touch if not np.any(G[0, :, 0] < 0.0) else range(ns)
         for j in starts:
             if j in touch:
@@ -1026,7 +1034,6 @@ def _scan(piece, tau_end: float, touching: set[int], budget: _Budget):
                     return (tau, j), tangs  # on a second surface and leaving through it
                 G[0, j, 0] = 0.0
                 touch.add(j)
-        L = np.diff(taus)
         low = np.minimum(G[0, :, :-1], G[0, :, 1:]) - 0.125 * B2 * L * L
         for j in clamp:
             # leaving the surface at the rate g'(0) >= 0: g(tau) >= g'(0) tau - M2 tau^2 / 2,
