@@ -287,3 +287,65 @@ def test_damped_newton_scale_per_unknown():
         b = damped_newton(g, np.array([4.0, -3.0]), scale=[2.0, 2.0], **kw)
         assert a.status == b.status and a.iterations == b.iterations
         assert np.array_equal(a.z, b.z)
+
+
+def test_illinois_bisection_safeguard():
+    """f = x**21 - 1e-21 (root 0.1) on [0, 1] varies by 21 orders of magnitude inside the
+    bracket: plain Illinois creeps from the end; the safeguard halves the bracket at least
+    every other iterate, and its first iterate is the midpoint."""
+    root = 0.1
+
+    def f(x):
+        return x**21 - root**21, x
+
+    plain = illinois(f, 0.0, 1.0, xtol=1e-12, max_iter=300)
+    safe = illinois(f, 0.0, 1.0, xtol=1e-12, max_iter=300, bisect=True)
+    assert safe.converged and abs(safe.root - root) <= 1e-12
+    # bisection alone needs log2(1 / 1e-12) = 40 halvings: at most twice that many iterates;
+    # here far fewer than the plain iteration's
+    assert safe.iterations <= 2 * 40 + 2
+    assert plain.converged and 2 * safe.iterations < plain.iterations
+    first = []
+    illinois(lambda x: first.append(x) or f(x), 0.0, 1.0, -1.0, 1.0, max_iter=1, bisect=True)
+    assert first == [0.5]
+
+
+def test_illinois_secant_forms_and_final_iterate():
+    exact = 0.3 ** (1 / 3)
+
+    def f(x):
+        return x**3 - 0.3
+
+    # the two forms of the secant point: the same root (different rounding)
+    a = illinois(f, 0.0, 1.0)
+    b = illinois(f, 0.0, 1.0, secant="mean")
+    assert abs(a.root - exact) <= 4e-16 and abs(b.root - exact) <= 4e-16
+    with pytest.raises(ParameterError):
+        illinois(f, 0.0, 1.0, secant="midpoint")
+    # final_iterate: one more iterate, taken inside the bracket that met xtol
+    d = illinois(f, 0.0, 1.0, xtol=1e-4)
+    e = illinois(f, 0.0, 1.0, xtol=1e-4, final_iterate=True)
+    lo, hi = d.bracket
+    assert hi - lo < 1e-4 and lo <= exact <= hi
+    assert e.iterations == d.iterations + 1 and lo <= e.root <= hi
+
+
+def test_illinois_retry_beside_a_failure():
+    """f cannot be evaluated within 1e-7 of its root (a corrector singular at the root):
+    without retry the iteration stops there; with it, the points beside the failure bracket
+    the root."""
+    root = 0.123456789
+
+    def f(x):
+        return None if abs(x - root) < 1e-7 else math.tanh(x - root)
+
+    # the midpoint of [root - 1, root + 1] is the root itself: the first iterate fails
+    plain = illinois(f, root - 1.0, root + 1.0, bisect=True)
+    assert plain.failed and plain.iterations == 1
+    res = illinois(f, root - 1.0, root + 1.0, bisect=True, retry=1e-4, xtol=1e-9)
+    lo, hi = res.bracket
+    # retried at root -+ 2e-4 (both evaluable): the bracket shrinks to [root -+ 2e-4]; the
+    # next midpoint is the root again and its neighbours at -+4e-8 fail too: it stops there
+    assert res.failed and res.iterations == 6
+    assert lo < root < hi and hi - lo <= 4e-4 * (1 + 1e-12)
+    assert abs(res.root - root) <= 2e-4 * (1 + 1e-12)

@@ -10,7 +10,11 @@ Regula falsi, Illinois variant (:func:`illinois`, :func:`illinois_vectorized`)
     bracket.  Plain regula falsi keeps one end fixed for ever on a convex function and
     converges only linearly (the bracket does not shrink to zero); the Illinois rule halves the
     stored function value of an end that is kept twice in a row, which restores superlinear
-    convergence (order :math:`\approx 1.44`).  Capped by ``max_iter`` evaluations.
+    convergence (order :math:`\approx 1.44`).  Capped by ``max_iter`` evaluations.  Options
+    for the continuation's event location: a bisection safeguard (``bisect``: a function that
+    varies by orders of magnitude in the bracket), trials beside an iterate where ``f``
+    cannot be evaluated (``retry``), the form of the secant point and where the bracket test
+    applies (``secant``, ``final_iterate``: each caller keeps the rounding of its results).
 
 Damped Newton (:func:`damped_newton`)
     Newton / Gauss-Newton on :math:`r(z) = 0` with a step cap, backtracking (halving) until the
@@ -72,7 +76,7 @@ class RootResult:
         True when the bracket shrank below ``xtol``, ``|f| <= ftol`` was met, or ``f`` was
         exactly 0; False when the iteration cap was hit or ``f`` failed (returned None).
     iterations : int
-        Evaluations of ``f`` made.
+        Evaluations of ``f`` made (those of ``retry`` included).
     bracket : tuple of float
         The final bracket ``(lo, hi)``.
     payload : object
@@ -109,6 +113,10 @@ def illinois(
     ftol: float = 0.0,
     max_iter: int = 100,
     include_ends: bool = True,
+    bisect: bool = False,
+    secant: str = "shift",
+    final_iterate: bool = False,
+    retry: float | None = None,
 ) -> RootResult:
     """Root of ``f`` in the bracket ``[a, b]`` by regula falsi with the Illinois modification.
 
@@ -130,10 +138,35 @@ def illinois(
     ftol : float
         Stop when ``|f(x)| <= ftol`` (default 0: only an exact zero).
     max_iter : int
-        Cap on the evaluations of ``f`` (the loop always terminates).
+        Cap on the iterates, i.e. on the evaluations of ``f`` apart from the ``retry``
+        evaluations (the loop always terminates).
     include_ends : bool
         Whether the ends ``a``, ``b`` compete with the iterates for ``root`` (with payload
         None).  When False and no iterate was evaluated, ``root`` is NaN.
+    bisect : bool
+        Bisection safeguard: the iterate is the midpoint of the bracket instead of its secant
+        point whenever the last two iterates did not halve the bracket (so the first iterate
+        is the midpoint).  Regula falsi creeps from one end, even with the Illinois rule, when
+        ``f`` varies by orders of magnitude inside the bracket (a determinant); the safeguard
+        keeps the worst case at bisection's (the width halves at least every other
+        iterate).  Default False: the plain Illinois iteration.
+    secant : {"shift", "mean"}
+        How the secant point of the bracket ``[a, b]`` is written: ``"shift"``,
+        ``b - f_b (b - a) / (f_b - f_a)``, or ``"mean"``, ``(a f_b - b f_a) / (f_b - f_a)``.
+        The same point in exact arithmetic, rounded differently: callers keep the form their
+        results were recorded with.
+    final_iterate : bool
+        Apply the ``xtol`` test (as ``width <= xtol``) to the bracket an iterate was taken
+        from, before that iterate updates it: the iteration then ends with one iterate taken
+        inside a bracket already narrower than ``xtol``, whose sign is not used.  Default
+        False: the test is ``width < xtol`` on the updated bracket.
+    retry : float, optional
+        When ``f`` fails (returns None) at an iterate ``x``, evaluate it at
+        ``x -+ retry * width`` instead (those inside the bracket) and update the bracket with
+        each that succeeds, in that order; the iteration stops (``failed``) only when neither
+        does.  For a root where ``f`` cannot be evaluated at all (a corrector whose matrix is
+        singular at the root itself), which two points beside it bracket tightly.  Default
+        None: a failure stops the iteration.
 
     Returns
     -------
@@ -156,6 +189,8 @@ def illinois(
         raise ParameterError(f"illinois: f is not finite at the bracket ends ({fa}, {fb})")
     if fa * fb > 0.0:
         raise ParameterError(f"illinois: f(a) = {fa:g} and f(b) = {fb:g} have the same sign")
+    if secant not in ("shift", "mean"):
+        raise ParameterError(f"illinois: secant = {secant!r}: expected 'shift' or 'mean'")
     if xtol is None:
         xtol = 4.0 * _EPS * max(abs(a), abs(b))
     if include_ends:
@@ -167,38 +202,70 @@ def illinois(
         return RootResult(best, fbest, True, 0, (a, b))
     sa, sb = a, b
     side = 0
-    it = 0
+    it = evaluations = 0
     converged = failed = False
+    # bracket widths before the last two iterates (bisection safeguard)
+    widths = [b - a, b - a]
     while it < max_iter:
-        # secant point of the current bracket (written as in the continuation engine, whose
-        # results this reproduces bit for bit); the midpoint when rounding puts it outside
-        s = sb - fb * (sb - sa) / (fb - fa) if fb != fa else 0.5 * (sa + sb)
-        if not sa < s < sb:
+        width = sb - sa
+        if bisect and width > 0.5 * widths[-2]:
             s = 0.5 * (sa + sb)
+        elif fb == fa:
+            s = 0.5 * (sa + sb)
+        else:
+            # secant point of the current bracket ("shift": written as in the exact
+            # continuation, whose results this reproduces bit for bit); the midpoint when
+            # rounding puts it outside
+            s = (
+                sb - fb * (sb - sa) / (fb - fa)
+                if secant == "shift"
+                else (sa * fb - sb * fa) / (fb - fa)
+            )
+            if not sa < s < sb:
+                s = 0.5 * (sa + sb)
+        widths.append(width)
         fq, pq = _split(f(s))
         it += 1
-        if fq is None:
+        evaluations += 1
+        if fq is not None:
+            points = [(s, fq, pq)]
+        elif retry is None:
             failed = True
             break
-        if abs(fq) < abs(fbest):
-            best, fbest, payload = s, fq, pq
-        if fq == 0.0 or abs(fq) <= ftol:
-            converged = True
-            break
-        if fq * fa > 0:
-            sa, fa = s, fq
-            if side == -1:
-                fb *= 0.5  # b kept twice: Illinois halving
-            side = -1
         else:
-            sb, fb = s, fq
-            if side == 1:
-                fa *= 0.5
-            side = 1
-        if sb - sa < xtol:
+            # two points just beside the one that failed, inside the bracket
+            points = []
+            for x in (s - retry * width, s + retry * width):
+                if sa < x < sb:
+                    fx, px = _split(f(x))
+                    evaluations += 1
+                    if fx is not None:
+                        points.append((x, fx, px))
+            if not points:
+                failed = True
+                break
+        for s, fq, pq in points:
+            if abs(fq) < abs(fbest):
+                best, fbest, payload = s, fq, pq
+            if fq == 0.0 or abs(fq) <= ftol or (final_iterate and width <= xtol):
+                converged = True
+                break
+            if fq * fa > 0:
+                sa, fa = s, fq
+                if side == -1:
+                    fb *= 0.5  # b kept twice: Illinois halving
+                side = -1
+            else:
+                sb, fb = s, fq
+                if side == 1:
+                    fa *= 0.5
+                side = 1
+        if converged:
+            break
+        if not final_iterate and sb - sa < xtol:
             converged = True
             break
-    return RootResult(best, fbest, converged, it, (sa, sb), payload, failed)
+    return RootResult(best, fbest, converged, evaluations, (sa, sb), payload, failed)
 
 
 @dataclass

@@ -22,6 +22,7 @@ import numpy as np
 from perturb.numeric.continuation.corrector import BorderedCorrector, Corrected
 from perturb.numeric.continuation.curve import BranchPoint, FoldPoint
 from perturb.numeric.continuation.predictors import hermite_fold
+from perturb.numeric.roots import illinois
 
 __all__ = [
     "FoldTest",
@@ -98,35 +99,46 @@ class FoldTest:
         s1: float,
         g1: float,
     ) -> np.ndarray | None:
-        """Regula falsi (Illinois) for the arclength where the tangent's lam-component
-        vanishes; every trial is corrected onto the curve on the hyperplane
-        ``t0 . (w - w0) = s``."""
-        a, ga, b, gb = 0.0, g0, s1, g1
-        side = 0
-        best = None
+        """Regula falsi (Illinois, :func:`perturb.numeric.roots.illinois`) for the arclength
+        where the tangent's lam-component vanishes; every trial is corrected onto the curve on
+        the hyperplane ``t0 . (w - w0) = s``.  Returns the last corrected trial (None when
+        none was made).
+
+        The last trial, not the one with the smallest ``|g|``: on a nonsmooth curve (the
+        harmonic balance of a piecewise-linear force) ``g`` can jump through zero at a corner
+        instead of vanishing, and the last trial, taken in the narrowest bracket, is then the
+        closest (one more trial is taken in a bracket below the width tolerance,
+        ``final_iterate``).  No bisection safeguard: ``g`` is smooth and nearly linear in
+        ``s`` at a smooth fold, where the secant steps converge fastest; halving the bracket
+        first made the folds of the regression set no more accurate, and some less."""
+        if not s1 > 0.0:
+            return None
         base = float(t0 @ w0)
-        for _ in range(self.max_trials):
-            s = (a * gb - b * ga) / (gb - ga)
+        last: list[np.ndarray] = []
+
+        def trial(s: float) -> float | None:
             c = tr.correct(w0 + s * t0, t0, base + s)
             tc = None if c is None else tr.tangent(c, t0)
             if c is None or tc is None:
-                return best
-            g = float(tc[-1])
-            best = c.w
-            # lam is stationary at the fold: |g| = 1e-8 leaves an error ~1e-16 / curvature
-            if abs(g) <= 1e-8 or abs(b - a) <= 1e-10 * max(1.0, abs(s1)):
-                return best
-            if g * ga > 0:
-                a, ga = s, g
-                if side == -1:
-                    gb *= 0.5
-                side = -1
-            else:
-                b, gb = s, g
-                if side == 1:
-                    ga *= 0.5
-                side = 1
-        return best
+                return None
+            last[:] = [c.w]
+            return float(tc[-1])
+
+        # lam is stationary at the fold: |g| = 1e-8 leaves an error ~1e-16 / curvature
+        illinois(
+            trial,
+            0.0,
+            s1,
+            g0,
+            g1,
+            xtol=1e-10 * max(1.0, abs(s1)),
+            ftol=1e-8,
+            max_iter=self.max_trials,
+            include_ends=False,
+            secant="mean",
+            final_iterate=True,
+        )
+        return last[0] if last else None
 
 
 def augmented_slogdet(
@@ -224,11 +236,11 @@ class BranchPointTest:
         t1: np.ndarray,
         end: tuple[float, float],
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool] | None:
-        """Regula falsi (Illinois, with bisection whenever two trials did not halve the
-        bracket) on the augmented determinant along the arclength ``s`` in ``(0, s1)`` from
-        ``w0`` (``w1``, ``t1``: the point at ``s1`` and its tangent, ``end``: its ``(sign,
-        log|det|)``); every trial is corrected onto the curve on the hyperplane
-        ``t0 . (w - w0) = s``.
+        """Regula falsi (:func:`perturb.numeric.roots.illinois`, with bisection whenever two
+        trials did not halve the bracket, and two trials beside one that fails) on the
+        augmented determinant along the arclength ``s`` in ``(0, s1)`` from ``w0`` (``w1``,
+        ``t1``: the point at ``s1`` and its tangent, ``end``: its ``(sign, log|det|)``);
+        every trial is corrected onto the curve on the hyperplane ``t0 . (w - w0) = s``.
 
         The corrector's bordered matrix is the augmented one, singular at the branch point,
         so the trials stop converging very close to it; the point returned is the secant
@@ -241,6 +253,8 @@ class BranchPointTest:
 
         The determinant is compared as ``sign exp(log|det| - log|det(w0)|)``: it varies by
         orders of magnitude along a branch, but is smooth between two points."""
+        if not s1 > 0.0:
+            return None
         base = float(t0 @ w0)
 
         def trial(s: float) -> tuple[np.ndarray, float, np.ndarray] | None:
@@ -260,50 +274,40 @@ class BranchPointTest:
         g_end = end[0] * math.exp(max(-700.0, min(700.0, end[1] - ld0)))
         if sg0 * g_end >= 0.0:
             return None  # no sign change measured again: not a branch point
-        # bracket (s, true g, corrected point, tangent) on each side, and the Illinois-scaled
-        # values
-        lo, hi = (0.0, sg0, c0.w, tc0), (s1, g_end, w1, t1)
-        ga, gb = lo[1], hi[1]
+        # every corrected trial (true g, point, tangent) by its s: the final bracket's ends
+        seen = {0.0: (sg0, c0.w, tc0), s1: (g_end, w1, t1)}
         small = 0.01 * min(abs(sg0), abs(g_end))
-        close = False
-        side = 0
-        widths = [s1, s1]
-        for _ in range(40):
-            width = hi[0] - lo[0]
-            if width > 0.5 * widths[-2]:
-                # the determinant can vary by orders of magnitude inside the bracket, where
-                # regula falsi creeps from one end: bisect when two trials did not halve it
-                s = 0.5 * (lo[0] + hi[0])
-            else:
-                s = (lo[0] * gb - hi[0] * ga) / (gb - ga)
-            widths.append(width)
+
+        def f(s: float) -> float | None:
             got = trial(s)
             if got is None:
-                # the trial fell (within Newton's reach) onto the branch point itself: trials
-                # a little to either side bracket it tightly instead
-                delta = 1e-4 * width
-                sides = [(x, trial(x)) for x in (s - delta, s + delta) if lo[0] < x < hi[0]]
-                sides = [(x, got) for x, got in sides if got is not None]
-                if not sides:
-                    break
-            else:
-                sides = [(s, got)]
-            for s, (w, g, tc) in sides:
-                close = close or abs(g) <= small
-                if g * lo[1] > 0:
-                    lo, ga = (s, g, w, tc), g
-                    if side == -1:
-                        gb *= 0.5
-                    side = -1
-                elif g * hi[1] > 0:
-                    hi, gb = (s, g, w, tc), g
-                    if side == 1:
-                        ga *= 0.5
-                    side = 1
-                else:  # g == 0: the branch point itself
-                    lo = hi = (s, g, w, tc)
-            if lo[1] == 0.0 or abs(hi[0] - lo[0]) <= 1e-10 * max(1.0, abs(s1)):
-                break
+                return None
+            w, g, tc = got
+            seen[s] = (g, w, tc)
+            return g
+
+        # the determinant can vary by orders of magnitude inside the bracket, where regula
+        # falsi creeps from one end: bisect when two trials did not halve it; a trial that
+        # fails fell (within Newton's reach) onto the branch point itself: trials a little to
+        # either side bracket it tightly instead
+        found = illinois(
+            f,
+            0.0,
+            s1,
+            sg0,
+            g_end,
+            xtol=1e-10 * max(1.0, abs(s1)),
+            max_iter=40,
+            include_ends=False,
+            bisect=True,
+            secant="mean",
+            retry=1e-4,
+        )
+        close = any(abs(g) <= small for g, _, _ in list(seen.values())[2:])
+        if found.value == 0.0:  # the branch point itself
+            lo = hi = (found.root, *seen[found.root])
+        else:
+            lo, hi = ((x, *seen[x]) for x in found.bracket)
         weight = 0.0 if lo[1] == hi[1] else lo[1] / (lo[1] - hi[1])
         w = lo[2] + weight * (hi[2] - lo[2])
         u, lam = tr.unscaled(w)
