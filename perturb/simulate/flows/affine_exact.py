@@ -84,10 +84,14 @@ Inside region ``r`` the switching function ``j`` has a sign :math:`\sigma_j` and
 batches.  A grid interval of length :math:`L` is *clear* of surface ``j`` when
 :math:`\min(g(\tau_a), g(\tau_b)) - M_2 L^2/8 > \text{tol}` (:math:`M_2` the rigorous bound of
 :math:`|g''|`: the linear interpolant errs by at most :math:`M_2 L^2/8`), so neither a crossing
-nor a tangency can hide in it.  An interval that is not clear is examined: it is split in halves
-until :math:`g''` provably keeps one sign on it (:math:`|g''(\tau_a)| + |g''(\tau_b)| > M_3 L`,
-:math:`M_3` the bound of :math:`|g'''|`).  On such an interval :math:`g` is convex or concave:
-concave with :math:`g > 0` at both ends, it has no root; convex, its minimum is the root of
+nor a tangency can hide in it.  (:math:`M_2` is also bounded by
+:math:`(|g''(\tau_a)| + |g''(\tau_b)| + M_3 L)/2`, :math:`M_3` the bound of :math:`|g'''|`:
+much tighter when a large particular solution and the homogeneous part cancel.)  An interval
+that is not clear is examined: when :math:`g'` provably keeps its sign
+(:math:`|g'(\tau_a)| + |g'(\tau_b)| > M_2 L`, same signs) :math:`g` is monotone and only the
+end values matter; otherwise it is split in halves until :math:`g''` provably keeps one sign
+(:math:`|g''(\tau_a)| + |g''(\tau_b)| > M_3 L`).  On such an interval :math:`g` is convex or
+concave: concave with :math:`g > 0` at both ends, it has no root; convex, its minimum is the root of
 :math:`g'` (when :math:`g'` changes sign) and the sign of :math:`g` there decides.  So a grazing
 crossing (a dip of :math:`g` below zero between two grid points) is found, and a near miss is
 correctly absent, whatever the grid.  Roots of :math:`g` and :math:`g'` are solved by a
@@ -114,6 +118,10 @@ Limitations
   a surface *exactly* may be logged as a tangency or a pair of crossings of negligible depth.
 * Two surfaces crossed at the same instant are switched one after the other (the second at a
   zero-length piece).
+* The grid step follows the fastest rate of the region: a very stiff contact (rates 1e3 times
+  the structure's) costs proportionally more grid intervals while in contact, and a contact
+  that chatters on a gap of 1e-9 costs one piece per bounce (bounded by ``max_events`` and
+  ``max_steps``, never a hang).
 """
 
 from __future__ import annotations
