@@ -488,7 +488,7 @@ class _ModalPiece:
     def state(self, tau: np.ndarray) -> np.ndarray:
         """``y(t0 + tau)``, shape ``(n, len(tau))``."""
         tau = np.asarray(tau, dtype=float).reshape(-1)
-        out = (self.Y @ np.exp(np.outer(self.mu, tau))).real
+        out = (self.Y @ np.exp(self.mu[:, None] * tau)).real
         if self.has_res:
             reg = self.region
             for r in range(self.rv.shape[1]):
@@ -502,7 +502,7 @@ class _ModalPiece:
     def grid(self, taus: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(s, s', s'')`` of every surface at ``taus`` (shape ``(3, ns, m)``) and the bound
         and ``|s'''|`` on every interval (shape ``(2, ns, m - 1)``)."""
-        E = np.exp(np.outer(self.mu, taus))  # (nt, m)
+        E = np.exp(self.mu[:, None] * taus)  # (nt, m)
         S = (self.Wp[:3] @ E).real  # (3, ns, m)
         aE = np.abs(E)
         B = self.aWp[2:] @ np.maximum(aE[:, :-1], aE[:, 1:])
