@@ -173,6 +173,7 @@ from perturb.numeric.continuation import (
     crossing_weight,
     hermite_direction,
     hermite_extrapolate,
+    null_tangent,
 )
 from perturb.numeric.roots import RootResult, damped_newton, illinois
 from perturb.progress import Progress
@@ -1505,9 +1506,7 @@ def _correct(
 def _null_tangent(pt: _Pt, Sp: float) -> tuple[np.ndarray, bool]:
     """Scaled unit null vector of [G_z | G_p] and whether the Jacobian is rank deficient."""
     assert pt.J is not None
-    Jh = pt.J * pt.D(Sp)[None, :]
-    _, s, Vh = np.linalg.svd(Jh)
-    return Vh[-1], bool(s[-1] <= 1e-8 * s[0])
+    return null_tangent(pt.J * pt.D(Sp)[None, :])
 
 
 def _chord(a: _Pt, b: _Pt, Sp: float) -> np.ndarray | None:

@@ -81,8 +81,9 @@ Layout
 ------
 - :mod:`.curve`: the results (:class:`ContinuationCurve`, :class:`FoldPoint`,
   :class:`BranchPoint`) and argument checks;
-- :mod:`.corrector`: the bordered Newton corrector in scaled coordinates, tangents, Newton at
-  fixed parameter (:func:`newton_fixed`);
+- :mod:`.corrector`: the bordered Newton corrector in scaled coordinates, tangents (the
+  SVD null vector :func:`null_tangent`, shared with the exact response), Newton at fixed
+  parameter (:func:`newton_fixed`);
 - :mod:`.predictors`: the cubic Hermite predictor (and a fold's Hermite estimate);
 - :mod:`.steps`: :class:`StepControl` (the pace set by the corrector's iterations);
 - :mod:`.events`: :class:`FoldTest` and :class:`BranchPointTest`, watched at every point,
@@ -96,6 +97,7 @@ from perturb.numeric.continuation.corrector import (
     BorderedCorrector,
     CountedProblem,
     newton_fixed,
+    null_tangent,
 )
 from perturb.numeric.continuation.curve import (
     BranchPoint,
@@ -122,6 +124,7 @@ __all__ = [
     "continue_curve",
     "branch_off",
     "newton_fixed",
+    "null_tangent",
     "StepControl",
     "FoldTest",
     "BranchPointTest",

@@ -25,6 +25,7 @@ __all__ = [
     "Corrected",
     "BorderedCorrector",
     "newton_fixed",
+    "null_tangent",
     "start_tangent",
     "bordered_tangent",
 ]
@@ -137,6 +138,16 @@ def newton_fixed(
     )
 
 
+def null_tangent(a: np.ndarray, rtol: float = 1e-8) -> tuple[np.ndarray, bool]:
+    """Unit null vector of an ``n x (n+1)`` scaled Jacobian ``[F_u s_u | F_lam s_lam]``
+    (its last right singular vector; the sign is arbitrary) and whether the matrix is rank
+    deficient (smallest singular value at most ``rtol`` times the largest: a branch point,
+    where the null space is two-dimensional).  Defined at a fold too, where :math:`F_u` is
+    singular but the full matrix is not."""
+    _, sv, vh = np.linalg.svd(a)
+    return vh[-1], bool(sv[-1] <= rtol * sv[0])
+
+
 def start_tangent(
     ju: np.ndarray, jl: np.ndarray, su: np.ndarray, sl: float, direction: int
 ) -> np.ndarray:
@@ -154,7 +165,7 @@ def start_tangent(
         t = None
     if t is None or np.linalg.cond(a[:, :n]) > 1e14:
         # singular F_u (a start at a fold): the null vector of the full n x (n+1) matrix
-        t = np.linalg.svd(a)[2][-1]
+        t = null_tangent(a)[0]
     t = t / np.linalg.norm(t)
     if t[-1] * direction < 0 or (t[-1] == 0.0 and direction < 0):
         t = -t
