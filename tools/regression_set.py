@@ -45,6 +45,30 @@ equal.  It exits 1 when a status or the structure differs or a Δ exceeds ``--am
 default 1e-9); different notes only exit 1 with ``--strict-notes`` (their wording may change
 in a redesign).  ``--current FILE`` compares two recordings without running anything.
 
+``compare --curves`` is for a change that moves points by rounding (a merged corrector: same
+curves, points shifted along them): instead of point-by-point differences it requires the same
+branch count, the same order of stability labels (run lengths may differ), the same fold count
+with fold Omega within ``--fold-tol`` by order, the same branch points (within the 6-digit
+note text), and measures the amplitude of every baseline point two points or more away from a
+turning point of its monotone-Omega run against the new branch's run interpolated at its
+Omega (cubic through the 4 nearest points) to ``--amp-tol``.  With ``--orbits FILE`` (written
+by the ``orbits`` command run against the baseline tree) the exact cases also compare the
+polished exact orbits at 6 fixed frequencies per problem (``frequency_response(osc, "exact",
+frequencies=[...])``, every solution, sorted) to ``--orbit-tol`` (default 1e-10, relative to
+each orbit's amplitude)::
+
+    PYTHONPATH=/work/baseline python tools/regression_set.py orbits \
+        --out benchmarks/results/regression_orbits.json
+    python tools/regression_set.py compare --curves \
+        --baseline benchmarks/results/regression_baseline.json \
+        --orbits benchmarks/results/regression_orbits.json
+
+The interpolation certifies ``--amp-tol`` 1e-9 only while the new points lie within rounding of
+the old ones (a query at a sample point is exact); a genuinely resampled curve shows the
+interpolation error instead (measured: 1.5e-3 on duffing/exact traced with ``ds_max``
+0.00499 instead of 0.005, near the folds), and the branch order may change with the tracing
+history (nsd_k-3/exact, same run): there the polished orbits are the accurate comparison.
+
 Environment: ``PERTURB_CACHE=0`` (each run derives its approximation, so times compare and the
 on-disk derivation cache cannot mask a change) and ``PERTURB_PROGRESS=0`` are set unless given.
 The exact solver traces with its default worker pool (two processes); its documentation
@@ -91,6 +115,9 @@ METHODS: tuple[tuple[str, str, dict[str, Any]], ...] = (
     ("ms1", "ms", {"order": 1}),
     ("kb", "kb", {}),
 )
+
+#: window fractions of the fixed frequencies of the polished exact orbits (``orbits`` command)
+ORBIT_FRACTIONS = (0.07, 0.23, 0.41, 0.58, 0.77, 0.93)
 
 FIELDS = ("omega", "amplitude", "first_harmonic_amplitude", "mean", "max_multiplier")
 #: stored as exact doubles; the other FIELDS at 9 significant digits (float32 round trip)
@@ -349,6 +376,159 @@ def compare_responses(old: dict[str, Any], new: dict[str, Any]) -> dict[str, Any
     }
 
 
+# ---------------------------------------------------------------------------------------------
+# --curves: the same curves, sampled differently (a change that moves points by rounding)
+# ---------------------------------------------------------------------------------------------
+def orbit_frequencies(window: list[float]) -> list[float]:
+    lo, hi = window
+    return [round(lo + f * (hi - lo), 4) for f in ORBIT_FRACTIONS]
+
+
+def run_orbits(case: dict[str, Any]) -> dict[str, Any]:
+    """Every polished exact orbit at the case's fixed frequencies (``frequency_response(...,
+    "exact", frequencies=...)``): per frequency the distinct solutions ``[amplitude, first
+    harmonic, mean, stable]``, sorted by amplitude (the answer's grouping into branches
+    follows the traced curve, so it is not compared)."""
+    import perturb
+
+    freqs = orbit_frequencies(case["window"])
+    osc = perturb.builtin_model(case["model"], **case["params"])
+    resp = perturb.frequency_response(
+        osc, "exact", tuple(case["window"]), frequencies=freqs, **case["kwargs"]
+    )
+    out: dict[str, list[list[float]]] = {repr(w): [] for w in freqs}
+    for b in resp.branches:
+        cols = zip(b.omega, b.amplitude, b.first_harmonic_amplitude, b.mean, b.stable, strict=True)
+        for w, a, a1, m, st in cols:
+            row = [float(a), float(a1), float(m), float(bool(st))]
+            rows = out[repr(min(freqs, key=lambda f, w=float(w): abs(f - w)))]
+            if not any(row == r for r in rows):
+                rows.append(row)
+    for rows in out.values():
+        # mirror pairs of an odd system share the amplitude to rounding: order them by the
+        # amplitude's 8 digits, then the mean (its sign), so rounding cannot swap them
+        rows.sort(key=lambda r: (float(f"{r[0]:.8g}"), r[2], r[1]))
+    return {"id": case["id"], "frequencies": freqs, "orbits": out}
+
+
+def cmd_orbits(args: argparse.Namespace) -> int:
+    results = []
+    for c in cases(args.exact_workers):
+        if c["method"] != "exact" or (args.only and not fnmatch.fnmatch(c["id"], args.only)):
+            continue
+        t0 = time.perf_counter()
+        r = run_orbits(c)
+        results.append(r)
+        n = sum(len(v) for v in r["orbits"].values())
+        print(f"{c['id']:<22} {n:4d} orbits {time.perf_counter() - t0:8.2f} s", flush=True)
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps({"format": FORMAT + "/orbits", "cases": results}) + "\n")
+    print(f"wrote {args.out}: {len(results)} cases")
+    return 0
+
+
+def compare_orbits(old: dict[str, Any], new: dict[str, Any]) -> float:
+    """Max difference of the polished orbits relative to each orbit's amplitude (the mean
+    of a symmetric orbit is 0 to rounding); inf when a frequency's count or a stability
+    label differs."""
+    worst = 0.0
+    for key, rows in old["orbits"].items():
+        other = new["orbits"].get(key, [])
+        if len(rows) != len(other):
+            return math.inf
+        for r, q in zip(rows, other, strict=True):
+            if r[3] != q[3]:
+                return math.inf
+            scale = max(abs(r[0]), 1e-300)
+            worst = max(worst, max(abs(x - y) for x, y in zip(q[:3], r[:3], strict=True)) / scale)
+    return worst
+
+
+def _runs(w: np.ndarray) -> list[np.ndarray]:
+    """Index ranges of a branch on which omega is monotone (split at the turning points)."""
+    if w.size < 2:
+        return [np.arange(w.size)]
+    d = np.sign(np.diff(w))
+    cuts = [i + 1 for i in range(1, d.size) if d[i] != 0 and d[i] != d[i - 1] and d[i - 1] != 0]
+    edges = [0, *cuts, w.size]
+    # a turning point belongs to both runs
+    return [np.arange(max(a - 1, 0), b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+
+
+def _interp(wq: float, w: np.ndarray, a: np.ndarray) -> float:
+    """Cubic (Lagrange) interpolation of a monotone-omega run at wq, through the 4 nearest
+    points (exact at a sample point)."""
+    order = np.argsort(w)
+    w, a = w[order], a[order]
+    j = int(np.searchsorted(w, wq))
+    if j < w.size and w[j] == wq:
+        return float(a[j])
+    lo = min(max(j - 2, 0), max(w.size - 4, 0))
+    xs, ys = w[lo : lo + 4], a[lo : lo + 4]
+    val = 0.0
+    for i in range(xs.size):
+        li = 1.0
+        for k in range(xs.size):
+            if k != i:
+                li *= (wq - xs[k]) / (xs[i] - xs[k])
+        val += ys[i] * li
+    return val
+
+
+def compare_curves(old: dict[str, Any], new: dict[str, Any]) -> dict[str, Any]:
+    """Same curves, possibly sampled at other points: the branch count, the order of the
+    stability labels (run lengths may differ), the folds (count, omega by order) and branch
+    points (count, omega within the 6-digit note text), and the amplitude of every old point
+    away from the turning points (2 points in from each end of a monotone run) against the
+    new branch's run interpolated there (cubic through the 4 nearest points)."""
+    ob, nb = old["branches"], new["branches"]
+    problems = []
+    if len(ob) != len(nb):
+        problems.append(f"branches {len(ob)} -> {len(nb)}")
+    labels = [[lab for lab, _ in x["stable_rle"]] for x in ob]
+    if len(ob) == len(nb) and labels != [[lab for lab, _ in y["stable_rle"]] for y in nb]:
+        problems.append("stability label order differs")
+    if len(old["folds"]) != len(new["folds"]):
+        problems.append(f"folds {len(old['folds'])} -> {len(new['folds'])}")
+    obp, nbp = old.get("branch_points", []), new.get("branch_points", [])
+    if len(obp) != len(nbp):
+        problems.append(f"branch points {len(obp)} -> {len(nbp)}")
+    elif any(abs(x[0] - y[0]) > 1e-5 * abs(x[0]) for x, y in zip(obp, nbp, strict=True)):
+        problems.append("branch points moved beyond the note's 6 digits")
+    d_amp = 0.0
+    if len(ob) == len(nb):
+        for x, y in zip(ob, nb, strict=True):
+            xw, xa = np.array(x["omega"]), np.array(x["amplitude"])
+            yw, ya = np.array(y["omega"]), np.array(y["amplitude"])
+            xr, yr = _runs(xw), _runs(yw)
+            if len(xr) != len(yr):
+                problems.append("monotone runs differ")
+                d_amp = math.inf
+                continue
+            for rx, ry in zip(xr, yr, strict=True):
+                if ry.size < 2:
+                    continue
+                wlo, whi = float(np.min(yw[ry])), float(np.max(yw[ry]))
+                for i in rx[2:-2]:
+                    if wlo <= xw[i] <= whi:
+                        got = _interp(float(xw[i]), yw[ry], ya[ry])
+                        d_amp = max(d_amp, abs(got - xa[i]) / max(abs(xa[i]), 1e-300))
+    of, nf = np.array(old["folds"]).reshape(-1, 2), np.array(new["folds"]).reshape(-1, 2)
+    d_fold = (
+        float(np.max(np.abs(nf[:, 0] - of[:, 0]), initial=0.0)) if len(of) == len(nf) else math.inf
+    )
+    return {
+        "structure_same": not problems,
+        "problems": problems,
+        "mode": "curves",
+        "d_amp": d_amp,
+        "d_omega": math.nan,
+        "d_other": math.nan,
+        "d_fold": d_fold,
+        "notes_same": old["notes"] == new["notes"],
+    }
+
+
 def _g(x: float) -> str:
     if isinstance(x, float) and math.isnan(x):
         return "–"
@@ -371,6 +551,12 @@ def cmd_compare(args: argparse.Namespace) -> int:
         print(f"running against {perturb.__file__}", flush=True)
     rows, failed = [], False
     new_cases = []
+    orbit_base = None
+    if args.curves and args.orbits:
+        orbit_base = {c["id"]: c for c in json.loads(Path(args.orbits).read_text())["cases"]}
+    if args.curves and not run:
+        print("--curves runs the cases (polished orbits are not recorded)", file=sys.stderr)
+        return 2
     for bc in base["cases"]:
         if args.only and not fnmatch.fnmatch(bc["id"], args.only):
             continue
@@ -394,12 +580,22 @@ def cmd_compare(args: argparse.Namespace) -> int:
                 (bc["id"], st, "yes" if same else "NO", "", "", "", "", "", f"{t_ratio:.2f}", why)
             )
             continue
-        c = compare_responses(bc["response"], nc["response"])
+        if args.curves:
+            c = compare_curves(bc["response"], nc["response"])
+        else:
+            c = compare_responses(bc["response"], nc["response"])
+        if args.curves and bc["method"] == "exact" and orbit_base is not None:
+            ob_case = orbit_base.get(bc["id"])
+            d_orb = compare_orbits(ob_case, run_orbits(case)) if ob_case else math.inf
+            c["d_other"] = d_orb
+            if not d_orb <= args.orbit_tol:
+                c["problems"].append(f"polished orbits differ ({_g(d_orb)})")
+                c["structure_same"] = False
         over = [
             name
             for name, val, tol, used in (
                 ("Δamp", c["d_amp"], args.amp_tol, True),
-                ("Δomega", c["d_omega"], args.amp_tol, c["mode"] == "by order"),
+                ("Δomega", c["d_omega"], args.amp_tol, c["mode"] == "by order" and not args.curves),
                 ("Δfold", c["d_fold"], args.fold_tol, True),
             )
             if used and not (val <= tol)
@@ -414,7 +610,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
                 bc["id"],
                 st,
                 "yes" if c["structure_same"] else "NO",
-                _g(c["d_amp"]) + ("" if c["mode"] == "by order" else " (curve)"),
+                _g(c["d_amp"])
+                + {"by order": "", "curves": " (interp.)"}.get(c["mode"], " (curve)"),
                 _g(c["d_omega"]),
                 _g(c["d_fold"]),
                 _g(c["d_other"]),
@@ -439,6 +636,12 @@ def cmd_compare(args: argparse.Namespace) -> int:
     print("|" + "---|" * len(head))
     for r in rows:
         print("| " + " | ".join(str(x) for x in r) + " |")
+    if args.curves:
+        print(
+            "\n--curves: 'max rel Δamp' is the amplitude of each old point (away from turning "
+            "points) against the new curve interpolated at its omega; 'other cols' of exact "
+            f"cases is the polished orbits' max rel difference (tolerance {args.orbit_tol:g})"
+        )
     print(
         f"\ntolerances: amplitude/omega {args.amp_tol:g} relative, fold Omega {args.fold_tol:g}; "
         f"'other cols' (first harmonic, mean, max multiplier) informational; "
@@ -468,7 +671,21 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--amp-tol", type=float, default=1e-9, help="relative (amplitude, omega)")
     c.add_argument("--fold-tol", type=float, default=1e-9, help="absolute (fold Omega)")
     c.add_argument("--strict-notes", action="store_true", help="different notes fail too")
+    c.add_argument(
+        "--curves",
+        action="store_true",
+        help="same curves sampled at other points (see compare_curves); with --orbits also "
+        "the polished exact orbits at fixed frequencies",
+    )
+    c.add_argument("--orbits", help="JSON of the orbits command (recorded with the baseline)")
+    c.add_argument("--orbit-tol", type=float, default=1e-10, help="relative (polished orbits)")
+    o = sub.add_parser("orbits", help="record the polished exact orbits at fixed frequencies")
+    o.add_argument("--out", required=True)
+    o.add_argument("--only", help="fnmatch pattern of case ids")
+    o.add_argument("--exact-workers", type=int, help="pass workers=N to the exact solver")
     args = ap.parse_args(argv)
+    if args.cmd == "orbits":
+        return cmd_orbits(args)
     return cmd_record(args) if args.cmd == "record" else cmd_compare(args)
 
 
