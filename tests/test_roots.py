@@ -15,6 +15,7 @@ from perturb.numeric.roots import (
     damped_newton,
     illinois,
     illinois_vectorized,
+    lu_or_lstsq,
     newton_direction,
 )
 
@@ -349,3 +350,14 @@ def test_illinois_retry_beside_a_failure():
     assert res.failed and res.iterations == 6
     assert lo < root < hi and hi - lo <= 4e-4 * (1 + 1e-12)
     assert abs(res.root - root) <= 2e-4 * (1 + 1e-12)
+
+
+def test_lu_or_lstsq():
+    """Regular: the exact solution (Cramer by hand); exactly singular: the minimum-norm
+    least-squares solution (the pseudo-inverse)."""
+    J = np.array([[2.0, 1.0], [1.0, 3.0]])
+    d = lu_or_lstsq(J, np.array([3.0, 5.0]))
+    np.testing.assert_allclose(d, [(9 - 5) / 5, (10 - 3) / 5], rtol=1e-15)
+    S = np.array([[1.0, 2.0], [2.0, 4.0]])
+    rhs = np.array([1.0, 1.0])
+    np.testing.assert_allclose(lu_or_lstsq(S, rhs), np.linalg.pinv(S) @ rhs, rtol=1e-12)

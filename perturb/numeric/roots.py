@@ -52,6 +52,7 @@ __all__ = [
     "illinois_vectorized",
     "damped_newton",
     "newton_direction",
+    "lu_or_lstsq",
 ]
 
 _EPS = float(np.finfo(float).eps)
@@ -415,6 +416,17 @@ def newton_direction(J: Any, rhs: np.ndarray) -> np.ndarray:
         except np.linalg.LinAlgError:
             pass
     return np.linalg.lstsq(J, rhs, rcond=None)[0]
+
+
+def lu_or_lstsq(J: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve a dense square ``J d = rhs``: LU, or the minimum-norm least-squares solution
+    when LAPACK finds ``J`` exactly singular.  Unlike :func:`newton_direction` no condition
+    estimate (an ill-conditioned ``J`` gets its LU solution): the direction of the
+    continuation's Newton at fixed parameter, whose Jacobians are regular off folds."""
+    try:
+        return np.linalg.solve(J, rhs)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(J, rhs, rcond=None)[0]
 
 
 def _norm2(z: np.ndarray, r: np.ndarray) -> float:

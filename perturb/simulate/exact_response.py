@@ -175,7 +175,7 @@ from perturb.numeric.continuation import (
     hermite_extrapolate,
     null_tangent,
 )
-from perturb.numeric.roots import RootResult, damped_newton, illinois
+from perturb.numeric.roots import RootResult, damped_newton, illinois, lu_or_lstsq
 from perturb.progress import Progress
 from perturb.response import Branch, Response
 from perturb.simulate.flows.base import ODEFlow
@@ -1535,14 +1535,6 @@ def _orient(pt: _Pt, t: np.ndarray, prev: _Pt | None, ref3: np.ndarray | None, S
     return -t if float(t3 @ ref3) < 0 else t
 
 
-def _lu_or_lstsq(J: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """Newton direction at fixed parameter: LU, least squares when ``J`` is singular."""
-    try:
-        return np.linalg.solve(J, rhs)
-    except np.linalg.LinAlgError:
-        return np.linalg.lstsq(J, rhs, rcond=None)[0]
-
-
 class _Tracer:
     """One continuation problem: engine, closed forms, registry and settings."""
 
@@ -1591,7 +1583,7 @@ class _Tracer:
             floor_step_tol=1e-9,
             max_step=10.0,
             max_halvings=9,
-            solve=_lu_or_lstsq,
+            solve=lu_or_lstsq,
             catch=(PerturbError,),
         )
         if res.status == "initial_error":

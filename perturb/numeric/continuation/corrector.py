@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike
 
 from perturb.errors import ParameterError
 from perturb.numeric.continuation.curve import ContinuationError, Jacobian, Residual
-from perturb.numeric.roots import damped_newton
+from perturb.numeric.roots import damped_newton, lu_or_lstsq
 
 __all__ = [
     "CountedProblem",
@@ -110,11 +110,7 @@ def newton_fixed(
 
     def direction(z: np.ndarray, rhs: np.ndarray) -> np.ndarray:
         # the Jacobian is evaluated here, i.e. only at iterates that fail the residual test
-        ju, _ = jacobian(z, lam)
-        try:
-            return np.linalg.solve(ju, rhs)
-        except np.linalg.LinAlgError:
-            return np.linalg.lstsq(ju, rhs, rcond=None)[0]
+        return lu_or_lstsq(jacobian(z, lam)[0], rhs)
 
     res = damped_newton(
         lambda z: (np.asarray(residual(z, lam), dtype=float), z, None),
