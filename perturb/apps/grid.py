@@ -1331,6 +1331,81 @@ def sweep(
     """
     import xarray as xr
 
+    plan = _plan_sweep(scene_or_function, grid, quantity, solver)
+    _check_chunking(chunk_seconds, chunk_size)
+    ckpt, collected = _open_checkpoint(plan, checkpoint)
+    done = set()
+    for part in collected:
+        done.update(part["cells"])
+    pending = [i for i in range(plan.n_cells) if i not in done]
+    stats = {"tasks": 0, "builds": 0, "pids": set(), "seconds": 0.0, "task_cells": []}
+    if pending:
+        _run_tasks(
+            plan,
+            pending,
+            len(done),
+            executor,
+            chunk_seconds,
+            chunk_size,
+            progress,
+            ckpt,
+            collected,
+            stats,
+        )
+    variables, coords = _assemble(plan, collected)
+    ds = xr.Dataset(variables, coords=coords, attrs=plan.attrs)
+    ds.attrs["swept"] = " ".join(plan.names)
+    if run_info is not None:
+        run_info.update(
+            tasks=stats["tasks"],
+            builds=stats["builds"],
+            workers_seen=len(stats["pids"]),
+            task_cells=list(stats["task_cells"]),
+            computed_cells=len(pending),
+            resumed_cells=len(done),
+            worker_seconds=stats["seconds"],
+        )
+    return ds
+
+
+@dataclass
+class _SweepPlan:
+    """What :func:`sweep` evaluates: the grid, the task run on chunks of cells, the output
+    schema (None for a function: taken from its first results) and the dataset attributes."""
+
+    grid: dict[str, np.ndarray]
+    names: list[str]
+    is_function: bool
+    task: Callable[..., Any]
+    task_args: tuple[Any, ...]
+    schema: dict[str, Any] | None
+    attrs: dict[str, Any]
+    fingerprint: str
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return tuple(a.size for a in self.grid.values())
+
+    @property
+    def n_cells(self) -> int:
+        return math.prod(self.shape)
+
+    def cell(self, i: int) -> tuple[int, list[float]]:
+        """Cell ``i`` (flat index) and its parameter values."""
+        axes = list(self.grid.values())
+        idx = np.unravel_index(i, self.shape)
+        return i, [float(axes[d][k]) for d, k in enumerate(idx)]
+
+
+def _plan_sweep(
+    scene_or_function: Any,
+    grid: Mapping[str, Any] | None,
+    quantity: str | None,
+    solver: str | None,
+) -> _SweepPlan:
+    """Step 1 of :func:`sweep`: check the grid and the scene or function, and fix what is
+    run (task and its arguments), the output schema, the attributes and the fingerprint
+    (the identity of the sweep, which a checkpoint must match)."""
     g = _grid(grid) if grid is not None else None
     is_function = callable(scene_or_function) and not isinstance(scene_or_function, str | Path)
     attrs: dict[str, Any] = {"perturb_version": _version(), "created_by": "perturb.sweep"}
@@ -1344,7 +1419,7 @@ def sweep(
         task: Callable[..., Any] = _function_chunk
         task_args: tuple[Any, ...] = (fn, names)
         schema = None
-        ident = {"function": _function_id(fn)}
+        ident: dict[str, Any] = {"function": _function_id(fn)}
         attrs["function"] = ident["function"]
     else:
         ss = _as_sweep_scene(scene_or_function, quantity, solver)
@@ -1362,33 +1437,43 @@ def sweep(
         kernel, _ = _kernel(spec_json)
         schema = kernel.schema()
         ident = {"scene": spec}
-        # a complete sweep scene: parse_sweep_scene reads it back and reruns the map
-        scene_toml = _dump_toml(
-            {
-                "model": {"name": ss.scene.model}
-                | ({"equation": ss.scene.equation} if ss.scene.equation else {}),
-                "params": dict(spec["params"]),
-                "ask": {"omega": spec["omega"]},
-                "method": {"name": spec["method"]},
-                "sweep": {"quantity": ss.quantity, "solver": ss.solver, **spec["options"]},
-                "sweep.params": {k: [float(v) for v in a] for k, a in g.items()},
-            }
-        )
-        attrs.update(
-            scene=scene_toml,
-            quantity=ss.quantity,
-            solver=ss.solver,
-            method=ss.scene.method if ss.solver == "approximation" else "simulation",
-            model=ss.scene.model,
-        )
-    shape = tuple(a.size for a in g.values())
-    n_cells = math.prod(shape)
+        attrs.update(_scene_attrs(ss, spec, g))
     ident.update(
         grid={k: [float(v) for v in a] for k, a in g.items()},
         version=_version(),
     )
     fingerprint = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()
     attrs["fingerprint"] = fingerprint
+    return _SweepPlan(g, names, is_function, task, task_args, schema, attrs, fingerprint)
+
+
+def _scene_attrs(
+    ss: SweepScene, spec: Mapping[str, Any], g: Mapping[str, np.ndarray]
+) -> dict[str, Any]:
+    """Step 1b of :func:`sweep`: the dataset attributes of a scene sweep, ``scene`` being a
+    complete sweep scene (:func:`parse_sweep_scene` reads it back and reruns the map)."""
+    scene_toml = _dump_toml(
+        {
+            "model": {"name": ss.scene.model}
+            | ({"equation": ss.scene.equation} if ss.scene.equation else {}),
+            "params": dict(spec["params"]),
+            "ask": {"omega": spec["omega"]},
+            "method": {"name": spec["method"]},
+            "sweep": {"quantity": ss.quantity, "solver": ss.solver, **spec["options"]},
+            "sweep.params": {k: [float(v) for v in a] for k, a in g.items()},
+        }
+    )
+    return dict(
+        scene=scene_toml,
+        quantity=ss.quantity,
+        solver=ss.solver,
+        method=ss.scene.method if ss.solver == "approximation" else "simulation",
+        model=ss.scene.model,
+    )
+
+
+def _check_chunking(chunk_seconds: Any, chunk_size: Any) -> None:
+    """Step 2 of :func:`sweep`: ``chunk_seconds`` and ``chunk_size`` checked."""
     if chunk_seconds is not None and not (
         isinstance(chunk_seconds, int | float) and chunk_seconds > 0
     ):
@@ -1398,93 +1483,117 @@ def sweep(
     ):
         raise ParameterError(f"chunk_size = {chunk_size!r}: expected a positive integer")
 
-    ckpt = None
-    collected: list[dict[str, Any]] = []
-    if checkpoint is not None:
-        shapes = (
-            None
-            if schema is None
-            else {k: tuple(len(c[d]) for d in dims) for k, (dims, c) in schema.items()}
-        )
-        ckpt = _Checkpoint(
-            checkpoint,
-            fingerprint,
-            {"names": names, "shape": list(shape), "n_cells": n_cells},
-            shapes,
-        )
-        collected = ckpt.load()
-    done = set()
-    for part in collected:
-        done.update(part["cells"])
-    pending = [i for i in range(n_cells) if i not in done]
-    axes = list(g.values())
 
-    def cell(i: int) -> tuple[int, list[float]]:
-        idx = np.unravel_index(i, shape)
-        return i, [float(axes[d][k]) for d, k in enumerate(idx)]
+def _open_checkpoint(
+    plan: _SweepPlan, checkpoint: str | Path | None
+) -> tuple[_Checkpoint | None, list[dict[str, Any]]]:
+    """Step 3 of :func:`sweep`: the checkpoint (None without one) and the parts it holds
+    already (a resumed sweep computes only the other cells)."""
+    if checkpoint is None:
+        return None, []
+    schema = plan.schema
+    shapes = (
+        None
+        if schema is None
+        else {k: tuple(len(c[d]) for d in dims) for k, (dims, c) in schema.items()}
+    )
+    ckpt = _Checkpoint(
+        checkpoint,
+        plan.fingerprint,
+        {"names": plan.names, "shape": list(plan.shape), "n_cells": plan.n_cells},
+        shapes,
+    )
+    return ckpt, ckpt.load()
 
-    stats = {"tasks": 0, "builds": 0, "pids": set(), "seconds": 0.0, "task_cells": []}
-    if pending:
-        ex, workers, owned, how = _open_executor(executor)
-        dask = how.startswith("dask")
-        target = chunk_seconds or (1.0 if dask else 0.25)
-        # Dask's round trip is long: queue more tasks so that no worker waits for the next
-        max_inflight = (4 if dask else 2) * workers
-        label = f"sweep {n_cells} cells on {how}"
-        if done:
-            label += f" (resumed, {len(done)} done)"
-        queue = deque(pending)
-        inflight: dict[cf.Future, list[int]] = {}
-        per_cell: float | None = None
-        t_sum, n_sum = 0.0, 0
-        try:
-            with Progress(n_cells, label, enabled=progress) as bar:
-                if done:
-                    bar.update(len(done))
-                while queue or inflight:
-                    while queue and len(inflight) < max_inflight:
-                        n = chunk_size or chunk_cells(per_cell, len(queue), workers, target)
-                        chunk = [queue.popleft() for _ in range(min(n, len(queue)))]
-                        fut = ex.submit(task, *task_args, [cell(i) for i in chunk])
-                        inflight[fut] = chunk
-                    finished, _ = cf.wait(list(inflight), return_when=cf.FIRST_COMPLETED)
-                    for fut in finished:
-                        chunk = inflight.pop(fut)
-                        res = fut.result()
-                        if ckpt is not None:
-                            ckpt.save(res)
-                        collected.append(res)
-                        t_sum += res["seconds"]
-                        n_sum += len(chunk)
-                        per_cell = t_sum / n_sum
-                        stats["tasks"] += 1
-                        stats["builds"] += int(res["built"])
-                        stats["pids"].add(res["pid"])
-                        stats["seconds"] += res["seconds"] + res["build_seconds"]
-                        stats["task_cells"].append(len(chunk))
-                        bar.update(len(chunk))
-        except BaseException:
-            for fut in inflight:
-                fut.cancel()
-            if owned:
-                # an interrupt should not wait for running tasks: their cells are redone later
-                ex.shutdown(wait=False, cancel_futures=True)
-                owned = False
-            raise
-        finally:
-            if owned:
-                ex.shutdown(wait=True)
 
-    # assemble
-    if schema is None:
-        first = next((p for p in collected if p["cells"]), None)
-        if first is None:
-            raise ParameterError("the grid has no cells")
-        schema = {}
-        for name, vals in first["values"].items():
-            arr = np.asarray(vals[0], dtype=float)
-            dims = tuple(f"{name}_dim{k}" for k in range(arr.ndim))
-            schema[name] = (dims, {d: np.arange(s) for d, s in zip(dims, arr.shape, strict=True)})
+def _run_tasks(
+    plan: _SweepPlan,
+    pending: list[int],
+    n_done: int,
+    executor: Any,
+    chunk_seconds: float | None,
+    chunk_size: int | None,
+    progress: bool | None,
+    ckpt: _Checkpoint | None,
+    collected: list[dict[str, Any]],
+    stats: dict[str, Any],
+) -> None:
+    """Step 4 of :func:`sweep`: compute the ``pending`` cells on the executor in chunks
+    (timed by :func:`chunk_cells` unless ``chunk_size``), appending each finished part to
+    ``collected`` (and saving it in the checkpoint) and counting in ``stats``."""
+    ex, workers, owned, how = _open_executor(executor)
+    dask = how.startswith("dask")
+    target = chunk_seconds or (1.0 if dask else 0.25)
+    # Dask's round trip is long: queue more tasks so that no worker waits for the next
+    max_inflight = (4 if dask else 2) * workers
+    label = f"sweep {plan.n_cells} cells on {how}"
+    if n_done:
+        label += f" (resumed, {n_done} done)"
+    queue = deque(pending)
+    inflight: dict[cf.Future, list[int]] = {}
+    per_cell: float | None = None
+    t_sum, n_sum = 0.0, 0
+    try:
+        with Progress(plan.n_cells, label, enabled=progress) as bar:
+            if n_done:
+                bar.update(n_done)
+            while queue or inflight:
+                while queue and len(inflight) < max_inflight:
+                    n = chunk_size or chunk_cells(per_cell, len(queue), workers, target)
+                    chunk = [queue.popleft() for _ in range(min(n, len(queue)))]
+                    fut = ex.submit(plan.task, *plan.task_args, [plan.cell(i) for i in chunk])
+                    inflight[fut] = chunk
+                finished, _ = cf.wait(list(inflight), return_when=cf.FIRST_COMPLETED)
+                for fut in finished:
+                    chunk = inflight.pop(fut)
+                    res = fut.result()
+                    if ckpt is not None:
+                        ckpt.save(res)
+                    collected.append(res)
+                    t_sum += res["seconds"]
+                    n_sum += len(chunk)
+                    per_cell = t_sum / n_sum
+                    stats["tasks"] += 1
+                    stats["builds"] += int(res["built"])
+                    stats["pids"].add(res["pid"])
+                    stats["seconds"] += res["seconds"] + res["build_seconds"]
+                    stats["task_cells"].append(len(chunk))
+                    bar.update(len(chunk))
+    except BaseException:
+        for fut in inflight:
+            fut.cancel()
+        if owned:
+            # an interrupt should not wait for running tasks: their cells are redone later
+            ex.shutdown(wait=False, cancel_futures=True)
+            owned = False
+        raise
+    finally:
+        if owned:
+            ex.shutdown(wait=True)
+
+
+def _function_schema(collected: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Step 5a of :func:`sweep`: a function's output schema, from its first result (an
+    output of ``ndim`` dimensions gets dimensions ``NAME_dim0`` ...)."""
+    first = next((p for p in collected if p["cells"]), None)
+    if first is None:
+        raise ParameterError("the grid has no cells")
+    schema = {}
+    for name, vals in first["values"].items():
+        arr = np.asarray(vals[0], dtype=float)
+        dims = tuple(f"{name}_dim{k}" for k in range(arr.ndim))
+        schema[name] = (dims, {d: np.arange(s) for d, s in zip(dims, arr.shape, strict=True)})
+    return schema
+
+
+def _assemble(
+    plan: _SweepPlan, collected: Sequence[Mapping[str, Any]]
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Step 5 of :func:`sweep`: the dataset's variables and coordinates from the collected
+    parts (any order); adds ``failed_cells`` / ``first_error`` to ``plan.attrs`` for a
+    scene."""
+    schema = plan.schema if plan.schema is not None else _function_schema(collected)
+    names, shape = plan.names, plan.shape
     clash = sorted((set(schema) | {d for dims, _ in schema.values() for d in dims}) & set(names))
     if clash:
         raise ParameterError(
@@ -1515,30 +1624,18 @@ def sweep(
         if part.get("failed") is not None:
             failed[idx] = np.asarray(part["failed"], dtype=np.int8)
             errors += part.get("errors", [])
-    coords: dict[str, Any] = {k: (k, a) for k, a in g.items()}
+    coords: dict[str, Any] = {k: (k, a) for k, a in plan.grid.items()}
     variables = {}
     for name, (dims, extra_coords) in schema.items():
         for d, c in extra_coords.items():
             coords.setdefault(d, (d, np.asarray(c)))
         variables[name] = (tuple(names) + tuple(dims), data[name])
-    if not is_function:
+    if not plan.is_function:
         variables["failed"] = (tuple(names), failed)
-        attrs["failed_cells"] = int(failed.sum())
+        plan.attrs["failed_cells"] = int(failed.sum())
         if errors:
-            attrs["first_error"] = errors[0]
-    ds = xr.Dataset(variables, coords=coords, attrs=attrs)
-    ds.attrs["swept"] = " ".join(names)
-    if run_info is not None:
-        run_info.update(
-            tasks=stats["tasks"],
-            builds=stats["builds"],
-            workers_seen=len(stats["pids"]),
-            task_cells=list(stats["task_cells"]),
-            computed_cells=len(pending),
-            resumed_cells=len(done),
-            worker_seconds=stats["seconds"],
-        )
-    return ds
+            plan.attrs["first_error"] = errors[0]
+    return variables, coords
 
 
 # --------------------------------------------------------------------------------------------
