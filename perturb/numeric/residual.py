@@ -395,8 +395,29 @@ def residual_response(
             stability,
         )[0]
     sys_ = ResidualSystem(approx)
-    n, amp = sys_.n, sys_.amplitude_index
+    U, W = _seed_solutions(
+        sys_, lo, hi, (a_lo, a_hi), seed_frequencies, seed_amplitudes, seed_phases
+    )
+    curves = _trace_seeds(sys_, U, W, lo, hi, a_hi, ds_max, refine)
+    return _curves_response(
+        approx, sys_, curves, lo, hi, max_correction, stability, seed_frequencies
+    )
 
+
+def _seed_solutions(
+    sys_: ResidualSystem,
+    lo: float,
+    hi: float,
+    amplitude_range: tuple[float, float],
+    seed_frequencies: int,
+    seed_amplitudes: int,
+    seed_phases: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Step 1 of :func:`residual_response` (seeding): vectorised Newton from every
+    combination of the seeding grids; the distinct solutions ``U`` (positive amplitude,
+    phases wrapped to ``(-pi, pi]``) at frequencies ``W``."""
+    n, amp = sys_.n, sys_.amplitude_index
+    a_lo, a_hi = amplitude_range
     # seeds: every combination of the grids, all Newton iterations vectorised
     ws = np.linspace(lo, hi, seed_frequencies + 2)[1:-1]
     axes = [
@@ -414,8 +435,23 @@ def residual_response(
     if n > 1:  # phases modulo 2 pi, so the same solution from different starts is one seed
         other = [i for i in range(n) if i != amp]
         U[:, other] = np.angle(np.exp(1j * U[:, other]))
-    U, W = _unique(U, W, amp)
+    return _unique(U, W, amp)
 
+
+def _trace_seeds(
+    sys_: ResidualSystem,
+    U: np.ndarray,
+    W: np.ndarray,
+    lo: float,
+    hi: float,
+    a_hi: float,
+    ds_max: float,
+    refine: int,
+) -> list[tuple[np.ndarray, np.ndarray, list]]:
+    """Step 2 of :func:`residual_response` (continuation): every seed not on a curve traced
+    already is continued both ways through the window; the curves ``(u, Omega, folds)``,
+    densified by ``refine``."""
+    amp = sys_.amplitude_index
     # continue_curve asks for the Jacobian right after the residual at the same point, and
     # one evaluation of the compiled expressions gives both: evaluate once per point
     last: list = [None, None, None]
@@ -444,54 +480,79 @@ def residual_response(
         k0 = key(u0[None, :], np.array([w0]))[0]
         if any(np.min(np.linalg.norm(t - k0, axis=1)) < 2 * ds_max for t in traced):
             continue  # on a branch traced already
-        a_scale = np.ones(n)
-        a_scale[amp] = max(1.0, abs(u0[amp]))
-        parts = []
-        for direction in (-1, 1):
-            try:
-                parts.append(
-                    continue_curve(
-                        residual,
-                        jacobian,
-                        u0,
-                        float(w0),
-                        (lo, hi),
-                        direction=direction,
-                        u_scale=a_scale,
-                        # steps relative to the amplitude: a branch growing by decades is
-                        # traced in a few hundred points, not cut off by max_points
-                        adaptive_scale=True,
-                        ds_max=ds_max * refine,
-                        max_points=4000,
-                        **_FAST_CONTINUATION,
-                    )
-                )
-            except ContinuationError:
-                parts.append(None)
-        if parts[0] is None and parts[1] is None:
+        curve = _continue_both_ways(residual, jacobian, u0, w0, amp, lo, hi, ds_max * refine)
+        if curve is None:
             continue
-        back, fwd = parts
-        if back is not None and back.stop_reason == "closed":
-            u_c, w_c, folds = back.u, back.lam, list(back.folds)
-        else:
-            us, ls, folds = [], [], []
-            if back is not None:
-                us.append(back.u[::-1])
-                ls.append(back.lam[::-1])
-                folds += list(back.folds)
-            if fwd is not None:
-                start = 1 if back is not None else 0
-                us.append(fwd.u[start:])
-                ls.append(fwd.lam[start:])
-                folds += list(fwd.folds)
-            u_c, w_c = np.concatenate(us), np.concatenate(ls)
+        u_c, w_c, folds = curve
         good = (u_c[:, amp] > 0) & np.all(np.isfinite(u_c), axis=1)
         if np.count_nonzero(good) < 2:
             continue
         u_c, w_c = _densify(sys_, u_c[good], w_c[good], refine, hi - lo, a_hi)
         curves.append((u_c, w_c, folds))
         traced.append(key(u_c, w_c))
+    return curves
 
+
+def _continue_both_ways(residual, jacobian, u0, w0, amp, lo, hi, ds):
+    """Step 2a of :func:`residual_response`: the curve through the seed ``(u0, w0)``,
+    continued down and up in frequency (steps up to ``ds``) and joined into one polyline
+    ``(u, Omega, folds)`` (a closed loop as traced once); None if both directions fail."""
+    a_scale = np.ones(u0.size)
+    a_scale[amp] = max(1.0, abs(u0[amp]))
+    parts = []
+    for direction in (-1, 1):
+        try:
+            parts.append(
+                continue_curve(
+                    residual,
+                    jacobian,
+                    u0,
+                    float(w0),
+                    (lo, hi),
+                    direction=direction,
+                    u_scale=a_scale,
+                    # steps relative to the amplitude: a branch growing by decades is
+                    # traced in a few hundred points, not cut off by max_points
+                    adaptive_scale=True,
+                    ds_max=ds,
+                    max_points=4000,
+                    **_FAST_CONTINUATION,
+                )
+            )
+        except ContinuationError:
+            parts.append(None)
+    if parts[0] is None and parts[1] is None:
+        return None
+    back, fwd = parts
+    if back is not None and back.stop_reason == "closed":
+        return back.u, back.lam, list(back.folds)
+    us, ls, folds = [], [], []
+    if back is not None:
+        us.append(back.u[::-1])
+        ls.append(back.lam[::-1])
+        folds += list(back.folds)
+    if fwd is not None:
+        start = 1 if back is not None else 0
+        us.append(fwd.u[start:])
+        ls.append(fwd.lam[start:])
+        folds += list(fwd.folds)
+    return np.concatenate(us), np.concatenate(ls), folds
+
+
+def _curves_response(
+    approx: Approximation,
+    sys_: ResidualSystem,
+    curves: Sequence[tuple[np.ndarray, np.ndarray, list]],
+    lo: float,
+    hi: float,
+    max_correction: float,
+    stability: str,
+    seed_frequencies: int,
+) -> Response:
+    """Step 3 of :func:`residual_response`: branches (waveform statistics and stability)
+    from the traced curves, split where the waveform's correction exceeds
+    ``max_correction`` (those points and their folds left out), with notes."""
+    amp = sys_.amplitude_index
     wave = Waveform(approx, approx.amplitude or sys_.unknowns[amp], *_phase_and_freq(approx))
     branches, fold_pts = [], []
     dropped = 0
