@@ -1456,49 +1456,61 @@ def basins(
     misassigned (``vectorised=False`` avoids this for PWL models).
     """
     o = _options(BasinOptions, options, knobs, "basins")
-    max_periods, check_every, tol, match_tol = o.max_periods, o.check_every, o.tol, o.match_tol
-    max_period, steps_per_period, escape_radius = o.max_period, o.steps_per_period, o.escape_radius
-    vectorised, refine, method, progress = o.vectorised, o.refine, o.method, o.progress
-    if not isinstance(osc, Oscillator):
-        raise ParameterError(f"osc = {osc!r}: expected an Oscillator")
-    if isinstance(n, tuple | list):
-        if len(n) != 2:
-            raise ParameterError(f"n = {n!r}: expected an integer or (nx, nv)")
-        nx, nv = _int("n[0]", n[0], 1), _int("n[1]", n[1], 1)
-    else:
-        nx = nv = _int("n", n, 1)
-    xs, vs = _grid_axis("x_range", x_range, nx), _grid_axis("v_range", v_range, nv)
-    maxp = _int("max_periods", max_periods, 1)
-    every = _int("check_every", check_every, 1)
-    tol = _tol("tol", tol)
-    mtol = _tol("match_tol", match_tol)
-    mp = _int("max_period", max_period, 1)
-    steps = _int("steps_per_period", steps_per_period, 4)
-    rad = _real("escape_radius", escape_radius, positive=True)
-    flow = make_flow(osc, method=method) if (refine or not vectorised) else None
-    if flow is not None:
-        T = _section_period(flow, osc, period)
-    elif period is not None:
-        T = _real("period", period, positive=True)
-    else:
-        rhs_period = first_order_rhs(osc).period
-        if rhs_period is None:
-            raise ParameterError(
-                f"model {osc.name!r} is autonomous: pass period=... for the section"
-            )
-        T = float(rhs_period)
-
+    xs, vs, run = _basin_setup(osc, x_range, v_range, n, o, period)
+    nx, nv = xs.size, vs.size
     X, Vg = np.meshgrid(xs, vs)  # shape (nv, nx), row = one x' value
     Y0 = np.stack([X.ravel(), Vg.ravel()])  # (2, N)
-    N = Y0.shape[1]
-    window = 2 * mp + 1
-    labels = np.full(N, UNRESOLVED, int)
-    used = np.zeros(N, int)
-    cycles: list[np.ndarray] = []  # attractor cycles (m, 2), in discovery order
+    if o.vectorised:
+        _basins_vectorised(osc, Y0, run, o.progress)
+    else:
+        _basins_per_point(Y0, run, o.progress)
+    final, remap = _refine_attractors(run, o.refine)
+    lab = run.labels.copy()
+    if run.cycles:
+        lab = np.where(run.labels >= 0, remap[np.maximum(run.labels, 0)], run.labels)
+    attractors = tuple(
+        Attractor(points=_frozen(c), period=c.shape[0], fraction=float(np.mean(lab == a)))
+        for a, c in enumerate(final)
+    )
+    return BasinResult(
+        x=_frozen(xs),
+        v=_frozen(vs),
+        labels=_frozen(lab.reshape(nv, nx), int),
+        attractors=attractors,
+        periods_used=_frozen(run.used.reshape(nv, nx), int),
+        period=run.T,
+        model=osc.name,
+    )
 
-    def classify(idx: np.ndarray, tails: np.ndarray, k: int) -> np.ndarray:
+
+@dataclass
+class _BasinRun:
+    """The checked settings of :func:`basins` and its state: per initial condition the
+    label (attractor index, :data:`UNRESOLVED` or :data:`ESCAPED`) and the periods used,
+    and the attractor cycles ``(m, 2)`` in discovery order."""
+
+    maxp: int
+    every: int
+    tol: float
+    mtol: float
+    mp: int
+    steps: int
+    rad: float
+    T: float
+    flow: Flow | None
+    labels: np.ndarray
+    used: np.ndarray
+    cycles: list[np.ndarray] = field(default_factory=list)
+
+    @property
+    def window(self) -> int:
+        """Section points needed to detect a period up to ``mp``."""
+        return 2 * self.mp + 1
+
+    def classify(self, idx: np.ndarray, tails: np.ndarray, k: int) -> np.ndarray:
         """Label the settled sequences among ``idx``; returns a mask of those settled."""
-        mper = _period_from_residuals(_residuals(tails, mp), tol)  # (len(idx),)
+        labels, cycles, mtol = self.labels, self.cycles, self.mtol
+        mper = _period_from_residuals(_residuals(tails, self.mp), self.tol)  # (len(idx),)
         settled = mper > 0
         last = tails[-1]  # (2, len)
         scale = 1.0 + np.max(np.abs(tails), axis=(0, 1))
@@ -1519,92 +1531,151 @@ def basins(
                 p = pending[0]
                 m = int(mper[p])
                 cycles.append(tails[-m:, :, p].copy())
-        used[idx[settled]] = k
+        self.used[idx[settled]] = k
         return settled
 
-    rounds = -(-maxp // every)
-    if vectorised:
-        fun = _batch_rhs(osc)
-        active = np.arange(N)
-        Y = Y0.copy()
-        tails = Y[None].copy()  # (n_points, 2, N_active)
-        k = 0
-        with Progress(rounds, "basins", enabled=progress) as bar:
-            while k < maxp and active.size:
-                nk = min(every, maxp - k)
-                for _ in range(nk):
-                    with np.errstate(over="ignore", invalid="ignore"):
-                        Y = _rk4_periods(fun, Y, k * T, T, steps)
-                    k += 1
-                    tails = np.concatenate([tails, Y[None]])[-window:]
-                big = ~np.all(np.isfinite(Y), axis=0) | (np.max(np.abs(Y), axis=0) > rad)
-                if big.any():
-                    labels[active[big]] = ESCAPED
-                    used[active[big]] = k
-                    keep = ~big
-                    active, Y, tails = active[keep], Y[:, keep], tails[:, :, keep]
-                if tails.shape[0] >= 3 and active.size:
-                    done = classify(active, tails, k)
-                    keep = ~done
-                    active, Y, tails = active[keep], Y[:, keep], tails[:, :, keep]
-                bar.update()
-        used[active] = k
-    else:
-        assert flow is not None
-        with Progress(N, "basins (flow)", enabled=progress) as bar:
-            for i in range(N):
-                try:
-                    s = _settle(flow, Y0[:, i], 0.0, T, max_periods=maxp, tol=tol, max_period=mp)
-                except PerturbError:
-                    labels[i] = ESCAPED
-                    bar.update()
-                    continue
-                tails = np.asarray(s.strobe)[-window:, :, None]
-                if np.max(np.abs(tails)) > rad:
-                    labels[i] = ESCAPED
-                elif tails.shape[0] >= 3:
-                    classify(np.array([i]), tails, s.periods)
-                used[i] = s.periods
-                bar.update()
 
-    # refinement: settle each attractor with the accurate flow, merge coincident ones
+def _basin_setup(
+    osc: Oscillator,
+    x_range: tuple[float, float],
+    v_range: tuple[float, float],
+    n: int | tuple[int, int],
+    o: BasinOptions,
+    period: float | None,
+) -> tuple[np.ndarray, np.ndarray, _BasinRun]:
+    """Step 1 of :func:`basins`: the grid axes and the checked settings (the accurate flow
+    when refining or not vectorised; the section period)."""
+    if not isinstance(osc, Oscillator):
+        raise ParameterError(f"osc = {osc!r}: expected an Oscillator")
+    if isinstance(n, tuple | list):
+        if len(n) != 2:
+            raise ParameterError(f"n = {n!r}: expected an integer or (nx, nv)")
+        nx, nv = _int("n[0]", n[0], 1), _int("n[1]", n[1], 1)
+    else:
+        nx = nv = _int("n", n, 1)
+    xs, vs = _grid_axis("x_range", x_range, nx), _grid_axis("v_range", v_range, nv)
+    maxp = _int("max_periods", o.max_periods, 1)
+    every = _int("check_every", o.check_every, 1)
+    tol = _tol("tol", o.tol)
+    mtol = _tol("match_tol", o.match_tol)
+    mp = _int("max_period", o.max_period, 1)
+    steps = _int("steps_per_period", o.steps_per_period, 4)
+    rad = _real("escape_radius", o.escape_radius, positive=True)
+    flow = make_flow(osc, method=o.method) if (o.refine or not o.vectorised) else None
+    if flow is not None:
+        T = _section_period(flow, osc, period)
+    elif period is not None:
+        T = _real("period", period, positive=True)
+    else:
+        rhs_period = first_order_rhs(osc).period
+        if rhs_period is None:
+            raise ParameterError(
+                f"model {osc.name!r} is autonomous: pass period=... for the section"
+            )
+        T = float(rhs_period)
+    N = nx * nv
+    labels = np.full(N, UNRESOLVED, int)
+    used = np.zeros(N, int)
+    return xs, vs, _BasinRun(maxp, every, tol, mtol, mp, steps, rad, T, flow, labels, used)
+
+
+def _basins_vectorised(osc: Oscillator, Y0: np.ndarray, run: _BasinRun, progress: bool) -> None:
+    """Step 2 of :func:`basins` (``vectorised=True``): RK4 on the whole grid in rounds of
+    ``check_every`` periods; after each, escaped orbits and settled ones (labelled) leave
+    the batch."""
+    maxp, every, T, steps, rad, window = (
+        run.maxp,
+        run.every,
+        run.T,
+        run.steps,
+        run.rad,
+        run.window,
+    )
+    labels, used = run.labels, run.used
+    rounds = -(-maxp // every)
+    fun = _batch_rhs(osc)
+    active = np.arange(Y0.shape[1])
+    Y = Y0.copy()
+    tails = Y[None].copy()  # (n_points, 2, N_active)
+    k = 0
+    with Progress(rounds, "basins", enabled=progress) as bar:
+        while k < maxp and active.size:
+            nk = min(every, maxp - k)
+            for _ in range(nk):
+                with np.errstate(over="ignore", invalid="ignore"):
+                    Y = _rk4_periods(fun, Y, k * T, T, steps)
+                k += 1
+                tails = np.concatenate([tails, Y[None]])[-window:]
+            big = ~np.all(np.isfinite(Y), axis=0) | (np.max(np.abs(Y), axis=0) > rad)
+            if big.any():
+                labels[active[big]] = ESCAPED
+                used[active[big]] = k
+                keep = ~big
+                active, Y, tails = active[keep], Y[:, keep], tails[:, :, keep]
+            if tails.shape[0] >= 3 and active.size:
+                done = run.classify(active, tails, k)
+                keep = ~done
+                active, Y, tails = active[keep], Y[:, keep], tails[:, :, keep]
+            bar.update()
+    used[active] = k
+
+
+def _basins_per_point(Y0: np.ndarray, run: _BasinRun, progress: bool) -> None:
+    """Step 2 of :func:`basins` (``vectorised=False``): each initial condition settled
+    with the accurate flow, then labelled."""
+    flow = run.flow
+    assert flow is not None
+    N = Y0.shape[1]
+    with Progress(N, "basins (flow)", enabled=progress) as bar:
+        for i in range(N):
+            try:
+                s = _settle(
+                    flow,
+                    Y0[:, i],
+                    0.0,
+                    run.T,
+                    max_periods=run.maxp,
+                    tol=run.tol,
+                    max_period=run.mp,
+                )
+            except PerturbError:
+                run.labels[i] = ESCAPED
+                bar.update()
+                continue
+            tails = np.asarray(s.strobe)[-run.window :, :, None]
+            if np.max(np.abs(tails)) > run.rad:
+                run.labels[i] = ESCAPED
+            elif tails.shape[0] >= 3:
+                run.classify(np.array([i]), tails, s.periods)
+            run.used[i] = s.periods
+            bar.update()
+
+
+def _refine_attractors(run: _BasinRun, refine: bool) -> tuple[list[np.ndarray], np.ndarray]:
+    """Step 3 of :func:`basins`: with ``refine``, settle each attractor with the accurate
+    flow and merge coincident ones; the final cycles and the map old -> final index."""
+    cycles, flow, mtol = run.cycles, run.flow, run.mtol
     final: list[np.ndarray] = []
     remap = np.arange(len(cycles))
-    if refine and flow is not None:
-        # the batch cycles are good to the RK4 error: settle much tighter with the accurate flow
-        rtol_ = max(tol * 1e-3, 1e-13)
-        for a, cyc in enumerate(cycles):
-            m = cyc.shape[0]
-            s = _settle(flow, cyc[-1], 0.0, T, max_periods=maxp, tol=rtol_, max_period=mp)
-            mm = s.period or m
-            ref = np.asarray(s.strobe)[-mm:]
-            for b, other in enumerate(final):
-                if other.shape[0] == mm:
-                    scale = 1.0 + float(np.max(np.abs(ref)))
-                    if np.min(np.max(np.abs(other - ref[-1]), axis=1)) <= mtol * scale:
-                        remap[a] = b
-                        break
-            else:
-                remap[a] = len(final)
-                final.append(ref)
-    else:
-        final = list(cycles)
-    lab = labels.copy()
-    if cycles:
-        lab = np.where(labels >= 0, remap[np.maximum(labels, 0)], labels)
-    attractors = tuple(
-        Attractor(points=_frozen(c), period=c.shape[0], fraction=float(np.mean(lab == a)))
-        for a, c in enumerate(final)
-    )
-    return BasinResult(
-        x=_frozen(xs),
-        v=_frozen(vs),
-        labels=_frozen(lab.reshape(nv, nx), int),
-        attractors=attractors,
-        periods_used=_frozen(used.reshape(nv, nx), int),
-        period=T,
-        model=osc.name,
-    )
+    if not (refine and flow is not None):
+        return list(cycles), remap
+    # the batch cycles are good to the RK4 error: settle much tighter with the accurate flow
+    rtol_ = max(run.tol * 1e-3, 1e-13)
+    for a, cyc in enumerate(cycles):
+        m = cyc.shape[0]
+        s = _settle(flow, cyc[-1], 0.0, run.T, max_periods=run.maxp, tol=rtol_, max_period=run.mp)
+        mm = s.period or m
+        ref = np.asarray(s.strobe)[-mm:]
+        for b, other in enumerate(final):
+            if other.shape[0] == mm:
+                scale = 1.0 + float(np.max(np.abs(ref)))
+                if np.min(np.max(np.abs(other - ref[-1]), axis=1)) <= mtol * scale:
+                    remap[a] = b
+                    break
+        else:
+            remap[a] = len(final)
+            final.append(ref)
+    return final, remap
 
 
 # --------------------------------------------------------------------------------------------
