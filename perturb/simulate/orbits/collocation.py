@@ -204,6 +204,52 @@ def collocation_orbit(
     ShootingError
         Newton did not converge.
     """
+    flow, N, tol, max_iter = _check_grid_options(flow, n_points, order, tol, max_iter)
+    auto, P0, m, t0, T_forcing = _period_setup(flow, guess, period, period_guess, m, t0)
+    X0 = _initial_values(flow, guess, N, t0, P0)
+    evaluate = _discrete_system(flow.rhs, N, order, t0, P0, auto)
+    n = 2 * N
+    z0 = X0.ravel().copy()
+    if auto:
+        z0 = np.append(z0, P0)
+    what = f"collocation (N = {N}, order {order})"
+    out = shooting_newton(
+        evaluate,
+        z0,
+        tol=tol,
+        max_iter=max_iter,
+        scale=lambda z: max(1.0, float(np.max(np.abs(z[:n])))),
+        what=what,
+        admissible=(lambda z: bool(z[-1] > 0.0)) if auto else None,
+    )
+    X = out.z[:n].reshape(N, 2).copy()
+    P = float(out.z[-1]) if auto else P0
+    y0 = X[0].copy()
+    if auto:
+        reject_equilibrium(flow, y0, P, what, out.rnorm, out.iterations)
+    # multipliers: one flow pass with the variational equations from the collocation state
+    M = np.asarray(flow(y0, t0, t0 + P, sensitivity=True).sensitivity, dtype=float)
+    return PeriodicOrbit.from_solution(
+        dense=_TrigDense(X, t0, P),
+        y0=y0,
+        t0=t0,
+        P=P,
+        m=m,
+        forcing_period=T_forcing,
+        monodromy=M,
+        residual=out.rnorm,
+        iterations=out.iterations,
+        method="collocation",
+        unit_tol=unit_tol,
+        nodes=X,
+    )
+
+
+def _check_grid_options(
+    flow: Flow, n_points: int, order: int, tol: float, max_iter: int
+) -> tuple[Flow, int, float, int]:
+    """Step 1 of :func:`collocation_orbit`: the flow (it must expose ``rhs.fun`` and
+    ``rhs.jac``), the grid size, the order and the Newton options checked."""
     flow = check_flow(flow)
     rhs = flow.rhs
     if (
@@ -222,6 +268,20 @@ def collocation_orbit(
         raise ParameterError(f"n_points = {N}: expected more than order = {order} points")
     tol = check_positive(tol, "tol")
     max_iter = check_count(max_iter, "max_iter", 0)
+    return flow, N, tol, max_iter
+
+
+def _period_setup(
+    flow: Flow,
+    guess: ArrayLike | PeriodicOrbit,
+    period: float | None,
+    period_guess: float | None,
+    m: int,
+    t0: float,
+) -> tuple[bool, float, int, float, float | None]:
+    """Step 2 of :func:`collocation_orbit`: ``(autonomous, P0, m, t0, forcing period)``.
+    An autonomous flow's period is an unknown starting at ``period_guess`` (default the
+    guess orbit's period); a forced flow's is ``m`` forcing periods."""
     auto = is_autonomous(flow)
     if auto and period is not None:
         raise ParameterError(
@@ -235,41 +295,46 @@ def collocation_orbit(
             raise ParameterError(
                 "collocation_orbit: autonomous flow: expected period_guess for the unknown period"
             )
-        P0 = check_positive(period_guess, "period_guess")
-        m, t0, T_forcing = 1, 0.0, None
-    else:
-        if period_guess is not None:
-            raise ParameterError(
-                f"period_guess = {period_guess!r} given for a forced flow: the period is "
-                "m x the forcing period; pass period= to override the forcing period"
-            )
-        m = check_count(m, "m")
-        t0 = check_finite(t0, "t0")
-        T_forcing = resolve_forcing_period(flow, period, "collocation_orbit")
-        P0 = m * T_forcing
+        return True, check_positive(period_guess, "period_guess"), 1, 0.0, None
+    if period_guess is not None:
+        raise ParameterError(
+            f"period_guess = {period_guess!r} given for a forced flow: the period is "
+            "m x the forcing period; pass period= to override the forcing period"
+        )
+    m = check_count(m, "m")
+    t0 = check_finite(t0, "t0")
+    T_forcing = resolve_forcing_period(flow, period, "collocation_orbit")
+    return False, m * T_forcing, m, t0, T_forcing
 
-    # -- initial grid values -----------------------------------------------------------------
+
+def _initial_values(
+    flow: Flow, guess: ArrayLike | PeriodicOrbit, N: int, t0: float, P0: float
+) -> np.ndarray:
+    """Step 3 of :func:`collocation_orbit`: the initial grid values ``(N, 2)`` from the
+    guess (an orbit sampled, an array resampled, or one state run over a period)."""
     if isinstance(guess, PeriodicOrbit):
         _, xg, vg = guess.sample(N)
-        X0 = np.column_stack([xg, vg])
-    else:
-        try:
-            G = np.array(guess, dtype=float)
-        except (TypeError, ValueError):
-            raise ParameterError(
-                f"guess = {guess!r}: expected a PeriodicOrbit, an (M, 2) array or a state"
-            ) from None
-        if not np.all(np.isfinite(G)):
-            raise ParameterError(f"guess = {G.tolist()!r}: expected finite values")
-        if G.shape == (2,):
-            tg = t0 + P0 * np.arange(N) / N
-            X0 = np.asarray(flow(G, t0, t0 + P0, t_eval=tg).ys, dtype=float)
-        elif G.ndim == 2 and G.shape[1] == 2 and G.shape[0] >= 2:
-            X0 = _resample(G, N)
-        else:
-            raise ParameterError(f"guess has shape {G.shape}: expected (2,) or (M, 2) with M >= 2")
+        return np.column_stack([xg, vg])
+    try:
+        G = np.array(guess, dtype=float)
+    except (TypeError, ValueError):
+        raise ParameterError(
+            f"guess = {guess!r}: expected a PeriodicOrbit, an (M, 2) array or a state"
+        ) from None
+    if not np.all(np.isfinite(G)):
+        raise ParameterError(f"guess = {G.tolist()!r}: expected finite values")
+    if G.shape == (2,):
+        tg = t0 + P0 * np.arange(N) / N
+        return np.asarray(flow(G, t0, t0 + P0, t_eval=tg).ys, dtype=float)
+    if G.ndim == 2 and G.shape[1] == 2 and G.shape[0] >= 2:
+        return _resample(G, N)
+    raise ParameterError(f"guess has shape {G.shape}: expected (2,) or (M, 2) with M >= 2")
 
-    # -- the discrete system -------------------------------------------------------------------
+
+def _discrete_system(rhs: Any, N: int, order: int, t0: float, P0: float, auto: bool):
+    """Step 4 of :func:`collocation_orbit`: ``evaluate(z) -> (residual, sparse Jacobian,
+    None)`` of the periodic finite-difference equations in ``z = (x_0, v_0, ..., [P])``
+    (the period ``P`` an unknown, with the phase condition ``v_0 = 0``, when ``auto``)."""
     q = order // 2
     offs = np.arange(-q, q + 1)
     w1 = np.array(difference_weights(order, 1))
@@ -322,37 +387,4 @@ def collocation_orbit(
         )
         return r, J, None
 
-    z0 = X0.ravel().copy()
-    if auto:
-        z0 = np.append(z0, P0)
-    what = f"collocation (N = {N}, order {order})"
-    out = shooting_newton(
-        evaluate,
-        z0,
-        tol=tol,
-        max_iter=max_iter,
-        scale=lambda z: max(1.0, float(np.max(np.abs(z[:n])))),
-        what=what,
-        admissible=(lambda z: bool(z[-1] > 0.0)) if auto else None,
-    )
-    X = out.z[:n].reshape(N, 2).copy()
-    P = float(out.z[-1]) if auto else P0
-    y0 = X[0].copy()
-    if auto:
-        reject_equilibrium(flow, y0, P, what, out.rnorm, out.iterations)
-    # multipliers: one flow pass with the variational equations from the collocation state
-    M = np.asarray(flow(y0, t0, t0 + P, sensitivity=True).sensitivity, dtype=float)
-    return PeriodicOrbit.from_solution(
-        dense=_TrigDense(X, t0, P),
-        y0=y0,
-        t0=t0,
-        P=P,
-        m=m,
-        forcing_period=T_forcing,
-        monodromy=M,
-        residual=out.rnorm,
-        iterations=out.iterations,
-        method="collocation",
-        unit_tol=unit_tol,
-        nodes=X,
-    )
+    return evaluate
