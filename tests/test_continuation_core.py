@@ -14,6 +14,8 @@ import pytest
 
 from perturb.numeric.continuation import (
     ContinuationOptions,
+    Corrector,
+    Evaluation,
     FloquetCrossings,
     StepControl,
     branch_off,
@@ -130,3 +132,85 @@ def test_floquet_crossings_name_the_multiplier_that_crossed():
     assert [k for k, _ in got] == ["torus"] and got[0][1] == pytest.approx(0.5)
     # no crossing
     assert FloquetCrossings.crossings(np.array([0.5, 0.2 + 0j]), np.array([0.6, 0.3 + 0j])) == []
+
+
+def _circle_evaluation(with_column: bool, D=None):
+    """Evaluations of the circle, counted; without F_lam when ``with_column`` is False; the
+    iterate is scaled by ``D`` when given (the unscaled Jacobians are returned)."""
+    calls = []
+
+    def evaluate(x):
+        calls.append(x.copy())
+        x = x if D is None else x * D
+        ju, jl = circle_jac(x[:1], float(x[1]))
+        return Evaluation(circle(x[:1], float(x[1])), ju, jl if with_column else None, "tag")
+
+    return evaluate, calls
+
+
+@pytest.mark.parametrize("with_column", [True, False])
+@pytest.mark.parametrize("scaled", [True, False])
+def test_corrector_lands_on_the_circle_on_the_bordering_line(with_column, scaled):
+    # from (0.9, 0.6) along the row (1, 1): the corrected point is the intersection of the
+    # circle with the line u + lam = 1.5 (both coordinates scaled by D = (2, 1))
+    D = np.array([2.0, 1.0])
+    evaluate, calls = _circle_evaluation(with_column, D if scaled else None)
+    fd_calls = []
+
+    def fd_column(x, r):
+        fd_calls.append(1)
+        x = x * D if scaled else x
+        h = 1e-7
+        return (circle(x[:1], float(x[1]) + h) - r) / h
+
+    x0 = np.array([0.9, 0.6])
+    row = np.array([1.0, 1.0]) / math.sqrt(2.0)
+    newton = Corrector(evaluate, scaled=scaled, tangent=scaled, fd_column=fd_column)
+
+    def accept(k, size, prev, ev):
+        assert ev.payload == "tag"
+        return size <= 1e-9  # the accepted iterate is then within ~1e-18 (quadratic)
+
+    if scaled:
+        c = newton.correct(x0 / D, D, row, max_iter=30, accept=accept, target=float(row @ (x0 / D)))
+        u, lam = c.x * D
+    else:
+        c = newton.correct(x0, D, row, max_iter=30, accept=accept, anchor=x0 / D)
+        u, lam = c.x
+    # the line in unscaled coordinates: u/2 + lam = 0.45 + 0.6; with the circle
+    c_line = 0.45 + 0.6
+    # 5 lam^2 - 8 c lam + 4 c^2 - 1 = 0, the root near the start (lam ~ 0.69, u ~ 0.73)
+    lam_ref = (8.0 * c_line - math.sqrt(64.0 * c_line**2 - 20.0 * (4.0 * c_line**2 - 1.0))) / 10.0
+    u_ref = 2.0 * (c_line - lam_ref)
+    assert u**2 + lam**2 == pytest.approx(1.0, abs=1e-12)
+    assert (u, lam) == pytest.approx((u_ref, lam_ref), abs=1e-10)
+    assert c.evaluations == len(calls) + len(fd_calls)
+    assert len(fd_calls) == (0 if with_column else 1)  # Broyden after the first difference
+    if scaled:
+        # the tangent of the circle at the point, from the same factorisation
+        t = c.z * D / np.linalg.norm(c.z * D)
+        assert abs(t @ np.array([u, lam])) < 1e-6
+
+
+def test_corrector_refuses_a_far_predictor_and_an_unevaluable_iterate():
+    evaluate, calls = _circle_evaluation(True)
+    newton = Corrector(evaluate, scaled=False)
+    D = np.ones(2)
+    row = np.array([0.0, 1.0])
+
+    def accept(k, size, prev, ev):
+        return size <= 1e-9
+
+    # the first correction from (3, 0) to the circle at lam = 0 is larger than the cap
+    x0 = np.array([3.0, 0.0])
+    assert newton.correct(x0, D, row, max_iter=30, accept=accept, anchor=x0, cap=0.5) is None
+    assert newton.evaluations == 1
+    ok = newton.correct(x0, D, row, max_iter=30, accept=accept, anchor=x0)
+    assert ok is not None and ok.x == pytest.approx([1.0, 0.0], abs=1e-12)
+    # no evaluation possible: a failure, not counted
+    none = Corrector(lambda x: None, scaled=False)
+    assert none.correct(x0, D, row, max_iter=5, accept=accept, anchor=x0) is None
+    assert none.evaluations == 0
+    # lam = 2 on the row e_lam: no real point on the circle, Newton does not converge
+    x2 = np.array([0.5, 2.0])
+    assert newton.correct(x2, D, row, max_iter=30, accept=accept, anchor=x2) is None

@@ -167,6 +167,8 @@ from perturb.model.oscillator import Oscillator
 from perturb.model.segments import SegmentSteadyState, segment_steady_states
 from perturb.model.symmetry import is_odd_symmetric, mirror_nodes
 from perturb.numeric.continuation import (
+    Corrector,
+    Evaluation,
     FloquetCrossings,
     FoldTest,
     StepControl,
@@ -1431,76 +1433,67 @@ def _correct(
     iterate).  With a step control that knows the quadratic-convergence constant
     :math:`C = \|\Delta_1\|/\|\Delta_0\|^2` of earlier corrections, a first correction with
     :math:`C\|\Delta_0\|^2 \le` tol is accepted after one propagation (an accurate
-    predictor).  Returns the point (None on failure) and the propagations used."""
+    predictor).  Returns the point (None on failure) and the propagations used.
+
+    The Newton loop is the continuation core's :class:`~perturb.numeric.continuation.Corrector`
+    in unscaled coordinates (``u += du D``, border through the scaled prediction), with one
+    shooting propagation per iterate for :math:`G, G_Z, G_p` and the monodromy, the forward
+    difference + Broyden column when the flow gives no :math:`G_p`, the parameter window as an
+    unevaluable iterate, and the first-step cap ``first_cap ds + 10 tol``."""
     Sp = eng.Sp
-    uh_pred = u_pred / D
-    u = u_pred.copy()
-    prev = None
-    gp_chord = None
-    last = None
-    evals = 0
     max_iter = st.max_iter if max_iter is None else max_iter
-    for k in range(max_iter):
+
+    def evaluate(u: np.ndarray) -> Evaluation | None:
         p = float(u[-1])
         if not (eng.lo - 0.5 * Sp < p < eng.hi + 0.5 * Sp) or (eng.positive and p <= 0.0):
-            return None, evals
-        Z = u[:-1].reshape(N, 2)
+            return None
         try:
-            ev = eng.evaluate(Z, p)
-            evals += 1
-            if not np.all(np.isfinite(ev.r)) or not np.all(np.isfinite(ev.Gz)):
-                return None, evals
-            Gp = ev.Gp
-            if Gp is None:
-                if gp_chord is None:
-                    gp_chord = eng.gp_fd(Z, p, ev.r)
-                    evals += 1
-                elif last is not None:
-                    # Broyden update of the forward-difference column from the secant
-                    # condition (G_z is exact at both ends): keeps Newton superlinear
-                    r0, Gz0, du0 = last
-                    dp_ = du0[-1]
-                    if abs(dp_) / Sp >= 0.1 * float(np.max(np.abs(du0 / D))):
-                        dz = du0[:-1]
-                        gp_chord = (ev.r - r0 - 0.5 * (Gz0 + ev.Gz) @ dz) / dp_
-                Gp = gp_chord
+            ev = eng.evaluate(u[:-1].reshape(N, 2), p)
         except PerturbError:
-            return None, evals
-        J = np.hstack([ev.Gz, Gp[:, None]])
-        A = np.vstack([J * D[None, :], dvec])
-        b = -np.append(ev.r, dvec @ (u / D - uh_pred))
+            return None
+        return Evaluation(ev.r, ev.Gz, ev.Gp, ev)
+
+    def fd_column(u: np.ndarray, r: np.ndarray) -> np.ndarray | None:
         try:
-            du_h = np.linalg.solve(A, b)
-        except np.linalg.LinAlgError:
-            return None, evals
-        if not np.all(np.isfinite(du_h)):
-            return None, evals
-        n = float(np.max(np.abs(du_h)))
-        if k == 0 and n > first_cap * ds + 10 * st.tol:
-            return None, evals  # the predictor is far from the curve: shorten the step
-        if prev is not None and k >= 2 and n > 0.5 * prev:
-            return None, evals  # not converging
-        if prev is None:
+            return eng.gp_fd(u[:-1].reshape(N, 2), float(u[-1]), r)
+        except PerturbError:
+            return None
+
+    def observe(k: int, n: float, prev: float) -> None:
+        if ctl is not None and k == 1 and prev > 1e-12:
+            ctl.observe(n / (prev * prev))
+
+    def accept(k: int, n: float, prev: float, e: Evaluation) -> bool:
+        # accept: the next iterate's error is below tol, and the statistics (from the
+        # propagated iterate) within STATS_TOL of the stored orbit: the correction times the
+        # growth of a perturbation over one node interval
+        if k == 0:
             est = n if ctl is None else max(n * n * ctl.quad, 1e-3 * n)
         else:
             est = n * min(1.0, n / prev)
-            if ctl is not None and k == 1 and prev > 1e-12:
-                ctl.observe(n / (prev * prev))
-        Zev, p_ev = Z.copy(), p
-        last = (ev.r, ev.Gz, du_h * D) if ev.Gp is None else None
-        u = u + du_h * D
-        # accept: the next iterate's error is below tol, and the statistics (from this
-        # propagated iterate) within STATS_TOL of the stored orbit: the correction times the
-        # growth of a perturbation over one node interval
-        if est <= st.tol and n * _node_growth(ev.M, N) <= STATS_TOL:
-            pt = _Pt(float(u[-1]), u[:-1])
-            eng.finish(pt, ev, Zev, p_ev)
-            pt.J = J
-            if ctl is not None:
-                ctl.iters = k + 1
-            return pt, evals
-        prev = n
-    return None, evals
+        return est <= st.tol and n * _node_growth(e.payload.M, N) <= STATS_TOL
+
+    newton = Corrector(evaluate, scaled=False, fd_column=fd_column)
+    c = newton.correct(
+        u_pred,
+        D,
+        dvec,
+        max_iter=max_iter,
+        accept=accept,
+        observe=observe,
+        anchor=u_pred / D,
+        cap=first_cap * ds + 10 * st.tol,
+    )
+    if c is None:
+        return None, newton.evaluations
+    pt = _Pt(float(c.x[-1]), c.x[:-1])
+    eng.finish(
+        pt, c.evaluation.payload, c.x_evaluated[:-1].reshape(N, 2).copy(), float(c.x_evaluated[-1])
+    )
+    pt.J = np.hstack([c.evaluation.ju, c.jl[:, None]])
+    if ctl is not None:
+        ctl.iters = c.iterations
+    return pt, c.evaluations
 
 
 def _null_tangent(pt: _Pt, Sp: float) -> tuple[np.ndarray, bool]:

@@ -81,9 +81,11 @@ Layout
 ------
 - :mod:`.curve`: the results (:class:`ContinuationCurve`, :class:`FoldPoint`,
   :class:`BranchPoint`) and argument checks;
-- :mod:`.corrector`: the bordered Newton corrector in scaled coordinates, tangents (the
-  SVD null vector :func:`null_tangent`, shared with the exact response), Newton at fixed
-  parameter (:func:`newton_fixed`);
+- :mod:`.corrector`: the bordered Newton corrector :class:`Corrector` (evaluation,
+  acceptance, step cap and Broyden column supplied by the caller; shared with the exact
+  response) and the core's use of it in scaled coordinates (:class:`BorderedCorrector`),
+  tangents (the SVD null vector :func:`null_tangent`, shared with the exact response),
+  Newton at fixed parameter (:func:`newton_fixed`);
 - :mod:`.predictors`: the cubic Hermite predictor (and a fold's Hermite estimate);
 - :mod:`.steps`: :class:`StepControl` (the pace set by the corrector's iterations);
 - :mod:`.events`: :class:`FoldTest` and :class:`BranchPointTest`, watched at every point,
@@ -95,7 +97,10 @@ Layout
 from perturb.numeric.continuation.core import ContinuationOptions, continue_curve
 from perturb.numeric.continuation.corrector import (
     BorderedCorrector,
+    Correction,
+    Corrector,
     CountedProblem,
+    Evaluation,
     newton_fixed,
     null_tangent,
 )
@@ -131,6 +136,9 @@ __all__ = [
     "FloquetCrossings",
     "crossing_weight",
     "BorderedCorrector",
+    "Corrector",
+    "Correction",
+    "Evaluation",
     "CountedProblem",
     "hermite_extrapolate",
     "hermite_direction",
