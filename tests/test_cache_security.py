@@ -39,9 +39,9 @@ def cache(tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
     monkeypatch.delenv("PERTURB_CACHE_KEY", raising=False)
     monkeypatch.delenv("PERTURB_CACHE", raising=False)
-    monkeypatch.setattr(pc, "_KEYS", {})
-    monkeypatch.setattr(pc, "_WARNED", set())
-    return tmp_path / "cache"
+    pc.reset_key_state()  # keys and warnings of earlier tests (other folders) are forgotten
+    yield tmp_path / "cache"
+    pc.reset_key_state()  # and this test's key is not left for the next
 
 
 CALLS: list[str] = []
@@ -80,7 +80,7 @@ def test_entries_are_authenticated_and_reused(cache):
     path, data, _ = _entry(cache)
     assert path.read_bytes().startswith(b'{"perturb-cache":3,"hmac":"')
     key = pc.cache_key_file()
-    assert key.is_file() and not pc._inside(key, cache)
+    assert key.is_file() and not pc.is_inside(key, cache)
     if os.name == "posix":
         assert stat.S_IMODE(key.stat().st_mode) == 0o600
         assert stat.S_IMODE(key.parent.stat().st_mode) == 0o700
@@ -138,12 +138,44 @@ def test_planted_code_with_a_valid_hmac_is_refused_by_the_vocabulary(cache, tmp_
     marker = tmp_path / "pwned"
     plant(table, marker)
     body = json.dumps(table, sort_keys=True, separators=(",", ":")).encode()
-    path.write_bytes(pc._seal(pc._secret(), path.stem, body))
+    sealed = pc.seal_entry(path.stem, body)
+    assert sealed is not None
+    path.write_bytes(sealed)
     with pytest.warns(pc.CacheWarning, match="content is invalid"):
         again = _derive()
     assert len(CALLS) == 2 and again == fresh
     _peak(again)
     assert not marker.exists()
+
+
+def test_seal_entry_reproduces_the_written_file_and_binds_the_name(cache):
+    # oracle: the file cached_derivation wrote; its body re-sealed under its own name is the
+    # same bytes, under another name it fails authentication when read there
+    fresh = _derive()
+    path, _, table = _entry(cache)
+    body = json.dumps(table, sort_keys=True, separators=(",", ":")).encode()
+    assert pc.seal_entry(path.stem, body) == path.read_bytes()
+    other = pc.seal_entry(path.stem[::-1], body)
+    assert other is not None and other != path.read_bytes()
+    path.write_bytes(other)
+    with pytest.warns(pc.CacheWarning, match="failed authentication"):
+        assert _derive() == fresh
+
+
+def test_seal_entry_without_a_trustworthy_key_gives_none(cache, monkeypatch):
+    monkeypatch.setenv("PERTURB_CACHE_KEY", "short")
+    assert pc.seal_entry("name", b"{}") is None
+
+
+def test_is_inside_resolves_links(tmp_path):
+    outer, inner = tmp_path / "outer", tmp_path / "outer" / "inner"
+    inner.mkdir(parents=True)
+    assert pc.is_inside(inner, outer) and pc.is_inside(outer, outer)
+    assert not pc.is_inside(outer, inner) and not pc.is_inside(tmp_path / "outer2", outer)
+    if os.name == "posix":
+        link = tmp_path / "link"
+        link.symlink_to(inner)
+        assert pc.is_inside(link / "key", outer)
 
 
 def test_an_edited_number_is_detected_and_the_answer_is_right(cache):
@@ -219,7 +251,7 @@ def test_a_key_others_can_read_is_refused(cache):
     if os.name != "posix":
         pytest.skip("POSIX permissions")
     key.chmod(0o644)
-    pc._KEYS.clear()
+    pc.reset_key_state()  # read the key file again: its mode changed
     with pytest.warns(pc.CacheWarning, match="accessible to other users"):
         _derive()
     assert len(CALLS) == 2  # the cache is not used: not read ...

@@ -85,6 +85,9 @@ __all__ = [
     "cache_key_file",
     "cached_derivation",
     "derivation_key",
+    "is_inside",
+    "reset_key_state",
+    "seal_entry",
 ]
 
 # Layout of an entry (bump to orphan older entries): 2 = node table, tagged options;
@@ -180,7 +183,9 @@ _KEYS: dict[tuple[str | None, str, str], bytes] = {}
 _WARNED: set[str] = set()
 
 
-def _inside(path: Path, folder: Path) -> bool:
+def is_inside(path: Path, folder: Path) -> bool:
+    """Whether ``path`` is ``folder`` or lies inside it, links resolved (``False`` when either
+    cannot be resolved).  The test that refuses a key file inside the cache folder."""
     try:
         p, f = path.resolve(), folder.resolve()
     except (OSError, RuntimeError):
@@ -253,7 +258,7 @@ def _secret() -> bytes:
                 f"no home folder for the key file ({str(path)!r}): set XDG_CONFIG_HOME or "
                 "PERTURB_CACHE_KEY"
             )
-        if _inside(path, cache_dir()):
+        if is_inside(path, cache_dir()):
             raise _NoKey(
                 f"the key file {str(path)!r} lies inside the cache folder {str(cache_dir())!r}, "
                 "which others may be able to read"
@@ -286,6 +291,30 @@ def authenticate(label: str, data: bytes) -> str | None:
         return None
     msg = b"perturb/%s\n" % label.encode() + data
     return hmac.new(key, msg, hashlib.sha256).hexdigest()
+
+
+def reset_key_state() -> None:
+    """Forget the keys read in this process and the reasons already warned about, so the next
+    use reads the key (file or ``PERTURB_CACHE_KEY``) again and warns afresh — after the key,
+    its file or the environment changed (tests).  Nothing on disk changes."""
+    _KEYS.clear()
+    _WARNED.clear()
+
+
+def seal_entry(name: str, body: bytes) -> bytes | None:
+    """The bytes of a cache entry file holding ``body`` (the entry's JSON) under the cache key
+    ``name`` (its file name without ``.json``), authenticated with this user's key — exactly
+    what :func:`cached_derivation` writes; ``None`` when no trustworthy key is available.
+
+    Only the holder of the secret key can call it usefully (as with :func:`authenticate`), so
+    it forges nothing that holder could not already write; such an entry is still read only
+    through the closed vocabulary (module docstring, check 2).
+    """
+    try:
+        key = _secret()
+    except _NoKey:
+        return None
+    return _seal(key, name, body)
 
 
 def _mac(key: bytes, name: str, body: bytes) -> bytes:
