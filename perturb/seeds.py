@@ -34,6 +34,7 @@ from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
 from perturb.model.segments import segment_steady_states
 from perturb.numeric.harmonic_balance import HarmonicBalanceSystem
+from perturb.numeric.roots import damped_newton
 from perturb.simulate.flows.base import Flow, as_flow
 from perturb.simulate.flows.factory import FlowFamily
 from perturb.simulate.orbits.search import NODES, default_extent, odd_symmetric
@@ -224,40 +225,41 @@ def _search_newton(
             g += (-2.0 / (r2 * r2) / m_i / scale) * e
         return m, g
 
-    R = system.residual(u, Omega)
-    m, g = deflation(u)
-    norm = m * float(np.linalg.norm(R))
-    evaluations = 1
-    for _ in range(_SEARCH_ITERATIONS):
-        if not np.isfinite(norm):
-            return None, evaluations
-        J, _ = system.jacobian(u, Omega)
-        try:
-            du = np.linalg.solve(J, -R)
-        except np.linalg.LinAlgError:
-            return None, evaluations
-        if not np.all(np.isfinite(du)):
-            return None, evaluations
-        if np.max(np.abs(du)) <= 1e-8 * scale:
-            return u + du, evaluations
-        if known:
-            denom = 1.0 - float(g @ du)
-            if abs(denom) > 1e-12:
-                du = du / denom
-        alpha = 1.0
-        for _ in range(_SEARCH_HALVINGS + 1):
-            trial = u + alpha * du
-            Rt = system.residual(trial, Omega)
-            evaluations += 1
-            mt, gt = deflation(trial)
-            nt = mt * float(np.linalg.norm(Rt))
-            if np.isfinite(nt) and nt < (1.0 - 1e-4 * alpha) * norm:
-                break
-            alpha *= 0.5
-        else:
-            return None, evaluations
-        u, R, norm, g = trial, Rt, nt, gt
-    return None, evaluations
+    R0 = system.residual(u, Omega)
+    if not np.isfinite(deflation(u)[0] * float(np.linalg.norm(R0))):
+        return None, 1
+    # damped_newton evaluates the start first: hand it the residual already computed (the
+    # finiteness test above needs the deflated norm, which damped_newton does not check)
+    pending = [R0]
+
+    def residual(v: np.ndarray) -> np.ndarray:
+        return pending.pop() if pending else system.residual(v, Omega)
+
+    def merit(v: np.ndarray, r: np.ndarray) -> float:
+        # the deflated norm m(u) |R(u)| of the line search
+        return deflation(v)[0] * float(np.linalg.norm(r))
+
+    def deflate(v: np.ndarray, d: np.ndarray) -> np.ndarray:
+        # the Newton step of m R: d / (1 - grad(log m) . d), left alone near a pole
+        if not known:
+            return d
+        denom = 1.0 - float(deflation(v)[1] @ d)
+        return d / denom if abs(denom) > 1e-12 else d
+
+    res = damped_newton(
+        residual,
+        u,
+        jac=lambda v: system.jacobian(v, Omega)[0],
+        merit=merit,
+        modify_step=deflate,
+        solve=np.linalg.solve,
+        max_iter=_SEARCH_ITERATIONS,
+        max_halvings=_SEARCH_HALVINGS,
+        scale=scale,
+        step_tol=1e-8,
+        take_final_step=True,
+    )
+    return (res.z if res.converged else None), res.evaluations
 
 
 def harmonic_balance_guesses(
