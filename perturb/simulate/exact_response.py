@@ -153,7 +153,7 @@ import math
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Any, Literal
 
@@ -197,6 +197,7 @@ __all__ = [
     "ContinuationPoint",
     "ContinuationBranch",
     "ExactBranches",
+    "ExactResponseOptions",
     "continue_orbits",
     "switch_branch",
     "exact_branches",
@@ -2149,6 +2150,103 @@ def _special_points(pts: list[_Pt], points: Sequence[ContinuationPoint]) -> list
 # =============================================================================================
 # public: continue_orbits
 # =============================================================================================
+@dataclass(frozen=True)
+class ExactResponseOptions:
+    """Tuning knobs of the exact frequency response (:func:`exact_branches`,
+    :func:`continue_orbits`; :func:`exact_frequency_response` and :func:`exact_solutions_at`
+    pass them on).
+
+    Each function also takes the fields as keyword arguments, which replace those of
+    ``options`` (so ``exact_branches(osc, w, tol=1e-9)`` and
+    ``exact_branches(osc, w, options=ExactResponseOptions(tol=1e-9))`` are the same call); a
+    keyword the function does not use is a :class:`~perturb.errors.ParameterError` naming it.
+    :func:`continue_orbits` uses the first six fields, :func:`exact_branches` all of them.
+    Values are checked by the functions.  The defaults are those the functions had before
+    the options object existed.
+
+    Attributes
+    ----------
+    ds_max : float
+        Output spacing: consecutive points differ by at most ``ds_max`` of the window in the
+        parameter and ``ds_max`` relative (to ``max(1, amplitude)``) in amplitude; 0.005 =
+        0.5 %.  (The corrector's step in the scaled state may be up to 8 times longer where
+        the orbit's phase turns at nearly constant parameter and amplitude.)
+    ds_min : float
+        Smallest step before giving up (after one jump attempt).
+    tol : float
+        Newton tolerance in scaled coordinates (estimated error of the stored point).
+    max_points : int
+        Points per march (per direction) at most.
+    max_periods : float, optional
+        Budget of propagated time in forcing periods (the cost measure: one Newton iteration
+        propagates ``m`` forcing periods): per direction for :func:`continue_orbits`
+        (None: 1e6), for all stages of :func:`exact_branches` (None: 2e5).
+    closed_form : bool
+        Trace orbits that stay inside one linear segment of a PWL force from the exact
+        formula (no propagation).  ``False`` shoots everywhere (for checks).
+    sweep_points : int
+        Frequencies of the virtual sweeps (0: none).
+    transient_periods : int
+        Periods integrated per attempt where a sweep jumps (up to three attempts).
+    branch_points, period_doubling, symmetry : bool
+        Switches of the stages of :func:`exact_branches`: the other branch at branch points,
+        period-2 branches, mirror images of odd systems.
+    max_branches : int
+        Budget of branches.
+    max_seconds : float, optional
+        Wall-clock budget of :func:`exact_branches` (None: none).
+    progress : bool, optional
+        Progress line (None: on unless ``PERTURB_PROGRESS=0``).
+    workers : int, optional
+        Processes that trace (None: ``PERTURB_WORKERS``, else 2 on a machine with two or
+        more CPUs); see :func:`exact_branches`.
+    """
+
+    ds_max: float = 0.005
+    ds_min: float = 1e-7
+    tol: float = 1e-10
+    max_points: int = 20000
+    max_periods: float | None = None
+    closed_form: bool = True
+    sweep_points: int = 60
+    transient_periods: int = 40
+    branch_points: bool = True
+    period_doubling: bool = False
+    symmetry: bool = True
+    max_branches: int = 40
+    max_seconds: float | None = 300.0
+    progress: bool | None = None
+    workers: int | None = None
+
+
+#: The fields of :class:`ExactResponseOptions` that shape one march (:func:`continue_orbits`).
+_ORBIT_FIELDS = frozenset(("ds_max", "ds_min", "tol", "max_points", "max_periods", "closed_form"))
+_ALL_FIELDS = frozenset(ExactResponseOptions.__dataclass_fields__)
+
+
+def _exact_options(
+    options: ExactResponseOptions | None,
+    knobs: dict[str, Any],
+    allowed: frozenset[str],
+    where: str,
+) -> ExactResponseOptions:
+    """``options`` (default: the defaults) with the keyword arguments ``knobs`` of ``where``
+    in place of its fields; only the fields ``allowed`` may be given as keywords."""
+    if options is None:
+        options = ExactResponseOptions()
+    elif not isinstance(options, ExactResponseOptions):
+        raise ParameterError(
+            f"{where}: options = {options!r}: expected an ExactResponseOptions (or keywords)"
+        )
+    unknown = sorted(set(knobs) - allowed)
+    if unknown:
+        raise ParameterError(
+            f"{where}: unknown option(s) {', '.join(unknown)}; "
+            f"expected {', '.join(sorted(allowed))}"
+        )
+    return replace(options, **knobs) if knobs else options
+
+
 def _window(window: Sequence[float]) -> tuple[float, float]:
     try:
         lo, hi = (float(w) for w in window)
@@ -2193,13 +2291,9 @@ def continue_orbits(
     parameter: str | None = None,
     m: int = 1,
     t0: float = 0.0,
-    ds_max: float = 0.005,
-    ds_min: float = 1e-7,
-    tol: float = 1e-10,
-    max_points: int = 20000,
-    max_periods: float = 1e6,
     directions: Literal["both", "forward"] = "both",
-    closed_form: bool = True,
+    options: ExactResponseOptions | None = None,
+    **knobs: Any,
 ) -> ContinuationBranch:
     r"""Trace the branch of period-``m`` orbits through ``(start, y_guess)``.
 
@@ -2220,23 +2314,14 @@ def continue_orbits(
         Forcing periods per orbit period.
     t0
         Phase of the section.
-    ds_max
-        Output spacing: consecutive points differ by at most ``ds_max`` of the window in the
-        parameter and ``ds_max`` relative (to ``max(1, amplitude)``) in amplitude; 0.005 =
-        0.5 %.  (The corrector's step in the scaled state may be up to 8 times longer where
-        the orbit's phase turns at nearly constant parameter and amplitude.)
-    ds_min
-        Smallest step before giving up (after one jump attempt).
-    tol
-        Newton tolerance in scaled coordinates (estimated error of the stored point).
-    max_points, max_periods
-        Budgets per direction: points, and propagated time in forcing periods (the cost
-        measure: one Newton iteration propagates ``m`` forcing periods).
     directions
         ``'both'`` (default) or ``'forward'`` (increasing parameter at the seed).
-    closed_form
-        Trace orbits that stay inside one linear segment of a PWL force from the exact
-        formula (no propagation).  ``False`` shoots everywhere (for checks).
+    options : ExactResponseOptions, optional
+        The tuning knobs: ``ds_max`` (output spacing, default 0.005), ``ds_min``, ``tol``,
+        ``max_points`` and ``max_periods`` (budgets per direction; default 20000 points and
+        1e6 forcing periods), ``closed_form``; see :class:`ExactResponseOptions`.
+    **knobs
+        Those fields as keywords, replacing those of ``options``.
 
     Returns
     -------
@@ -2245,7 +2330,7 @@ def continue_orbits(
     Raises
     ------
     ParameterError
-        Bad arguments.
+        Bad arguments (also a keyword that is not one of the fields above).
     ShootingError
         The seed does not converge to an orbit.
 
@@ -2257,6 +2342,8 @@ def continue_orbits(
     >>> br.closed, br.points[0].parameter, br.points[-1].parameter
     (False, 1.5, 2.0)
     """
+    o = _exact_options(options, knobs, _ORBIT_FIELDS, "continue_orbits")
+    max_periods = 1e6 if o.max_periods is None else o.max_periods
     family = _family(oscillator, parameter)
     lo, hi = _window(window)
     start = float(start)
@@ -2266,8 +2353,8 @@ def continue_orbits(
         raise ParameterError(f"m = {m!r}: expected a positive integer")
     if directions not in ("both", "forward"):
         raise ParameterError(f"directions = {directions!r}: expected 'both' or 'forward'")
-    st = _settings(ds_max, ds_min, tol, max_points, max_periods)
-    tracer = _Tracer(family, m, float(t0), (lo, hi), st, closed_form=closed_form)
+    st = _settings(o.ds_max, o.ds_min, o.tol, o.max_points, max_periods)
+    tracer = _Tracer(family, m, float(t0), (lo, hi), st, closed_form=o.closed_form)
     pt = tracer.start_point(start, y_guess)
     return tracer.trace(pt, directions)[0]
 
@@ -2899,19 +2986,8 @@ def exact_branches(
     window: Sequence[float] = (0.2, 2.0),
     *,
     seeds: Sequence[tuple[float, ArrayLike]] = (),
-    sweep_points: int = 60,
-    transient_periods: int = 40,
-    ds_max: float = 0.005,
-    tol: float = 1e-10,
-    branch_points: bool = True,
-    period_doubling: bool = False,
-    symmetry: bool = True,
-    closed_form: bool = True,
-    max_branches: int = 40,
-    max_periods: float = 2e5,
-    max_seconds: float | None = 300.0,
-    progress: bool | None = None,
-    workers: int | None = None,
+    options: ExactResponseOptions | None = None,
+    **knobs: Any,
 ) -> ExactBranches:
     r"""Every branch of periodic orbits found over ``window`` of the forcing frequency.
 
@@ -2936,16 +3012,22 @@ def exact_branches(
     seeds
         Pairs ``(Omega, (x0, v0))`` at ``t = 0``, each only a start of Newton on the exact
         flow (a seed that does not converge is counted in a note).
+    options : ExactResponseOptions, optional
+        The tuning knobs below (default: the defaults); see :class:`ExactResponseOptions`.
+    **knobs
+        Its fields as keywords, replacing those of ``options``:
+
     sweep_points
         Frequencies of the virtual sweeps (0: none).
     transient_periods
         Periods integrated per attempt where a sweep jumps (up to three attempts).
-    ds_max, tol
-        As in :func:`continue_orbits`.
+    ds_max, ds_min, tol, max_points
+        As in :func:`continue_orbits` (defaults 0.005, 1e-7, 1e-10, 20000).
     branch_points, period_doubling, symmetry, closed_form
         Switches of the stages above.
     max_branches, max_periods
-        Budgets: branches, and propagated time in forcing periods (all stages).
+        Budgets: branches (default 40), and propagated time in forcing periods (all stages;
+        default 2e5).
     max_seconds
         Wall-clock budget (None: none).  When it runs out, the march in progress stops
         (stop reason ``"time budget"``), no further seed or sweep is tried, and a note says
@@ -2968,6 +3050,14 @@ def exact_branches(
         ``.to_response()`` gives the :class:`~perturb.response.Response`.
     """
     t_begin = time.perf_counter()
+    o = _exact_options(options, knobs, _ALL_FIELDS, "exact_branches")
+    sweep_points, transient_periods, max_branches = (
+        o.sweep_points,
+        o.transient_periods,
+        o.max_branches,
+    )
+    max_seconds = o.max_seconds
+    max_periods = 2e5 if o.max_periods is None else o.max_periods
     if not isinstance(oscillator, Oscillator):
         raise ParameterError(f"oscillator = {oscillator!r}: expected an Oscillator")
     lo, hi = _window(window)
@@ -2987,9 +3077,9 @@ def exact_branches(
         and not math.isnan(max_seconds)
     ):
         raise ParameterError(f"max_seconds = {max_seconds!r}: expected a positive number or None")
-    n_workers = _resolve_workers(workers)
+    n_workers = _resolve_workers(o.workers)
     family = FlowFamily(oscillator)
-    st = _settings(ds_max, 1e-7, tol, 20000, max_periods)
+    st = _settings(o.ds_max, o.ds_min, o.tol, o.max_points, max_periods)
     if max_seconds is not None:
         st.deadline = time.monotonic() + float(max_seconds)
     undamped = _undamped_note(family, (lo, hi))
@@ -3006,7 +3096,7 @@ def exact_branches(
             ),
             method="exact" if family.exact else "shooting",
         )
-    tracer = _Tracer(family, 1, 0.0, (lo, hi), st, closed_form=closed_form)
+    tracer = _Tracer(family, 1, 0.0, (lo, hi), st, closed_form=o.closed_form)
     spec = _Speculator(tracer, n_workers)
     try:
         return _exact_branches(
@@ -3017,12 +3107,12 @@ def exact_branches(
             seeds=seeds,
             sweep_points=sweep_points,
             transient_periods=transient_periods,
-            branch_points=branch_points,
-            period_doubling=period_doubling,
-            symmetry=symmetry,
+            branch_points=o.branch_points,
+            period_doubling=o.period_doubling,
+            symmetry=o.symmetry,
             max_branches=max_branches,
             max_periods=max_periods,
-            progress=progress,
+            progress=o.progress,
         )
     finally:
         spec.close()
@@ -3433,7 +3523,8 @@ def _solutions_at_one(
         opts = dict(options)
         seeds = list(opts.pop("seeds", ()))
         seeds += [(w, o.y0) for o in orbits if o.m == 1]
-        opts.setdefault("max_seconds", _ONE_SECONDS)
+        if opts.get("options") is None:  # else the options object's max_seconds holds
+            opts.setdefault("max_seconds", _ONE_SECONDS)
         lo, hi = w / ONE_FREQUENCY_WINDOW, w * ONE_FREQUENCY_WINDOW
         try:
             found = exact_branches(oscillator, (lo, hi), seeds=seeds, **opts)
@@ -3496,7 +3587,8 @@ def exact_solutions_at(
     frequency more than once).  A single frequency is answered by
     :func:`~perturb.simulate.orbits.search.periodic_orbits` together with the crossings of the
     branches traced over ``[w / 1.25, w * 1.25]`` (each orbit its own branch; the tracing
-    has a wall-clock budget of 120 s unless ``max_seconds`` is given).
+    has a wall-clock budget of 120 s unless ``max_seconds`` is given, as a keyword or by an
+    ``options=`` :class:`ExactResponseOptions`).
 
     ``orbit_guesses(Omega)``, when given, returns node guesses (arrays of states over one
     forcing period) that :func:`~perturb.simulate.orbits.search.periodic_orbits` also shoots
