@@ -67,3 +67,20 @@ def test_options_are_frozen_and_checked_by_the_functions():
         _trace(options=ExactResponseOptions(ds_max=-1.0))
     with pytest.raises(ParameterError, match="sweep_points"):
         exact_branches(_osc(), WINDOW, options=ExactResponseOptions(sweep_points=-1))
+
+
+def test_options_object_reaches_exact_through_the_front_door():
+    """``frequency_response(osc, "exact", options=...)`` is the same as the keywords, for a
+    traced window and for given frequencies."""
+    from perturb.solve import frequency_response
+
+    osc = _osc()
+    opts = ExactResponseOptions(ds_max=0.02, max_seconds=120)
+    by_object = frequency_response(osc, "exact", WINDOW, options=opts, progress=False)
+    by_keywords = frequency_response(osc, "exact", WINDOW, ds_max=0.02, progress=False)
+    assert len(by_object.branches) == len(by_keywords.branches) > 0
+    for a, b in zip(by_object.branches, by_keywords.branches, strict=True):
+        np.testing.assert_array_equal(a.omega, b.omega)
+        np.testing.assert_array_equal(a.amplitude, b.amplitude)
+    at = frequency_response(osc, "exact", frequencies=[1.7], options=opts, progress=False)
+    assert all(np.all(b.omega == 1.7) for b in at.branches) and at.branches
