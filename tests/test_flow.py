@@ -140,3 +140,52 @@ def test_make_flow_is_the_one_choice():
         make_flow(nsd, method="rk4")
     with pytest.raises(ParameterError, match="rtol"):
         make_flow(nsd, rtol=2.0)
+
+
+# ------------------------------------------------------------------------------------------
+# make_flow for systems of several coordinates (issue 15)
+# ------------------------------------------------------------------------------------------
+def test_make_flow_dispatches_systems():
+    from perturb.model.system_builtins import builtin_system
+    from perturb.simulate.flows.affine_exact import AffineExactFlow
+    from perturb.simulate.flows.factory import SystemODEFlow, make_flow
+
+    nsd2 = builtin_system("nsd2", Omega=1.2)
+    exact = make_flow(nsd2)
+    assert isinstance(exact, AffineExactFlow) and exact.period == pytest.approx(2 * np.pi / 1.2)
+    assert isinstance(make_flow(nsd2.piecewise_affine()), AffineExactFlow)
+    assert make_flow(nsd2, 0.7).period == pytest.approx(2 * np.pi / 0.7)
+    ode = make_flow(nsd2, method="ode", rtol=1e-12, atol=1e-12)
+    assert isinstance(ode, SystemODEFlow) and ode.n_states == 4
+    assert ode.period == pytest.approx(exact.period, rel=1e-15)
+    y0 = np.array([0.3, -0.2, 0.1, 0.0])
+    T = exact.period
+    # no switch reached from this state in one period: the two agree to the ODE tolerance
+    np.testing.assert_allclose(ode(y0, 0.0, T).y, exact(y0, 0.0, T).y, atol=1e-9)
+    a = ode(y0, 0.0, T, sensitivity=True).sensitivity
+    b = exact(y0, 0.0, T, sensitivity=True).sensitivity
+    np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)
+    # not piecewise linear: the ODE flow of System.field (autonomous belt)
+    belt = make_flow(builtin_system("belt"))  # Stribeck exp(-|v|): not PWL
+    assert isinstance(belt, SystemODEFlow) and belt.autonomous and belt.period is None
+    # x'' = -x - (mu_k + (mu_s - mu_k) exp(-|x' - v_b| / v_s)) sign(x' - v_b), x = x' = 1
+    assert belt.vector_field(0.0, [1.0, 1.0]) == pytest.approx(
+        [1.0, -1.0 - (0.25 + 0.15 * np.exp(-0.8 / 0.5))], rel=1e-14
+    )
+    h = 1e-6
+    fd = (belt.vector_field(0.0, [1.0, 1.0 + h]) - belt.vector_field(0.0, [1.0, 1.0 - h])) / 2 / h
+    np.testing.assert_allclose(belt.jacobian(0.0, [1.0, 1.0])[:, 1], fd, rtol=1e-8)
+    coulomb = make_flow(builtin_system("belt", mu_s=0.25, mu_k=0.25))  # sign(): PWL
+    assert isinstance(coulomb, AffineExactFlow)
+    with pytest.raises(ModelError, match="not piecewise linear"):
+        make_flow(builtin_system("belt"), method="exact")
+    # stops are constraints: a mode for each is required
+    with pytest.raises(ModelError, match="decoupler"):
+        make_flow(builtin_system("mount"))
+    assert isinstance(make_flow(builtin_system("mount"), active={"decoupler": -1}), AffineExactFlow)
+    with pytest.raises(ParameterError, match="Omega"):
+        make_flow(nsd2.piecewise_affine(), 1.0)
+    with pytest.raises(ParameterError, match="active"):
+        make_flow(builtin_model("nsd", k=-2.0, mu=0.05, F=2.0, Omega=0.6), active={"a": None})
+    with pytest.raises(ParameterError, match="expected an Oscillator, a System"):
+        make_flow("nsd2")

@@ -11,6 +11,13 @@ The choice, in one place instead of one per caller:
 * smooth models (and whatever the others do not take) the ODE flow
   (:class:`~perturb.simulate.flows.base.ODEFlow`).
 
+:func:`make_flow` also takes a system of several coordinates
+(:class:`~perturb.model.system.System`, or its
+:class:`~perturb.model.affine.PiecewiseAffineSystem`): the exact n-dimensional flow
+(:class:`~perturb.simulate.flows.affine_exact.AffineExactFlow`) when it is piecewise affine, else
+:class:`SystemODEFlow` (DOP853 on ``System.field`` with variational equations; defined here
+because :class:`ODEFlow` takes the two states of an oscillator only).
+
 This module imports the concrete flows; they import only :mod:`perturb.simulate.flows.base`
 (and the model helpers), so the flow modules form no import circle.
 """
@@ -18,19 +25,25 @@ This module imports the concrete flows; they import only :mod:`perturb.simulate.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping
 from typing import Literal
 
 import numpy as np
+from numpy.typing import ArrayLike
+from scipy.integrate import solve_ivp
 
-from perturb.errors import ModelError, ParameterError
+from perturb.errors import ModelError, ParameterError, PerturbError
+from perturb.model.affine import PiecewiseAffineSystem
 from perturb.model.oscillator import Oscillator, validate_parameter_value
-from perturb.simulate.flows.base import Flow, ODEFlow
+from perturb.model.system import System
+from perturb.simulate.flows.affine_exact import AffineExactFlow
+from perturb.simulate.flows.base import Flow, FlowResult, ODEFlow, _step_budget
 from perturb.simulate.flows.event_driven import EventFlow
 from perturb.simulate.flows.exact import ExactPWLFlow
 from perturb.simulate.flows.piecewise_exact import PWLSystem
 from perturb.simulate.flows.system import NumericRHS, frequency_symbol
 
-__all__ = ["FlowFamily", "FlowMethod", "make_flow"]
+__all__ = ["FlowFamily", "FlowMethod", "SystemODEFlow", "make_flow"]
 
 FlowMethod = Literal["auto", "exact", "ode"]
 
@@ -48,37 +61,59 @@ def _real_positive(name: str, value: object) -> float:
 
 
 def make_flow(
-    osc: Oscillator,
+    osc: Oscillator | System | PiecewiseAffineSystem,
     Omega: float | None = None,
     *,
     method: FlowMethod = "auto",
     rtol: float = 1e-10,
     atol: float = 1e-12,
+    active: Mapping[str, int | None] | None = None,
 ) -> Flow:
-    """One flow of ``osc``: exact for piecewise-linear models, else DOP853 (:class:`ODEFlow`).
+    """One flow of ``osc``: exact for piecewise-linear models, else DOP853.
 
     Parameters
     ----------
     osc
-        Oscillator with all parameter values set (``Omega`` may override the frequency).
+        Oscillator or :class:`~perturb.model.system.System` with all parameter values set
+        (``Omega`` may override the frequency), or a
+        :class:`~perturb.model.affine.PiecewiseAffineSystem`.
     Omega
-        Forcing frequency override.
+        Forcing frequency override (an oscillator's forcing frequency; a system's parameter
+        named ``Omega``; not for a ``PiecewiseAffineSystem``, whose data are numbers).
     method
-        ``"auto"``: :class:`ExactPWLFlow` when the model is piecewise linear (falling back to
-        the ODE flow when the exact flow rejects a feature of it), else :class:`ODEFlow`;
-        ``"exact"``: require the exact flow; ``"ode"``: always :class:`ODEFlow`.
+        ``"auto"``: the exact flow when the model is piecewise linear (:class:`ExactPWLFlow`
+        for an oscillator, :class:`AffineExactFlow` for a system; falling back to the ODE flow
+        when the exact flow rejects a feature of it), else the ODE flow (:class:`ODEFlow`,
+        :class:`SystemODEFlow`); ``"exact"``: require the exact flow; ``"ode"``: always the
+        ODE flow.
     rtol, atol
-        Tolerances of :class:`ODEFlow` (the exact flow has none).
+        Tolerances of the ODE flows (the exact flows have none).
+    active
+        Systems only: the mode of every stop (and sticking friction contact), as
+        :meth:`System.piecewise_affine <perturb.model.system.System.piecewise_affine>` takes
+        it (``None`` free, ``-1``/``+1`` resting on the lower/upper limit). A system with stops
+        needs it: a stop is a constraint, which neither flow here switches on its own.
 
     Raises
     ------
     ParameterError
-        Unknown ``method`` or bad tolerances.
+        Unknown ``method``, bad tolerances, a model of another type, ``Omega`` for a system
+        without such a parameter or for a ``PiecewiseAffineSystem``, ``active`` for an
+        oscillator.
     ModelError
-        ``method="exact"`` and the model is not piecewise linear.
+        ``method="exact"`` and the model is not piecewise linear; a system with stops and no
+        ``active``.
     """
+    if isinstance(osc, System | PiecewiseAffineSystem):
+        return _make_system_flow(osc, Omega, method, rtol, atol, active)
     if not isinstance(osc, Oscillator):
-        raise ParameterError(f"osc = {osc!r}: expected an Oscillator")
+        raise ParameterError(
+            f"osc = {osc!r}: expected an Oscillator, a System or a PiecewiseAffineSystem"
+        )
+    if active is not None:
+        raise ParameterError(
+            f"active = {active!r}: stops are for systems (System), not oscillators"
+        )
     if method not in ("auto", "exact", "ode"):
         raise ParameterError(f"method = {method!r}: expected 'auto', 'exact' or 'ode'")
     if _real_positive("rtol", rtol) >= 1.0:
@@ -98,6 +133,270 @@ def make_flow(
             # e.g. a PWL force with a feature the exact flow does not take: fall back
             pass
     return ODEFlow(osc, Omega, rtol=rtol, atol=atol)
+
+
+def _make_system_flow(
+    model: System | PiecewiseAffineSystem,
+    Omega: float | None,
+    method: str,
+    rtol: float,
+    atol: float,
+    active: Mapping[str, int | None] | None,
+) -> Flow:
+    """:func:`make_flow` for a system of several coordinates (the same checks and choice)."""
+    if method not in ("auto", "exact", "ode"):
+        raise ParameterError(f"method = {method!r}: expected 'auto', 'exact' or 'ode'")
+    if _real_positive("rtol", rtol) >= 1.0:
+        raise ParameterError(f"rtol = {rtol!r}: expected a relative tolerance in (0, 1)")
+    rtol = float(rtol)
+    atol = _real_positive("atol", atol)
+    if isinstance(model, PiecewiseAffineSystem):
+        if Omega is not None:
+            raise ParameterError(
+                f"Omega = {Omega!r}: a PiecewiseAffineSystem holds numbers; build it again from "
+                "its System with the new frequency"
+            )
+        if active is not None:
+            raise ParameterError(
+                f"active = {active!r}: a PiecewiseAffineSystem has its stop modes built in"
+            )
+        if method == "ode":
+            return SystemODEFlow(model, rtol=rtol, atol=atol)
+        return AffineExactFlow(model)
+    if Omega is not None:
+        if "Omega" not in model.params:
+            raise ParameterError(
+                f"Omega = {Omega!r}: system {model.name!r} has no parameter 'Omega' (expected "
+                f"one of {', '.join(model.params) or 'none'}); use with_params"
+            )
+        model = model.with_params(Omega=Omega)
+    stops = [e.name for e in model.elements if e.kind == "stop"]
+    missing = [s for s in stops if s not in dict(active or {})]
+    if missing:
+        raise ModelError(
+            f"system {model.name!r} has the stop(s) {missing}: pass active={{name: None "
+            "(free), -1 or +1 (resting on the lower/upper limit)}} for each (a stop is a "
+            "constraint: its impacts need the event-driven solver)"
+        )
+    if method == "exact":
+        if not model.is_piecewise_linear:
+            raise ModelError(
+                f"method = 'exact': system {model.name!r} is not piecewise linear; use method='ode'"
+            )
+        return AffineExactFlow(model.piecewise_affine(active))
+    if method == "auto" and model.is_piecewise_linear:
+        try:
+            return AffineExactFlow(model.piecewise_affine(active))
+        except ModelError:
+            pass  # e.g. more regions than MAX_REGIONS: the ODE flow takes it
+    return SystemODEFlow(model, active=active, rtol=rtol, atol=atol)
+
+
+class SystemODEFlow(Flow):
+    r"""Smooth flow of a system of ``n`` states by DOP853, with variational equations.
+
+    The right-hand side is :meth:`System.field <perturb.model.system.System.field>` (any
+    elements; stops in the modes ``active``) or
+    :meth:`PiecewiseAffineSystem.field <perturb.model.affine.PiecewiseAffineSystem.field>`; the
+    sensitivity integrates :math:`\Phi' = J(t, y)\Phi`: for a ``System`` with the exact
+    Jacobian of its elements (``f_e'`` differentiated symbolically once, Dirac terms dropped),
+    for a ``PiecewiseAffineSystem`` the ``A`` of the region. Like :class:`ODEFlow` it steps across
+    switches without locating them: exact to the tolerances for smooth fields only, and its
+    sensitivity misses saltation; piecewise-affine systems have
+    :class:`~perturb.simulate.flows.affine_exact.AffineExactFlow`.
+
+    Parameters
+    ----------
+    system
+        A :class:`~perturb.model.system.System` with all parameter values set, or a
+        :class:`~perturb.model.affine.PiecewiseAffineSystem`.
+    active
+        Stop / sticking modes for a ``System`` (see :meth:`System.field`).
+    rtol, atol
+        Tolerances of DOP853.
+
+    Attributes
+    ----------
+    n_states : int
+        Number of states (declared for the orbit solvers).
+    period : float or None
+        The forcing period.
+    """
+
+    def __init__(
+        self,
+        system: System | PiecewiseAffineSystem,
+        *,
+        active: Mapping[str, int | None] | None = None,
+        rtol: float = 1e-11,
+        atol: float = 1e-12,
+    ) -> None:
+        if isinstance(system, PiecewiseAffineSystem):
+            if active is not None:
+                raise ParameterError(
+                    f"active = {active!r}: a PiecewiseAffineSystem has its stop modes built in"
+                )
+            self._field: Callable[[float, np.ndarray], np.ndarray] = system.field
+            self._jac = lambda t, y: system.region(system.pattern(y)).A
+            self.period = system.period
+            self.name = "piecewise-affine system"
+        elif isinstance(system, System):
+            act = dict(active or {})
+            self._field = lambda t, y: np.asarray(system.field(t, y, act), dtype=float)
+            self._jac = _system_jacobian(system, act)
+            self.period = _system_period(system)
+            self.name = system.name
+        else:
+            raise ParameterError(
+                f"system = {system!r}: expected a System or a PiecewiseAffineSystem"
+            )
+        self.system_model = system
+        self.n_states = int(system.n)
+        self.rtol, self.atol = float(rtol), float(atol)
+        self._forced = self.period is not None
+
+    @property
+    def autonomous(self) -> bool:
+        """No harmonic forcing."""
+        return not self._forced
+
+    def __repr__(self) -> str:
+        return (
+            f"SystemODEFlow({self.name}, n={self.n_states}, period={self.period}, "
+            f"rtol={self.rtol:g})"
+        )
+
+    def vector_field(self, t: float, y: ArrayLike) -> np.ndarray:
+        return self._field(float(t), np.asarray(y, dtype=float))
+
+    def jacobian(self, t: float, y: ArrayLike) -> np.ndarray:
+        """``df/dy`` at ``(t, y)`` (exact; jumps of the field contribute nothing)."""
+        return self._jac(float(t), np.asarray(y, dtype=float))
+
+    def _augmented(self, t: float, z: np.ndarray) -> np.ndarray:
+        n = self.n_states
+        y = z[:n]
+        phi = z[n:].reshape(n, n)
+        return np.concatenate([self._field(t, y), (self.jacobian(t, y) @ phi).ravel()])
+
+    def __call__(
+        self,
+        y0: ArrayLike,
+        t0: float,
+        t1: float,
+        *,
+        sensitivity: bool = False,
+        t_eval: ArrayLike | None = None,
+    ) -> FlowResult:
+        """Propagate ``y0`` (``n`` states) from ``t0`` to ``t1 > t0``; see
+        :class:`~perturb.simulate.flows.base.Flow`.
+
+        Raises
+        ------
+        ParameterError
+            Bad ``y0`` or interval.
+        PerturbError
+            The integration failed or its step budget ran out (see :class:`ODEFlow`).
+        """
+        n = self.n_states
+        try:
+            y = np.array(y0, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            raise ParameterError(f"y0 = {y0!r}: expected {n} finite numbers") from None
+        if y.size != n or not np.all(np.isfinite(y)):
+            raise ParameterError(f"y0 = {y.tolist()!r}: expected {n} finite numbers")
+        if not (math.isfinite(t0) and math.isfinite(t1) and t1 > t0):
+            raise ParameterError(f"(t0, t1) = ({t0}, {t1}): expected finite t1 > t0")
+        z0 = np.concatenate([y, np.eye(n).ravel()]) if sensitivity else y
+        fun = self._augmented if sensitivity else self._field
+        budget = _step_budget(t0, t1, self.period)
+        sol = solve_ivp(
+            fun,
+            (t0, t1),
+            z0,
+            method="DOP853",
+            rtol=self.rtol,
+            atol=self.atol,
+            dense_output=t_eval is not None,
+            events=[budget],
+        )
+        if sol.status == 1:
+            raise PerturbError(
+                f"integration of {self.name!r} on [{t0}, {t1}] stopped at t = "
+                f"{float(sol.t[-1])!r} after {budget.max_steps} steps: the step size collapsed "
+                "(a jump in the field, or motion far faster than the forcing)"
+            )
+        if sol.status != 0 or not np.all(np.isfinite(sol.y[:, -1])):
+            raise PerturbError(
+                f"integration of {self.name!r} failed on [{t0}, {t1}]: {sol.message}"
+            )
+        final = sol.y[:, -1]
+        t_out = ys = None
+        if t_eval is not None:
+            t_out = np.asarray(t_eval, dtype=float).reshape(-1)
+            ys = sol.sol(t_out)[:n].T.copy() if t_out.size else np.empty((0, n))
+        return FlowResult(
+            t0=float(t0),
+            t1=float(t1),
+            y=final[:n].copy(),
+            sensitivity=final[n:].reshape(n, n).copy() if sensitivity else None,
+            t=t_out,
+            ys=ys,
+        )
+
+
+def _system_jacobian(system: System, active: Mapping[str, int | None]):
+    """``(t, y) -> df/dy`` of :meth:`System.field` in the modes ``active``: the linear part and
+    ``w_e f_e'(c_e . y) c_e^T`` of every element (``f_e'`` by SymPy, Dirac terms dropped),
+    through the same mass-matrix inverse and constraint projections as the field."""
+    import sympy as sp
+
+    from perturb.model.system import S
+
+    num = system._numeric()
+    act = {k: v for k, v in dict(active).items() if v is not None}
+    P, Pv = system._projection(act)
+    PB = P @ num["Binv"]
+    n, n2 = system.n, num["n2"]
+    mods = [{"Heaviside": lambda z, h0=0.5: np.heaviside(z, h0)}, "numpy"]
+
+    def no_dirac(expr):
+        return expr.replace(sp.DiracDelta, lambda *a: sp.Integer(0))
+
+    terms = []
+    for e in system.elements:
+        if e.kind == "stop" or e.name in act:
+            continue
+        c, w = num["comb"][e.name]
+        f = e.function.xreplace(num["vals"])
+        if c is not None:
+            fn = sp.lambdify([S], no_dirac(sp.diff(f, S)), modules=mods)
+        else:
+            grads = [no_dirac(sp.diff(f, s)) for s in system.states]
+            fn = sp.lambdify(list(system.states), grads, modules=mods)
+        terms.append((c, PB @ w, fn))
+    base = np.zeros((n, n))
+    base[:n2, n2 : 2 * n2] = Pv
+    base[n2:, :] = -PB @ num["L"]
+
+    def jac(t: float, y: np.ndarray) -> np.ndarray:
+        J = base.copy()
+        for c, pw, fn in terms:
+            if c is not None:
+                J[n2:, :] -= np.outer(pw, float(fn(float(c @ y))) * c)
+            else:
+                J[n2:, :] -= np.outer(pw, np.asarray(fn(*y), dtype=float))
+        return J
+
+    return jac
+
+
+def _system_period(system: System) -> float | None:
+    """The forcing period of a system (its harmonic inputs' common period), None without."""
+    from perturb.model.system import _period  # the model's own rule for a common period
+
+    omegas = [om for om, _, _ in system._numeric()["harmonics"] if om != 0.0]
+    return _period(omegas)
 
 
 class FlowFamily:

@@ -58,6 +58,16 @@ Newton safeguard
     :class:`ShootingError` (a :class:`~perturb.errors.PerturbError`) with the residual reached; a
     NaN orbit is never returned.
 
+States of any dimension
+    Forced orbits (:func:`periodic_orbit`, :func:`multiple_shooting`) take a flow of ``n``
+    states, e.g. :class:`~perturb.simulate.flows.affine_exact.AffineExactFlow` of a system of
+    several coordinates: the state size is the flow's declared ``n_states`` (or its
+    ``affine_system.n``), else 2.  ``n = 2`` states are ``(x, v)`` and take exactly the SDOF
+    path below; for ``n != 2`` the summary numbers describe the first state (``x1``), the
+    multipliers are ``numpy.linalg.eigvals`` of the monodromy, and
+    :meth:`PeriodicOrbit.max_abs` gives ``max |.|`` of every state or of any combination.
+    Limit cycles of autonomous systems take two states only (for now).
+
 Orbit data
     Multipliers are the eigenvalues of the monodromy.  Amplitude (max :math:`|x|`), mean and
     first-harmonic amplitude come from ``N_STATS = 1024`` equally spaced samples per forcing
@@ -91,6 +101,7 @@ __all__ = [
     "monodromy_multipliers",
     "periodic_orbit",
     "limit_cycle",
+    "state_dimension",
     "multiple_shooting",
 ]
 
@@ -137,8 +148,8 @@ class PeriodicOrbit:
 
     Attributes
     ----------
-    y0 : ndarray, shape (2,)
-        ``(x, v)`` at ``t0``.
+    y0 : ndarray, shape (n,)
+        The state at ``t0``: ``(x, v)`` for ``n = 2``, the flow's state order otherwise.
     t0 : float
         Start time (the phase of the forcing; irrelevant for autonomous systems).
     period : float
@@ -148,9 +159,9 @@ class PeriodicOrbit:
     forcing_period : float or None
         ``None`` for autonomous systems.
     autonomous : bool
-    monodromy : ndarray, shape (2, 2)
+    monodromy : ndarray, shape (n, n)
         :math:`\partial y(t_0 + P)/\partial y(t_0)`.
-    multipliers : ndarray of complex, shape (2,)
+    multipliers : ndarray of complex, shape (n,)
         Eigenvalues of the monodromy, by decreasing modulus (for autonomous systems one of them
         is the trivial multiplier 1).
     stability : str
@@ -161,7 +172,7 @@ class PeriodicOrbit:
     max_multiplier : float
         :math:`\max|\mu|` over the non-trivial multipliers.
     amplitude : float
-        :math:`\max_t |x(t)|` over the period.
+        :math:`\max_t |x(t)|` over the period (``x`` the first state).
     first_harmonic_amplitude : float
         Amplitude of the component of :math:`x` at the forcing frequency (harmonic ``m`` of the
         orbit period), or at the orbit's own fundamental for autonomous orbits.
@@ -174,7 +185,7 @@ class PeriodicOrbit:
     method : str
         ``'single shooting'``, ``'multiple shooting'``, ``'collocation'``.
     nodes : ndarray or None
-        Multiple-shooting nodes ``(N, 2)`` or collocation values ``(N, 2)``.
+        Multiple-shooting nodes ``(N, n)`` or collocation values ``(N, 2)``.
 
     Notes
     -----
@@ -217,17 +228,59 @@ class PeriodicOrbit:
 
     def sample(self, n: int = 256) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``n`` equally spaced samples over one orbit period: ``(t, x, v)``,
-        ``t = t0 + period * j / n`` for ``j = 0 .. n-1``."""
+        ``t = t0 + period * j / n`` for ``j = 0 .. n-1`` (two-state orbits; see
+        :meth:`sample_states` for ``n`` states)."""
+        if self.y0.size != 2:
+            raise ParameterError(
+                f"sample: the orbit has {self.y0.size} states, not (x, v): use sample_states"
+            )
+        t, X = self.sample_states(n)
+        return t, X[0].copy(), X[1].copy()
+
+    def sample_states(self, n: int = 256) -> tuple[np.ndarray, np.ndarray]:
+        """``n`` equally spaced samples of every state over one orbit period: ``(t, Y)``,
+        ``t = t0 + period * j / n`` for ``j = 0 .. n-1``, ``Y`` of shape ``(states, n)``."""
         if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
             raise ParameterError(f"n = {n!r}: expected a positive integer")
         t = self.t0 + self.period * np.arange(int(n)) / int(n)
-        X = self._dense(t)
-        return t, X[0].copy(), X[1].copy()
+        return t, np.asarray(self._dense(t), dtype=float)
+
+    def max_abs(self, output: ArrayLike | None = None) -> np.ndarray | float:
+        r"""``max_t |c . y(t)|`` over the period, the extrema refined on the orbit itself.
+
+        Parameters
+        ----------
+        output : array_like, shape (n,), optional
+            The combination ``c`` (e.g. ``System.output("x1 - x2")``); default: every state,
+            one maximum each.
+
+        Returns
+        -------
+        float, or ndarray of shape (n,) without ``output``.
+
+        Notes
+        -----
+        ``c . y`` is sampled at ``N_STATS * m`` points; each extremum is then located as the
+        root of :math:`c\cdot f(t, y(t))` (the rate of the combination, ``f`` the vector
+        field) in its bracketing sample interval by a safeguarded secant/bisection on the
+        dense orbit, so the value is exact to the flow's accuracy, not to the sampling.
+        """
+        n = self.y0.size
+        if output is None:
+            return np.array([self.max_abs(np.eye(n)[i]) for i in range(n)])
+        try:
+            c = np.array(output, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            raise ParameterError(f"output = {output!r}: expected {n} numbers") from None
+        if c.size != n or not np.all(np.isfinite(c)):
+            raise ParameterError(f"output = {c.tolist()!r}: expected {n} finite numbers")
+        harmonic = 1 if self.autonomous else self.m
+        return _combination_extreme(self._dense, self.t0, self.period, harmonic, c)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain-Python summary (JSON-serialisable)."""
         return {
-            "y0": [float(self.y0[0]), float(self.y0[1])],
+            "y0": [float(v) for v in self.y0],
             "t0": self.t0,
             "period": self.period,
             "m": self.m,
@@ -275,7 +328,8 @@ class PeriodicOrbit:
         Parameters
         ----------
         dense : callable
-            ``dense(t) -> (2, n)`` states at the times ``t`` (what :meth:`sample` evaluates).
+            ``dense(t) -> (states, len(t))`` states at the times ``t`` (what :meth:`sample`
+            evaluates).
         y0, t0, P, m, forcing_period, monodromy, residual, iterations, method, nodes
             As the attributes ``y0``, ``t0``, ``period``, ``m``, ``forcing_period``,
             ``monodromy``, ``residual``, ``iterations``, ``method``, ``nodes`` (``forcing_period``
@@ -337,7 +391,11 @@ class PeriodicOrbit:
                 if self.forcing_period is None
                 else f"  (= {self.m} x forcing period {self.forcing_period:.15g})"
             ),
-            f"  y0           x = {self.y0[0]:.15g}, v = {self.y0[1]:.15g} at t0 = {self.t0:g}",
+            (
+                f"  y0           x = {self.y0[0]:.15g}, v = {self.y0[1]:.15g} at t0 = {self.t0:g}"
+                if self.y0.size == 2
+                else f"  y0           {', '.join(f'{v:.15g}' for v in self.y0)} at t0 = {self.t0:g}"
+            ),
             f"  amplitude    {self.amplitude:.15g}   (max |x|)",
             f"  1st harmonic {self.first_harmonic_amplitude:.15g}   mean {self.mean:.6g}",
             f"  multipliers  {mults}",
@@ -396,7 +454,8 @@ class _FlowDense:
 
     def __init__(self, flow: Flow, nodes: np.ndarray, times: np.ndarray) -> None:
         self.flow = flow
-        self.nodes = np.array(nodes, dtype=float).reshape(-1, 2)
+        nodes = np.array(nodes, dtype=float)
+        self.nodes = nodes.reshape(-1, nodes.shape[-1] if nodes.ndim else 2)
         self.times = np.array(times, dtype=float)
         self.exact = flow.exact_dense_output
         self.trajs = (
@@ -412,7 +471,7 @@ class _FlowDense:
         t = np.asarray(t, dtype=float).reshape(-1)
         nseg = len(self.nodes)
         idx = np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, nseg - 1)
-        out = np.empty((2, t.size))
+        out = np.empty((self.nodes.shape[1], t.size))
         for i in np.unique(idx):
             sel = np.flatnonzero(idx == i)
             a, b = self.times[i], self.times[i + 1]
@@ -518,13 +577,78 @@ def _statistics(dense: Any, t0: float, P: float, harmonic: int) -> tuple[float, 
     c = np.fft.rfft(x) / n
     mean = float(c[0].real)
     first = float(2.0 * abs(c[harmonic])) if harmonic < c.size else 0.0
+    if X.shape[0] != 2:  # n states: the first one, extrema on the roots of its rate
+        e0 = np.zeros(X.shape[0])
+        e0[0] = 1.0
+        return _combination_extreme(dense, t0, P, harmonic, e0, (t, X)), first, mean
     xmax = _refine_extremum(dense, t, X, int(np.argmax(x)), 1)
     xmin = _refine_extremum(dense, t, X, int(np.argmin(x)), -1)
     return max(abs(xmax), abs(xmin)), first, mean
 
 
+def _combination_extreme(
+    dense: Any,
+    t0: float,
+    P: float,
+    harmonic: int,
+    c: np.ndarray,
+    samples: tuple[np.ndarray, np.ndarray] | None = None,
+) -> float:
+    """``max |c . y(t)|`` over ``[t0, t0 + P]`` for a state of any size: ``N_STATS * harmonic``
+    samples, then the maximum and the minimum each refined as the root of the rate
+    ``c . f(t, y(t))`` in the bracketing sample interval (:func:`scipy.optimize.brentq` on the
+    dense orbit, bounded); the sample value when the rate does not change sign there."""
+    if samples is None:
+        n = N_STATS * harmonic
+        t = t0 + P * np.arange(n + 1) / n
+        t[-1] = t0 + P
+        X = dense(t)
+    else:
+        t, X = samples
+    x = c @ X
+    n = t.size - 1
+    best = 0.0
+    for sign, j in ((1, int(np.argmax(x[:n]))), (-1, int(np.argmin(x[:n])))):
+        best = max(best, abs(_refine_combination(dense, t, X, c, j, sign, n)))
+    return best
+
+
+def _refine_combination(dense, t, X, c, j, sign, n) -> float:
+    from scipy.optimize import brentq
+
+    xj = float(c @ X[:, j])
+
+    def rate(k: int) -> float:
+        return sign * float(c @ dense.field(float(t[k]), X[:, k]))
+
+    rj = rate(j)
+    if rj > 0.0:
+        a, b = j, j + 1
+    elif rj < 0.0:
+        a, b = (j - 1, j) if j > 0 else (n - 1, n)
+    else:
+        return xj
+    ra, rb = (rj, rate(b)) if a == j else (rate(a), rj)
+    if not (ra > 0.0 >= rb):
+        return xj
+    ya, ta = X[:, a].copy(), float(t[a])
+
+    def g(tt: float) -> float:
+        return sign * float(c @ dense.field(tt, dense.local(ya, ta, tt)))
+
+    try:
+        ts = brentq(g, ta, float(t[b]), xtol=1e-15 * max(1.0, abs(ta)), maxiter=100)
+    except (ValueError, RuntimeError):
+        return xj
+    xr = float(c @ dense.local(ya, ta, ts))
+    return xr if sign * xr >= sign * xj else xj
+
+
 def monodromy_multipliers(M: np.ndarray, det: float | None = None) -> np.ndarray:
-    r"""Eigenvalues of a 2x2 monodromy by decreasing modulus.
+    r"""Eigenvalues of a monodromy by decreasing modulus.
+
+    An ``n x n`` matrix with ``n != 2`` takes :func:`numpy.linalg.eigvals` (``det`` unused).
+    For 2x2:
 
     With the exact determinant (Liouville: :math:`\det M = e^{\oint \operatorname{tr} J}`,
     e.g. :math:`e^{-\mu P}` for every PWL orbit, saltations having determinant 1) a real pair is
@@ -533,7 +657,7 @@ def monodromy_multipliers(M: np.ndarray, det: float | None = None) -> np.ndarray
     of a strongly unstable orbit keeps full relative accuracy, whereas ``eigvals`` loses it to
     the rounding of the large entries (absolute error :math:`\sim \epsilon \|M\|`).
     """
-    if det is None or not math.isfinite(det):
+    if np.shape(M) != (2, 2) or det is None or not math.isfinite(det):
         mu = np.linalg.eigvals(M).astype(complex)
     else:
         half = 0.5 * float(M[0, 0] + M[1, 1])
@@ -565,13 +689,25 @@ def is_autonomous(flow: Any) -> bool:
     return as_flow(flow).autonomous
 
 
-def _state(value: ArrayLike, name: str) -> np.ndarray:
+def state_dimension(flow: Any) -> int:
+    """Number of states of ``flow``: its declared ``n_states``, else the ``n`` of its
+    ``affine_system`` (:class:`~perturb.simulate.flows.affine_exact.AffineExactFlow`), else 2
+    (the ``(x, v)`` of an oscillator)."""
+    n = getattr(flow, "n_states", None)
+    if n is None:
+        affine = getattr(flow, "affine_system", None)
+        n = getattr(affine, "n", None)
+    return 2 if n is None else int(n)
+
+
+def _state(value: ArrayLike, name: str, n: int = 2) -> np.ndarray:
+    what = "two finite numbers (x, v)" if n == 2 else f"{n} finite numbers (the flow's states)"
     try:
         y = np.array(value, dtype=float).reshape(-1)
     except (TypeError, ValueError):
-        raise ParameterError(f"{name} = {value!r}: expected two finite numbers (x, v)") from None
-    if y.size != 2 or not np.all(np.isfinite(y)):
-        raise ParameterError(f"{name} = {y.tolist()!r}: expected two finite numbers (x, v)")
+        raise ParameterError(f"{name} = {value!r}: expected {what}") from None
+    if y.size != n or not np.all(np.isfinite(y)):
+        raise ParameterError(f"{name} = {y.tolist()!r}: expected {what}")
     return y
 
 
@@ -729,9 +865,10 @@ def periodic_orbit(
     Parameters
     ----------
     flow
-        A forced :class:`~perturb.simulate.flows.base.Flow`.
+        A forced :class:`~perturb.simulate.flows.base.Flow` of any number of states
+        (:func:`state_dimension`).
     y_guess
-        Initial ``(x, v)`` at ``t0``.
+        Initial state at ``t0``: ``(x, v)``, or the flow's ``n`` states.
     period
         Forcing period :math:`T` (default ``flow.period``).
     m
@@ -762,14 +899,14 @@ def periodic_orbit(
     'stable'
     """
     flow = check_flow(flow)
-    y = _state(y_guess, "y_guess")
+    y = _state(y_guess, "y_guess", state_dimension(flow))
     m = check_count(m, "m")
     t0 = check_finite(t0, "t0")
     tol = check_positive(tol, "tol")
     max_iter = check_count(max_iter, "max_iter", 0)
     T = resolve_forcing_period(flow, period, "periodic_orbit")
     P = m * T
-    eye = np.eye(2)
+    eye = np.eye(y.size)
 
     def evaluate(yy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         res = flow(yy, t0, t0 + P, sensitivity=True)
@@ -800,6 +937,15 @@ def periodic_orbit(
         unit_tol=unit_tol,
         flow=flow,
     )
+
+
+def _two_states(flow: Any, who: str) -> None:
+    n = state_dimension(flow)
+    if n != 2:
+        raise ParameterError(
+            f"{who}: the flow {flow!r} has {n} states: limit cycles (phase condition v0 = 0) "
+            "are computed for two-state (x, v) flows only so far"
+        )
 
 
 def _check_autonomous(flow: Any, who: str) -> None:
@@ -897,6 +1043,7 @@ def limit_cycle(
     """
     flow = check_flow(flow)
     _check_autonomous(flow, "limit_cycle")
+    _two_states(flow, "limit_cycle")
     y = _state(y_guess, "y_guess")
     T0 = check_positive(period_guess, "period_guess")
     tol = check_positive(tol, "tol")
@@ -1006,8 +1153,9 @@ def multiple_shooting(
     ----------
     flow
         Forced or autonomous flow.
-    guesses : array_like, shape (N, 2)
-        Guesses of the states at :math:`t_i = t_0 + iP/N`, ``i = 0 .. N-1``.
+    guesses : array_like, shape (N, n)
+        Guesses of the states (``n`` = :func:`state_dimension` of the flow) at
+        :math:`t_i = t_0 + iP/N`, ``i = 0 .. N-1``.
     period
         Forcing period (default ``flow.period``); forced systems only.
     period_guess
@@ -1028,18 +1176,21 @@ def multiple_shooting(
         As in :func:`periodic_orbit`.
     """
     flow = check_flow(flow)
+    d = state_dimension(flow)
     try:
         Y = np.array(guesses, dtype=float)
     except (TypeError, ValueError):
-        raise ParameterError(f"guesses = {guesses!r}: expected an (N, 2) array") from None
-    if Y.ndim != 2 or Y.shape[1] != 2 or Y.shape[0] < 1:
-        raise ParameterError(f"guesses has shape {Y.shape}: expected (N, 2) with N >= 1")
+        raise ParameterError(f"guesses = {guesses!r}: expected an (N, {d}) array") from None
+    if Y.ndim != 2 or Y.shape[1] != d or Y.shape[0] < 1:
+        raise ParameterError(f"guesses has shape {Y.shape}: expected (N, {d}) with N >= 1")
     if not np.all(np.isfinite(Y)):
         raise ParameterError(f"guesses = {Y.tolist()!r}: expected finite values")
     N = Y.shape[0]
     tol = check_positive(tol, "tol")
     max_iter = check_count(max_iter, "max_iter", 0)
     auto = is_autonomous(flow)
+    if auto:
+        _two_states(flow, "multiple_shooting")
     if auto and period is not None:
         raise ParameterError(
             f"period = {period!r} given for an autonomous flow: its period is an unknown; "
@@ -1064,14 +1215,14 @@ def multiple_shooting(
         t0 = check_finite(t0, "t0")
         T_forcing = resolve_forcing_period(flow, period, "multiple_shooting")
         T0 = m * T_forcing
-    n = 2 * N
+    n = d * N
     # static sparsity: -I blocks on the cyclic super-diagonal
     rows_c = np.arange(n)
-    cols_c = (np.arange(n) + 2) % n
+    cols_c = (np.arange(n) + d) % n
 
     def evaluate(z: np.ndarray) -> tuple[np.ndarray, Any, list[np.ndarray]]:
         P = z[-1] if auto else T0
-        nodes = z[:n].reshape(N, 2)
+        nodes = z[:n].reshape(N, d)
         h = P / N
         r = np.empty(n + (1 if auto else 0))
         blocks = []
@@ -1081,9 +1232,9 @@ def multiple_shooting(
             res = flow(nodes[i], a, a + h, sensitivity=True)
             Mi = np.asarray(res.sensitivity, dtype=float)
             blocks.append(Mi)
-            r[2 * i : 2 * i + 2] = res.y - nodes[(i + 1) % N]
+            r[d * i : d * i + d] = res.y - nodes[(i + 1) % N]
             if auto:
-                fcol[2 * i : 2 * i + 2] = np.asarray(flow.vector_field(a + h, res.y)) / N
+                fcol[d * i : d * i + d] = np.asarray(flow.vector_field(a + h, res.y)) / N
         diag = sps.block_diag(blocks, format="coo")
         rows = [diag.row, rows_c]
         cols = [diag.col, cols_c]
@@ -1112,11 +1263,11 @@ def multiple_shooting(
         what=what,
         admissible=(lambda z: bool(z[-1] > 0.0)) if auto else None,
     )
-    nodes = out.z[:n].reshape(N, 2).copy()
+    nodes = out.z[:n].reshape(N, d).copy()
     P = float(out.z[-1]) if auto else T0
     if auto:
         reject_equilibrium(flow, nodes[0], P, what, out.rnorm, out.iterations)
-    M = np.eye(2)
+    M = np.eye(d)
     for Mi in out.data:
         M = Mi @ M
     times = t0 + P * np.arange(N + 1) / N
