@@ -812,7 +812,11 @@ class System:
         return vec
 
     # ----------------------------------------------------------------- numeric forms --
-    def _numeric(self) -> dict[str, Any]:
+    def numeric_form(self) -> dict[str, Any]:
+        """The system in numbers, cached per parameter set: the matrices of the linear part
+        (``B = [M D]``, its equilibrated inverse), the elements' combinations, distributions
+        and compiled functions, and the harmonic inputs ``(omega, u, v)`` (used by the flows
+        built from this system)."""
         key = ("numeric", tuple(self.params.items()))
         if key in self._cache:
             return self._cache[key]
@@ -875,15 +879,17 @@ class System:
     def _function(self, e: Element):
         key = ("f", e.name, tuple(self.params.items()))
         if key not in self._cache:
-            vals = self._numeric()["vals"]
+            vals = self.numeric_form()["vals"]
             args = [S] if e.combination is not None else list(self.states)
             self._cache[key] = sp.lambdify(args, e.function.xreplace(vals), modules="numpy")
         return self._cache[key]
 
-    def _projection(self, active: Mapping[str, int] | None) -> tuple[np.ndarray, np.ndarray]:
+    def constraint_projection(
+        self, active: Mapping[str, int] | None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(P_acc, P_vel): the constrained acceleration map applied after ``B^-1`` and the
         velocity projection, for the active stops / sticking friction contacts."""
-        num = self._numeric()
+        num = self.numeric_form()
         n2, neq = num["n2"], num["B"].shape[0]
         P = np.eye(neq)
         Pv = np.eye(n2)
@@ -928,7 +934,7 @@ class System:
     def constraints(self) -> tuple[Constraint, ...]:
         """The stops and friction contacts, numeric (parameter values substituted), for the
         event-driven solvers: where they act, their limits and how their force enters."""
-        num = self._numeric()
+        num = self.numeric_form()
         out = []
         for e in self.elements:
             if e.kind not in ("stop", "friction"):
@@ -949,7 +955,7 @@ class System:
         that keeps the combination's acceleration zero (a belt of constant speed, a plate on
         its stop), and a resting stop's combination rate is projected out.
         """
-        num = self._numeric()
+        num = self.numeric_form()
         y = np.asarray(y, dtype=float)
         n2 = num["n2"]
         rhs = -num["L"] @ y
@@ -964,7 +970,7 @@ class System:
             f = self._function(e)
             val = f(float(c @ y)) if c is not None else f(*y)
             rhs = rhs - w * float(val)
-        P, Pv = self._projection(act)
+        P, Pv = self.constraint_projection(act)
         z = P @ (num["Binv"] @ rhs)
         return np.concatenate([Pv @ y[n2 : 2 * n2], z])
 
@@ -1026,7 +1032,7 @@ class System:
                 "(free), -1 or +1 (resting on the lower/upper limit)}} for each"
             )
         act = {k: v for k, v in act.items() if v is not None}
-        num = self._numeric()
+        num = self.numeric_form()
         vals = num["vals"]
         pwls = {k: v for k, v in self._pwl_forms(vals).items() if k not in act}
         n, n2 = self.n, num["n2"]
@@ -1061,7 +1067,7 @@ class System:
             raise ModelError(
                 f"system {self.name!r} has {count} regions: expected at most {MAX_REGIONS}"
             )
-        P, Pv = self._projection(act)
+        P, Pv = self.constraint_projection(act)
         Binv = P @ num["Binv"]
         base_L = num["L"].copy()
         regions = {}
@@ -1109,7 +1115,7 @@ class System:
             )
         regions = {k: (A, b + b0) for k, (A, b) in regions.items()}
         return PiecewiseAffineSystem.build(
-            self.state_names, surfaces, regions, inputs, _period(omegas)
+            self.state_names, surfaces, regions, inputs, common_period(omegas)
         )
 
     # -------------------------------------------------------------------------- text --
@@ -1443,7 +1449,7 @@ def _harmonics(F: sp.Matrix, t: sp.Symbol) -> list[tuple[float, np.ndarray, np.n
     return [(om, u, v) for om, (u, v) in sorted(table.items())]
 
 
-def _period(omegas: list[float]) -> float | None:
+def common_period(omegas: list[float]) -> float | None:
     """The common period of the harmonic inputs: ``2 pi / w0`` with every frequency an integer
     multiple of ``w0`` (ratios read as fractions with denominators up to 64)."""
     if not omegas:

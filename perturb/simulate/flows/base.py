@@ -38,7 +38,7 @@ from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
 from perturb.simulate.flows.system import NumericRHS, first_order_rhs
 
-__all__ = ["Flow", "FlowResult", "ODEFlow", "as_flow"]
+__all__ = ["Flow", "FlowResult", "ODEFlow", "as_flow", "step_budget"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -256,7 +256,7 @@ class ODEFlow(Flow):
         y = _check_span(y0, t0, t1)
         z0 = np.concatenate([y, np.eye(2).ravel()]) if sensitivity else y
         fun = self._augmented if sensitivity else self.rhs.fun
-        budget = _step_budget(t0, t1, self.period)
+        budget = step_budget(t0, t1, self.period)
         sol = solve_ivp(
             fun,
             (t0, t1),
@@ -290,7 +290,7 @@ class ODEFlow(Flow):
                 method="DOP853",
                 rtol=self.rtol,
                 atol=self.atol,
-                events=[_step_budget(t0, t1, self.period)],
+                events=[step_budget(t0, t1, self.period)],
             ).y[:, -1]
         else:
             final = sol.y[:, -1]
@@ -310,7 +310,7 @@ class ODEFlow(Flow):
 _STEPS_PER_PERIOD, _STEPS_BASE = 5_000, 20_000
 
 
-def _step_budget(t0: float, t1: float, period: float | None):
+def step_budget(t0: float, t1: float, period: float | None):
     """A terminal event of ``solve_ivp`` that fires after a budget of steps (solve_ivp calls
     it once per step; it changes sign only then, so no root finding happens before)."""
     span_periods = abs(t1 - t0) / (period if period else 2.0 * np.pi)

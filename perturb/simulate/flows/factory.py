@@ -37,7 +37,7 @@ from perturb.model.affine import PiecewiseAffineSystem
 from perturb.model.oscillator import Oscillator, validate_parameter_value
 from perturb.model.system import System
 from perturb.simulate.flows.affine_exact import AffineExactFlow
-from perturb.simulate.flows.base import Flow, FlowResult, ODEFlow, _step_budget
+from perturb.simulate.flows.base import Flow, FlowResult, ODEFlow, step_budget
 from perturb.simulate.flows.event_driven import EventFlow
 from perturb.simulate.flows.exact import ExactPWLFlow
 from perturb.simulate.flows.piecewise_exact import PWLSystem
@@ -309,7 +309,7 @@ class SystemODEFlow(Flow):
             raise ParameterError(f"(t0, t1) = ({t0}, {t1}): expected finite t1 > t0")
         z0 = np.concatenate([y, np.eye(n).ravel()]) if sensitivity else y
         fun = self._augmented if sensitivity else self._field
-        budget = _step_budget(t0, t1, self.period)
+        budget = step_budget(t0, t1, self.period)
         sol = solve_ivp(
             fun,
             (t0, t1),
@@ -353,9 +353,9 @@ def _system_jacobian(system: System, active: Mapping[str, int | None]):
 
     from perturb.model.system import S
 
-    num = system._numeric()
+    num = system.numeric_form()
     act = {k: v for k, v in dict(active).items() if v is not None}
-    P, Pv = system._projection(act)
+    P, Pv = system.constraint_projection(act)
     PB = P @ num["Binv"]
     n, n2 = system.n, num["n2"]
     mods = [{"Heaviside": lambda z, h0=0.5: np.heaviside(z, h0)}, "numpy"]
@@ -393,10 +393,10 @@ def _system_jacobian(system: System, active: Mapping[str, int | None]):
 
 def _system_period(system: System) -> float | None:
     """The forcing period of a system (its harmonic inputs' common period), None without."""
-    from perturb.model.system import _period  # the model's own rule for a common period
+    from perturb.model.system import common_period  # the model's own rule for a common period
 
-    omegas = [om for om, _, _ in system._numeric()["harmonics"] if om != 0.0]
-    return _period(omegas)
+    omegas = [om for om, _, _ in system.numeric_form()["harmonics"] if om != 0.0]
+    return common_period(omegas)
 
 
 class FlowFamily:
