@@ -101,6 +101,7 @@ from perturb.numeric.continuation.corrector import (
     Corrector,
     CountedProblem,
     Evaluation,
+    edge_point,
     newton_fixed,
     null_tangent,
 )
@@ -139,6 +140,7 @@ __all__ = [
     "Corrector",
     "Correction",
     "Evaluation",
+    "edge_point",
     "CountedProblem",
     "hermite_extrapolate",
     "hermite_direction",
