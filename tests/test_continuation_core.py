@@ -20,7 +20,6 @@ from perturb.numeric.continuation import (
     StepControl,
     branch_off,
     continue_curve,
-    edge_point,
     hermite_extrapolate,
 )
 
@@ -215,34 +214,3 @@ def test_corrector_refuses_a_far_predictor_and_an_unevaluable_iterate():
     # lam = 2 on the row e_lam: no real point on the circle, Newton does not converge
     x2 = np.array([0.5, 2.0])
     assert newton.correct(x2, D, row, max_iter=30, accept=accept, anchor=x2) is None
-
-
-def test_edge_point_interpolates_then_corrects_at_the_edge():
-    # the unit circle between (0.8, 0.6) inside and (0.6, 0.8) outside the window lam <= 0.7:
-    # the corrector is started at the linear interpolate on lam = 0.7 with the row e_lam
-    seen = []
-
-    def correct(x0, row, target):
-        seen.append((x0.copy(), row.copy(), target))
-        lam = target
-        return np.array([math.sqrt(1.0 - lam * lam), lam])  # an exact oracle corrector
-
-    x = edge_point(correct, np.array([0.8, 0.6]), np.array([0.6, 0.8]), 1, 0.7)
-    (x0, row, target) = seen[0]
-    assert x0 == pytest.approx([0.7, 0.7], abs=1e-15)  # halfway along the chord
-    assert row.tolist() == [0.0, 1.0] and target == 0.7
-    assert x == pytest.approx([math.sqrt(0.51), 0.7])
-    # with the Corrector itself: on the circle at lam = 0.7 exactly (up to tolerance)
-    evaluate, _ = _circle_evaluation(True)
-    newton = Corrector(evaluate, scaled=True)
-
-    def real(x0, row, target):
-        c = newton.correct(
-            x0, np.ones(2), row, max_iter=20, accept=lambda k, n, p, e: n <= 1e-12, target=target
-        )
-        return None if c is None else c.x
-
-    y = edge_point(real, np.array([0.8, 0.6]), np.array([0.6, 0.8]), 1, 0.7)
-    assert y == pytest.approx([math.sqrt(0.51), 0.7], abs=1e-12)
-    # no point on the curve at the edge (lam = 1.5 > 1): the corrector's failure is returned
-    assert edge_point(real, np.array([0.0, 1.0]), np.array([0.0, 2.0]), 1, 1.5) is None

@@ -173,7 +173,6 @@ from perturb.numeric.continuation import (
     FoldTest,
     StepControl,
     crossing_weight,
-    edge_point,
     hermite_direction,
     hermite_extrapolate,
     null_tangent,
@@ -1551,7 +1550,7 @@ class _Tracer:
 
     # -- points ---------------------------------------------------------------------------------
     def solve_fixed(self, p: float, Z: np.ndarray, max_iter: int = 40) -> _Pt:
-        """Damped Newton at fixed parameter (seeds); raises ShootingError.
+        """Damped Newton at fixed parameter (seeds, window ends); raises ShootingError.
 
         :func:`perturb.numeric.roots.damped_newton` on the shooting residual: converged when
         the correction is below ``max(tol, 1e-11)`` relative to ``max(1, |z|)`` (the
@@ -1872,55 +1871,15 @@ class _Tracer:
         return predict
 
     def _edge_point(self, cur: _Pt, new: _Pt) -> _Pt | None:
-        """The orbit exactly at the window edge between ``cur`` and ``new``.
-
-        The continuation core's :func:`~perturb.numeric.continuation.edge_point`: from the
-        linear interpolate of (Z, p) (``cur``'s nodes when the node counts differ), the
-        :class:`~perturb.numeric.continuation.Corrector` with the border row ``e_p`` and the
-        target ``edge``. Exact-specific policy: the start is put exactly on the edge, so the
-        border keeps ``p = edge`` bit for bit (``dp = 0``) and ``G_p`` is not needed (a zero
-        column: Newton at fixed p, one propagation per iterate, as the former damped
-        Newton was); converged when the node correction is below ``max(tol, 1e-11)``
-        relative to ``max(1, |z|)`` (the corrected iterate is the point), or, for a strongly
-        unstable orbit at its rounding floor (corrections no longer contracting), below
-        ``1e-9`` relative; at most 12 iterations."""
+        """The orbit exactly at the window edge between ``cur`` and ``new``."""
         eng = self.eng
         edge = eng.hi if new.p > eng.hi else eng.lo
-        N = cur.N
-        x_in = cur.u()
-        x_out = np.append((new.Z if new.N == N else cur.Z).ravel(), new.p)
-        D = cur.D(eng.Sp)
-        step_tol = max(self.st.tol, 1e-11)
-
-        def evaluate(u: np.ndarray) -> Evaluation | None:
-            try:
-                ev = eng.evaluate(u[:-1].reshape(N, 2), edge, gp=False)
-            except PerturbError:
-                return None
-            return Evaluation(ev.r, ev.Gz, np.zeros(ev.r.size), ev)
-
-        newton = Corrector(evaluate, scaled=False)
-
-        def correct(x0: np.ndarray, row: np.ndarray, target: float):
-            x0 = x0.copy()
-            x0[-1] = target
-            scale = max(1.0, float(np.max(np.abs(x0[:-1]))))
-
-            def accept(k: int, size: float, prev: float, e: Evaluation) -> bool:
-                dz = size * D[0]  # the node scales are one number; dp = 0
-                return dz <= step_tol * scale or (
-                    k > 0 and size > 0.25 * prev and dz <= 1e-9 * scale
-                )
-
-            return newton.correct(
-                x0, D, row, max_iter=12, accept=accept, anchor=np.where(row > 0, target, x0) / D
-            )
-
-        c = edge_point(correct, x_in, x_out, 2 * N, edge)
-        if c is None:
+        w = (edge - cur.p) / (new.p - cur.p)
+        Z = cur.Z + w * (new.Z - cur.Z) if new.N == cur.N else cur.Z
+        try:
+            q = self.solve_fixed(edge, Z, max_iter=12)
+        except ShootingError:
             return None
-        q = _Pt(edge, c.x[:-1])
-        eng.finish(q, c.evaluation.payload, c.x_evaluated[:-1].reshape(N, 2).copy(), edge)
         q.tangent = new.tangent if new.N == q.N else None
         if q.tangent is None:
             q.tangent = np.r_[new.tangent3()[:2], np.zeros(2 * q.N - 2), new.tangent3()[2]]

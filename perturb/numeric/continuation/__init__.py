@@ -101,7 +101,6 @@ from perturb.numeric.continuation.corrector import (
     Corrector,
     CountedProblem,
     Evaluation,
-    edge_point,
     newton_fixed,
     null_tangent,
 )
@@ -140,7 +139,6 @@ __all__ = [
     "Corrector",
     "Correction",
     "Evaluation",
-    "edge_point",
     "CountedProblem",
     "hermite_extrapolate",
     "hermite_direction",

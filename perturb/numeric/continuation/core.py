@@ -21,7 +21,6 @@ from perturb.numeric.continuation.corrector import (
     BorderedCorrector,
     Corrected,
     CountedProblem,
-    edge_point,
     newton_fixed,
     start_tangent,
 )
@@ -290,7 +289,10 @@ def _trace(
         lam_new = c.w[n] * sl
         if lam_new < lo or lam_new > hi:
             edge = lo if lam_new < lo else hi
-            ce = edge_point(tr.correct, w, c.w, n, edge / sl)
+            frac = (edge / sl - w[n]) / (c.w[n] - w[n])
+            e_row = np.zeros(n + 1)
+            e_row[n] = 1.0
+            ce = tr.correct(w + frac * (c.w - w), e_row, edge / sl)
             te = None if ce is None else tr.tangent(ce, t)
             if ce is not None and te is not None:
                 # accept first: the callback runs while the caller's cache holds the point

@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -26,8 +26,6 @@ from numpy.typing import ArrayLike
 from perturb.errors import ParameterError
 from perturb.numeric.continuation.curve import ContinuationError, Jacobian, Residual
 from perturb.numeric.roots import damped_newton, lu_or_lstsq
-
-T = TypeVar("T")
 
 __all__ = [
     "CountedProblem",
@@ -396,27 +394,6 @@ class Corrector:
                 return Correction(x, x_ev, ev, jl, z, k + 1, self.evaluations)
             prev = size
         return None
-
-
-def edge_point(
-    correct: Callable[[np.ndarray, np.ndarray, float], T],
-    x_in: np.ndarray,
-    x_out: np.ndarray,
-    index: int,
-    edge: float,
-) -> T:
-    """The point where a branch leaves the window: the curve at coordinate ``index`` equal
-    to ``edge``, between the last point inside ``x_in`` and the first outside ``x_out``.
-
-    The one window-exit correction of the continuation core and the exact response: the
-    linear interpolate of the two points at ``x[index] = edge`` is corrected by the caller's
-    bordered corrector ``correct(x0, row, target)`` with the border row ``e_index`` and the
-    target ``edge`` (the parameter held at the edge). Returns what ``correct`` returns (None
-    when it fails, by the caller's convention)."""
-    frac = (edge - x_in[index]) / (x_out[index] - x_in[index])
-    row = np.zeros(x_in.size)
-    row[index] = 1.0
-    return correct(x_in + frac * (x_out - x_in), row, edge)
 
 
 @dataclass(frozen=True, eq=False)
