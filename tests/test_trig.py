@@ -53,3 +53,23 @@ def test_rejects_non_harmonic_dependence():
         harmonics(sp.cos(psi / 2), psi)
     with pytest.raises(PerturbError):
         harmonics(psi * sp.cos(psi), psi)
+
+
+def test_folded_crossing_angle_keeps_the_given_assumptions():
+    """The single crossing angle left after folding is ``Symbol('theta', positive=True)`` as
+    given, not rebuilt from the inferred closure of its assumptions: the two print differently
+    and SymPy's cache would otherwise hand either spelling to later expressions, so a saved
+    derivation's text depended on what ran before it."""
+    import sympy as sp
+
+    from perturb.fourier.trig import fold_mirror_angles
+
+    A = sp.Symbol("A", positive=True)
+    t1, t2 = sp.Symbol("theta_1", positive=True), sp.Symbol("theta_2", positive=True)
+    exprs = (sp.sin(t1) + sp.sin(t2),)
+    defs = ((t1, sp.acos(1 / A)), (t2, sp.acos(-1 / A)))
+    out, new_defs = fold_mirror_angles(exprs, defs)
+    ((theta, value),) = new_defs
+    assert sp.srepr(theta) == "Symbol('theta', positive=True)"
+    assert value == sp.acos(1 / A)
+    assert all(s.name != "theta_2" for s in out[0].free_symbols)

@@ -177,7 +177,11 @@ def fold_mirror_angles(
         out.append(const + tidy)
     defs = tuple((s, values[s]) for s in left)
     if len(left) == 1 and left[0].name.startswith("theta_"):
-        theta = sp.Symbol("theta", **left[0].assumptions0)
+        # the assumptions as given (not the inferred closure assumptions0): an equal Symbol
+        # built from the closure prints differently, and SymPy's cache then hands either
+        # spelling to later expressions, so saved derivations would depend on call order
+        given = getattr(left[0], "_assumptions_orig", None) or left[0].assumptions0
+        theta = sp.Symbol("theta", **given)
         out = [e.xreplace({left[0]: theta}) for e in out]
         defs = ((theta, values[left[0]]),)
     return tuple(out), defs
