@@ -77,13 +77,13 @@ def finite(value: Any, what: str) -> float:
         Naming ``what``.
     """
     if isinstance(value, bool | str):
-        raise ParameterError(f"{what} = {value!r}: expected a finite number")
+        raise ParameterError(f"{what} = {value!r}: expected a finite real number")
     try:
         out = float(value)
     except (TypeError, ValueError):
-        raise ParameterError(f"{what} = {value!r}: expected a finite number") from None
+        raise ParameterError(f"{what} = {value!r}: expected a finite real number") from None
     if not math.isfinite(out):
-        raise ParameterError(f"{what} = {value!r}: expected a finite number")
+        raise ParameterError(f"{what} = {value!r}: expected a finite real number")
     return out
 
 
@@ -112,20 +112,26 @@ def whole(value: Any, what: str, low: int, high: int, why: str = "") -> int:
     return value
 
 
-def window(value: Any, what: str = "Omega") -> tuple[float, float]:
-    """``value`` as a window ``(low, high)`` of positive finite numbers with ``low < high``.
+def window(value: Any, what: str = "Omega", *, positive: bool = True) -> tuple[float, float]:
+    """``value`` as a window ``(low, high)`` of finite numbers with ``low < high`` (and
+    ``0 < low`` unless ``positive=False``: a frequency window is positive, a continuation
+    parameter's need not be).
 
     Raises
     ------
     ParameterError
-        Naming ``what``.
+        Naming ``what`` and the bad value.
     """
+    if isinstance(value, str | bytes):
+        raise ParameterError(f"{what} = {value!r}: expected two numbers (low, high)")
     try:
         lo, hi = (float(w) for w in value)
     except (TypeError, ValueError):
-        raise ParameterError(f"{what} = {value!r}: expected (low, high)") from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 < lo < hi):
-        raise ParameterError(f"{what} = {value!r}: expected 0 < low < high")
+        raise ParameterError(f"{what} = {value!r}: expected two numbers (low, high)") from None
+    if positive and not (math.isfinite(lo) and math.isfinite(hi) and 0.0 < lo < hi):
+        raise ParameterError(f"{what} = ({lo}, {hi}): expected 0 < low < high, both finite")
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        raise ParameterError(f"{what} = ({lo}, {hi}): expected finite low < high")
     return lo, hi
 
 

@@ -28,6 +28,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import sympy as sp
 
+from perturb import checks
 from perturb.approximation import Approximation
 from perturb.errors import ParameterError, PerturbError
 from perturb.fourier.coefficients import UNCHECKED
@@ -77,15 +78,7 @@ AtomValues = dict[int, np.ndarray]
 
 
 def _check_window(omega_range: Sequence[float]) -> tuple[float, float]:
-    try:
-        lo, hi = (float(w) for w in omega_range)
-    except (TypeError, ValueError):
-        raise ParameterError(
-            f"omega_range = {omega_range!r}: expected two numbers (low, high)"
-        ) from None
-    if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
-        raise ParameterError(f"omega_range = ({lo}, {hi}): expected 0 < low < high, both finite")
-    return lo, hi
+    return checks.window(omega_range, "omega_range")
 
 
 def _roots(c0: np.ndarray, c1: np.ndarray, c2: np.ndarray) -> tuple[np.ndarray, ...]:

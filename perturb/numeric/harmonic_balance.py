@@ -143,6 +143,7 @@ import numpy as np
 import sympy as sp
 from numpy.typing import ArrayLike
 
+from perturb import checks
 from perturb.errors import ModelError, ParameterError, PerturbError
 from perturb.fourier.projection import (
     CrossingIntervals,
@@ -1504,15 +1505,7 @@ class HarmonicBalanceBranch:
 
 
 def _check_window(window: Sequence[float]) -> tuple[float, float]:
-    try:
-        lo, hi = (float(w) for w in window)
-    except (TypeError, ValueError):
-        raise ParameterError(
-            f"Omega_window = {window!r}: expected two numbers (low, high)"
-        ) from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
-        raise ParameterError(f"Omega_window = ({lo}, {hi}): expected 0 < low < high, both finite")
-    return lo, hi
+    return checks.window(window, "Omega_window")
 
 
 def harmonic_balance_branch(

@@ -58,6 +58,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
+from perturb import checks
 from perturb.errors import ModelError, ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
 from perturb.progress import Progress
@@ -1352,12 +1353,7 @@ class BasinResult:
 
 
 def _grid_axis(name: str, rng: object, n: int) -> np.ndarray:
-    try:
-        lo, hi = (float(r) for r in rng)  # type: ignore[attr-defined]
-    except (TypeError, ValueError):
-        raise ParameterError(f"{name} = {rng!r}: expected (low, high)") from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
-        raise ParameterError(f"{name} = {rng!r}: expected finite low < high")
+    lo, hi = checks.window(rng, name, positive=False)
     if n == 1:
         return np.array([0.5 * (lo + hi)])
     # u = (2i - (n-1))/(n-1) is exactly antisymmetric (integer numerators, one rounding), so

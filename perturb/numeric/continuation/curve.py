@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from perturb import checks
 from perturb.errors import ParameterError, PerturbError
 
 __all__ = [
@@ -161,14 +162,9 @@ class ContinuationCurve:
 
 
 def check_window(window: Sequence[float]) -> tuple[float, float]:
-    """``(low, high)`` of a parameter window: two finite numbers, low < high."""
-    try:
-        lo, hi = (float(v) for v in window)
-    except (TypeError, ValueError):
-        raise ParameterError(f"window = {window!r}: expected two numbers (low, high)") from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-        raise ParameterError(f"window = ({lo}, {hi}): expected finite low < high")
-    return lo, hi
+    """``(low, high)`` of a parameter window: two finite numbers, low < high
+    (:func:`perturb.checks.window` with ``positive=False``)."""
+    return checks.window(window, "window", positive=False)
 
 
 def positive(name: str, value: float) -> float:

@@ -12,8 +12,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
-import numpy as np
-
+from perturb import checks
 from perturb.errors import ParameterError
 from perturb.model.oscillator import Oscillator
 from perturb.simulate.flows.factory import FlowFamily
@@ -138,13 +137,7 @@ def exact_options(
 
 
 def parameter_window(window: Sequence[float]) -> tuple[float, float]:
-    try:
-        lo, hi = (float(w) for w in window)
-    except (TypeError, ValueError):
-        raise ParameterError(f"window = {window!r}: expected (low, high)") from None
-    if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
-        raise ParameterError(f"window = {window!r}: expected finite (low, high) with low < high")
-    return lo, hi
+    return checks.window(window, "window", positive=False)
 
 
 def settings(ds_max: float, ds_min: float, tol: float, max_points: int, max_periods: float):

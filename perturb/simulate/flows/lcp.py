@@ -133,6 +133,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from perturb import checks
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
 from perturb.simulate.flows.piecewise_exact import EVENT_DRIVEN_HINT, PWLSystem
@@ -163,13 +164,7 @@ REFINED_STEP_PHASE = 0.25
 # validation helpers
 # --------------------------------------------------------------------------------------------
 def _finite(name: str, value: object) -> float:
-    try:
-        out = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise ParameterError(f"{name} = {value!r}: expected a finite real number") from None
-    if not math.isfinite(out):
-        raise ParameterError(f"{name} = {value!r}: expected a finite real number")
-    return out
+    return checks.finite(value, name)
 
 
 def _finite_array(name: str, value: ArrayLike, ndim: int) -> np.ndarray:

@@ -117,6 +117,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
+from perturb import checks
 from perturb.errors import ParameterError, PerturbError
 
 __all__ = [
@@ -156,13 +157,7 @@ EVENT_DRIVEN_HINT = (
 # validation helpers
 # --------------------------------------------------------------------------------------------
 def _finite_float(name: str, value: object) -> float:
-    try:
-        out = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise ParameterError(f"{name} = {value!r}: expected a finite real number") from None
-    if not math.isfinite(out):
-        raise ParameterError(f"{name} = {value!r}: expected a finite real number")
-    return out
+    return checks.finite(value, name)
 
 
 def _finite_vector(name: str, value: ArrayLike) -> np.ndarray:
