@@ -3,7 +3,7 @@ nsd frequency response at 1e-6 relative amplitude error.
 
 Reproduce with::
 
-    cd /work/main && OPENBLAS_NUM_THREADS=1 python benchmarks/bench_accuracy_per_second.py
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_accuracy_per_second.py
 
 Model: nsd, k = -0.5, mu = 0.05, F = 2, Omega from 0.3 to 2 (one branch, no folds).
 
@@ -86,10 +86,7 @@ def hb_error(osc, br, H: int, projection: str, exact: dict[float, list[float]]) 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.parse_args()
-    print(
-        "command: cd /work/main && OPENBLAS_NUM_THREADS=1 python "
-        "benchmarks/bench_accuracy_per_second.py"
-    )
+    print("command: OPENBLAS_NUM_THREADS=1 python benchmarks/bench_accuracy_per_second.py")
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     osc = builtin_model("nsd", **PARAMS)
     exact = reference(osc)

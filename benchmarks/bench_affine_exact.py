@@ -2,7 +2,7 @@
 
 Reproduce with::
 
-    cd /work/main && PYTHONPATH=. python benchmarks/bench_affine_exact.py
+    PYTHONPATH=. python benchmarks/bench_affine_exact.py
 
 System: the 2-DOF gap chain of tests/test_affine_exact.py — x1 on k1 = 1 to ground, x2 on
 k2 = 2, coupled by k12 = 0.3 and a two-sided gap (contact stiffness 4 once |x1 - x2| > 0.2),
@@ -37,7 +37,7 @@ from scipy.integrate import solve_ivp  # noqa: E402
 from perturb.model.affine import PiecewiseAffineSystem  # noqa: E402
 from perturb.simulate.flows.affine_exact import propagate  # noqa: E402
 
-COMMAND = "cd /work/main && PYTHONPATH=. python benchmarks/bench_affine_exact.py"
+COMMAND = "PYTHONPATH=. python benchmarks/bench_affine_exact.py"
 K1, K2, K12, C, KG, GAP, F, W = 1.0, 2.0, 0.3, 0.1, 4.0, 0.2, 0.6, 1.1
 NORMAL = (1.0, -1.0, 0.0, 0.0)
 

@@ -4,7 +4,7 @@ Reproduce with (the packages live in a separate venv; they are never a dependenc
 
     python -m venv /tmp/aftvenv --system-site-packages
     /tmp/aftvenv/bin/pip install pyharm-os harmonicbalance
-    cd /work/main && OPENBLAS_NUM_THREADS=1 /tmp/aftvenv/bin/python benchmarks/bench_aft_packages.py
+    OPENBLAS_NUM_THREADS=1 /tmp/aftvenv/bin/python benchmarks/bench_aft_packages.py
 
 Problem: nsd, x'' + 0.05 x' - 0.5 x + 1.5[(x-1)H(x-1) + (x+1)H(-x-1)] = 2 cos(W t), W from 2
 down to 0.3, H = 15.
@@ -225,8 +225,7 @@ def main() -> None:
     ap.add_argument("--timeout", type=float, default=60.0, help="seconds per package run")
     args = ap.parse_args()
     print(
-        "command: cd /work/main && OPENBLAS_NUM_THREADS=1 /tmp/aftvenv/bin/python "
-        "benchmarks/bench_aft_packages.py"
+        "command: OPENBLAS_NUM_THREADS=1 /tmp/aftvenv/bin/python benchmarks/bench_aft_packages.py"
     )
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     import perturb

@@ -2,7 +2,7 @@
 
 Reproduce with::
 
-    cd /work/main && PYTHONPATH=. python benchmarks/bench_continuation.py
+    PYTHONPATH=. python benchmarks/bench_continuation.py
 
 Model: x'' + mu x' + kx + (1-k)[(x-1)H(x-1) + (x+1)H(-x-1)] = F cos(W t), k = -3, mu = 0.05,
 F = 2, W in [0.2, 2] (Zou-Nagarajaiah Fig. 17d), all branches at 0.5 % output spacing
@@ -118,7 +118,7 @@ def main() -> None:
     ap.add_argument("--profile", action="store_true", help="cProfile the default run")
     args = ap.parse_args()
     os.environ.setdefault("PERTURB_PROGRESS", "0")
-    print("command: cd /work/main && PYTHONPATH=. python benchmarks/bench_continuation.py")
+    print("command: PYTHONPATH=. python benchmarks/bench_continuation.py")
     print(
         f"python {platform.python_version()}, numpy {np.__version__}, scipy {scipy.__version__}, "
         f"{os.cpu_count()} cpus, load average {os.getloadavg()[0]:.2f} (1 min)"

@@ -2,7 +2,7 @@
 
 Reproduce with::
 
-    cd /work/main && python benchmarks/bench_frequency_response.py --repeat 21
+    python benchmarks/bench_frequency_response.py --repeat 21
 
 Model: Zou-Nagarajaiah nsd, k = -3, mu = 0.05, F = 2, Omega in [0.2, 2] (Fig. 17d: the response
 has a detached loop). ``modified_lindstedt(osc, 1)`` is derived once; the response is traced
@@ -304,7 +304,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=7)
     args = ap.parse_args()
-    cmd = "cd /work/main && python benchmarks/bench_frequency_response.py"
+    cmd = "python benchmarks/bench_frequency_response.py"
     print(f"command: {cmd} --repeat {args.repeat}")
     load0 = os.getloadavg()
     print(

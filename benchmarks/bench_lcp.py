@@ -2,7 +2,7 @@
 
 Reproduce with::
 
-    cd /work/main && PYTHONPATH=. python benchmarks/bench_lcp.py
+    PYTHONPATH=. python benchmarks/bench_lcp.py
 
 Model: x'' + mu x' + kx + (1-k)[(x-1)H(x-1) + (x+1)H(-x-1)] = F cos(W t), k = -2, mu = 0.05,
 F = 2, W = 0.6, 100 forcing periods, two starts: from rest (the transient passes the saddle and
@@ -28,7 +28,7 @@ import scipy
 from perturb.simulate.flows.lcp import simulate_lcp
 from perturb.simulate.flows.piecewise_exact import PWLSystem, propagate
 
-COMMAND = "cd /work/main && PYTHONPATH=. python benchmarks/bench_lcp.py"
+COMMAND = "PYTHONPATH=. python benchmarks/bench_lcp.py"
 
 
 def nsd(k: float = -2.0, mu: float = 0.05, F: float = 2.0, W: float = 0.6) -> PWLSystem:

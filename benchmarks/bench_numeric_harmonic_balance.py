@@ -2,7 +2,7 @@
 
 Reproduce with::
 
-    cd /work/main && PYTHONPATH=. python benchmarks/bench_numeric_harmonic_balance.py
+    PYTHONPATH=. python benchmarks/bench_numeric_harmonic_balance.py
 
 Model: x'' + mu x' + kx + (1-k)[(x-1)H(x-1) + (x+1)H(-x-1)] = F cos(W t), k = -0.5, mu = 0.05,
 F = 2, W from 0.3 to 2.
@@ -134,9 +134,7 @@ def main() -> None:
     ap.add_argument("--no-table", action="store_true", help="skip the error table")
     args = ap.parse_args()
     repeat = max(3, args.repeat)
-    print(
-        "command: cd /work/main && PYTHONPATH=. python benchmarks/bench_numeric_harmonic_balance.py"
-    )
+    print("command: PYTHONPATH=. python benchmarks/bench_numeric_harmonic_balance.py")
     print(
         f"python {platform.python_version()}, numpy {np.__version__}, scipy {scipy.__version__}, "
         f"{platform.machine()}, {sys.platform}, load average {os.getloadavg()[0]:.1f} on "

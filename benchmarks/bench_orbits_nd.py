@@ -2,7 +2,7 @@
 
 Reproduce with::
 
-    cd /work/main && PYTHONPATH=. python benchmarks/bench_orbits_nd.py [--repeat 10]
+    PYTHONPATH=. python benchmarks/bench_orbits_nd.py [--repeat 10]
 
 Three comparisons, all timed in this one process (median and minimum of the runs, wall and
 CPU), each run with a fresh flow (no trajectory or region data reused across runs):
@@ -93,7 +93,7 @@ def main() -> None:
     ap.add_argument("--repeat-ode", type=int, default=3, help="timed runs of DOP853 shooting")
     args = ap.parse_args()
     rep, rep_ode = max(3, args.repeat), max(1, args.repeat_ode)
-    print("command: cd /work/main && PYTHONPATH=. python benchmarks/bench_orbits_nd.py")
+    print("command: PYTHONPATH=. python benchmarks/bench_orbits_nd.py")
     print(
         f"python {platform.python_version()}, numpy {np.__version__}, scipy {scipy.__version__}, "
         f"{platform.machine()}, {sys.platform}, load average {os.getloadavg()[0]:.1f} on "

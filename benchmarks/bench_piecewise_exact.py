@@ -2,7 +2,7 @@
 
 Reproduce with::
 
-    cd /work/main && PYTHONPATH=. python benchmarks/bench_piecewise_exact.py
+    PYTHONPATH=. python benchmarks/bench_piecewise_exact.py
 
 Model: x'' + mu x' + kx + (1-k)[(x-1)H(x-1) + (x+1)H(-x-1)] = F cos(W t), k = -2, mu = 0.05,
 F = 2, W = 0.6, from rest, 100 forcing periods.  The reference is DOP853 at rtol = atol = 1e-12
@@ -32,7 +32,7 @@ from scipy.integrate import solve_ivp
 
 from perturb.simulate.flows.piecewise_exact import PWLSystem, propagate
 
-COMMAND = "cd /work/main && PYTHONPATH=. python benchmarks/bench_piecewise_exact.py"
+COMMAND = "PYTHONPATH=. python benchmarks/bench_piecewise_exact.py"
 
 
 def nsd(k: float = -2.0, mu: float = 0.05, F: float = 2.0, W: float = 0.6) -> PWLSystem:

@@ -4,7 +4,7 @@ frequency response.
 
 Reproduce with::
 
-    cd /work/main && python benchmarks/bench_scaling.py            # everything, ~10 min
+    python benchmarks/bench_scaling.py            # everything, ~10 min
     python benchmarks/bench_scaling.py --only orders --max-order 3  # a subset
 
 Parts

@@ -2,7 +2,7 @@
 
 Reproduce with::
 
-    cd /work/main && OPENBLAS_NUM_THREADS=1 python benchmarks/bench_scaling_hb.py
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_scaling_hb.py
 
 Model: nsd, k = -0.5, mu = 0.05, F = 2, at Omega = 0.9 (a stable orbit crossing |x| = 1
 twice per half period), exact Galerkin projection. For H = 1, 3, 7, 15, 31, 63, 127 (n = 2H + 1
@@ -76,7 +76,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
-    print("command: cd /work/main && OPENBLAS_NUM_THREADS=1 python benchmarks/bench_scaling_hb.py")
+    print("command: OPENBLAS_NUM_THREADS=1 python benchmarks/bench_scaling_hb.py")
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     osc = builtin_model("nsd", k=-0.5, mu=0.05, F=2.0, Omega=W)
     rows = []

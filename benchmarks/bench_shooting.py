@@ -2,7 +2,7 @@
 
 Reproduce with::
 
-    cd /work/main && PYTHONPATH=. python benchmarks/bench_shooting.py
+    PYTHONPATH=. python benchmarks/bench_shooting.py
 
 Model: x'' + mu x' + kx + (1-k)[(x-1)H(x-1) + (x+1)H(-x-1)] = F cos(W t), k = -2, mu = 0.05,
 F = 2, W = 0.6 (Zou-Nagarajaiah Fig. 5).  The orbit is the stable large orbit (amplitude ~9.52);
@@ -63,7 +63,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=30, help="timed runs per variant (>= 20)")
     args = ap.parse_args()
     repeat = max(20, args.repeat)
-    print("command: cd /work/main && PYTHONPATH=. python benchmarks/bench_shooting.py")
+    print("command: PYTHONPATH=. python benchmarks/bench_shooting.py")
     print(
         f"python {platform.python_version()}, numpy {np.__version__}, scipy {scipy.__version__}, "
         f"{platform.machine()}, {sys.platform}, load average {os.getloadavg()[0]:.1f} on "

@@ -2,7 +2,7 @@
 
 Reproduce with::
 
-    cd /work/main && python benchmarks/work_precision.py --out out/bench
+    python benchmarks/work_precision.py --out out/bench
 
 (the same as ``perturb bench --out out/bench``; measured 231 s wall, 246 s CPU at load
 1.1-1.6 on 2 cores, 697 s wall / 285 s CPU at load 3-10; ``--fast`` for one run per method
