@@ -22,6 +22,7 @@ heavy import.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import sys
@@ -165,3 +166,48 @@ def _is_real(value: Any) -> bool:
         return float(value) == value and not isinstance(value, str | bytes | complex)
     except (TypeError, ValueError, OverflowError):
         return False
+
+
+def options_with(
+    cls: type,
+    options: Any,
+    knobs: dict[str, Any],
+    where: str,
+    allowed: frozenset[str] | None = None,
+    default: Any = None,
+    hint: str = "",
+) -> Any:
+    """An options dataclass ``cls`` with the keyword arguments ``knobs`` in place of its
+    fields: the one rule of every options object (``options=`` or its fields as keywords,
+    a keyword overriding the object's field).
+
+    Parameters
+    ----------
+    options
+        A ``cls`` instance, or None for ``default`` (``cls()`` when not given).
+    allowed
+        The fields ``where`` takes as keywords (default: all of them).
+    hint
+        Appended to the message about an unknown keyword (other arguments ``where`` takes).
+
+    Raises
+    ------
+    ParameterError
+        ``options`` not a ``cls``, or a keyword that is no allowed field, naming it.
+    """
+    if options is None:
+        options = cls() if default is None else default
+    elif not isinstance(options, cls):
+        raise ParameterError(
+            f"{where}: options = {options!r}: expected a {cls.__name__} (or its fields as keywords)"
+        )
+    if not knobs:
+        return options
+    fields = frozenset(cls.__dataclass_fields__) if allowed is None else allowed
+    unknown = sorted(set(knobs) - fields)
+    if unknown:
+        raise ParameterError(
+            f"{where}: unknown option(s) {', '.join(unknown)}; expected "
+            f"{', '.join(sorted(fields))}{hint}"
+        )
+    return dataclasses.replace(options, **knobs)

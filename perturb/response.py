@@ -188,3 +188,23 @@ def responses_to_csv(
 
         write_text(path, text)
     return text
+
+
+def covering_window(targets: Sequence[float]) -> tuple[float, float]:
+    """A window 2 % wider than the requested frequencies ``targets`` on both sides, so that a
+    branch crossing the extreme ones is traced through them, not stopped on them."""
+    lo, hi = min(targets), max(targets)
+    return lo * (1 - 0.02), hi * (1 + 0.02)
+
+
+def polyline_crossings(omega: Sequence[float], targets: Sequence[float]) -> list[tuple[float, int]]:
+    """``(target, j)`` for every segment ``j`` of a branch's polyline in Omega that a target
+    frequency lies on (a frequency hit exactly by a point counts once)."""
+    out = []
+    n = len(omega)
+    for j in range(max(n - 1, 0)):
+        lo, hi = sorted((float(omega[j]), float(omega[j + 1])))
+        for w in targets:
+            if lo <= w <= hi and not (w == float(omega[j + 1]) and j + 1 < n - 1):
+                out.append((w, j))
+    return out

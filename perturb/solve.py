@@ -406,26 +406,6 @@ def _exact(
     return exact_frequency_response(oscillator, Omega, **options)
 
 
-def _covering_window(targets: Sequence[float]) -> tuple[float, float]:
-    """A window a little wider than the requested frequencies, so that a branch crossing
-    the extreme ones is traced through them, not stopped on them."""
-    lo, hi = min(targets), max(targets)
-    return lo * (1 - 0.02), hi * (1 + 0.02)
-
-
-def _crossings(omega: Any, targets: Sequence[float]) -> list[tuple[float, int]]:
-    """``(target, j)`` for every segment ``j`` of a polyline in Omega that a target lies on
-    (a frequency hit exactly by a point counts once)."""
-    out = []
-    n = len(omega)
-    for j in range(max(n - 1, 0)):
-        lo, hi = sorted((float(omega[j]), float(omega[j + 1])))
-        for w in targets:
-            if lo <= w <= hi and not (w == float(omega[j + 1]) and j + 1 < n - 1):
-                out.append((w, j))
-    return out
-
-
 def _hb_solutions_at(
     oscillator: Oscillator, targets: list[float], harmonics: int, options: dict[str, Any]
 ) -> Response:
@@ -440,13 +420,13 @@ def _hb_solutions_at(
         harmonic_balance_branches,
         harmonic_balance_orbit,
     )
-    from perturb.response import Branch, Response
+    from perturb.response import Branch, Response, covering_window, polyline_crossings
 
     opts = dict(options)
     all_branches = bool(opts.pop("all_branches", True))
     system_keys = ("m", "odd_only", "projection", "samples")
     orbit_opts = {k: opts[k] for k in (*system_keys, "stability", "tol") if k in opts}
-    window = _covering_window(targets)
+    window = covering_window(targets)
     seeds = opts.pop("seeds", None)
     if all_branches:
         found = harmonic_balance_branches(
@@ -459,7 +439,7 @@ def _hb_solutions_at(
     seen: dict[float, list[np.ndarray]] = {w: [] for w in wanted}
     for bi, br in enumerate(found):
         rows = []
-        for w, j in _crossings(br.omega, wanted):
+        for w, j in polyline_crossings(br.omega, wanted):
             w0, w1 = float(br.omega[j]), float(br.omega[j + 1])
             t = 0.0 if w1 == w0 else (w - w0) / (w1 - w0)
             guess = (1 - t) * br.coefficients[j] + t * br.coefficients[j + 1]

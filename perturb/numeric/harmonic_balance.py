@@ -258,21 +258,7 @@ def _options(
     allowed: frozenset[str],
     where: str,
 ) -> HarmonicBalanceOptions:
-    """``options`` (default: the defaults) with the keyword arguments ``knobs`` of ``where``
-    in place of its fields; only the fields ``allowed`` may be given as keywords."""
-    if options is None:
-        options = HarmonicBalanceOptions()
-    elif not isinstance(options, HarmonicBalanceOptions):
-        raise ParameterError(
-            f"{where}: options = {options!r}: expected a HarmonicBalanceOptions (or keywords)"
-        )
-    unknown = sorted(set(knobs) - allowed)
-    if unknown:
-        raise ParameterError(
-            f"{where}: unknown option(s) {', '.join(unknown)}; "
-            f"expected {', '.join(sorted(allowed))}"
-        )
-    return replace(options, **knobs) if knobs else options
+    return checks.options_with(HarmonicBalanceOptions, options, knobs, where, allowed)
 
 
 #: Grid points per highest harmonic for the extrema of x (refined by Newton afterwards).

@@ -51,7 +51,7 @@ from perturb.numeric.amplitude import (
 )
 from perturb.numeric.compile import bind_parameters, lambdify
 from perturb.numeric.continuation import ContinuationError, continue_curve
-from perturb.response import Branch, Response
+from perturb.response import Branch, Response, covering_window, polyline_crossings
 
 __all__ = ["residual_response", "residual_solutions_at", "ResidualSystem"]
 
@@ -682,26 +682,6 @@ def _branch(approx, sys_, wave: Waveform, U: np.ndarray, w: np.ndarray, stabilit
     )
 
 
-def _covering_window(targets: Sequence[float]) -> tuple[float, float]:
-    """A window a little wider than the requested frequencies, so that a branch crossing
-    the extreme ones is traced through them, not stopped on them."""
-    lo, hi = min(targets), max(targets)
-    return lo * (1 - 0.02), hi * (1 + 0.02)
-
-
-def _crossings(omega: Sequence[float], targets: Sequence[float]) -> list[tuple[float, int]]:
-    """``(target, j)`` for every segment ``j`` of a polyline in Omega that a target lies on
-    (a frequency hit exactly by a point counts once)."""
-    out = []
-    n = len(omega)
-    for j in range(max(n - 1, 0)):
-        lo, hi = sorted((float(omega[j]), float(omega[j + 1])))
-        for w in targets:
-            if lo <= w <= hi and not (w == float(omega[j + 1]) and j + 1 < n - 1):
-                out.append((w, j))
-    return out
-
-
 def residual_solutions_at(
     approximation: Approximation, frequencies: Sequence[float], **options
 ) -> Response:
@@ -743,7 +723,7 @@ def residual_solutions_at(
     if isinstance(approx, Approximation) and _is_general(_polar(approx)):
         # validate the options as the tracer does (it raises on a bad one), then solve
         return _general_solutions_at(approx, targets, **options)
-    window = _covering_window(targets)
+    window = covering_window(targets)
     traced = residual_response(approx, window, **options)
     stability = options.get("stability", "hill")
     max_correction = float(options.get("max_correction", 1.0))
@@ -803,7 +783,7 @@ def residual_solutions_at(
         for ww, a in zip(br.omega, br.amplitude, strict=True):
             got[float(ww)].append(float(a))
     for bi, br in enumerate(traced.branches):
-        for w, j in _crossings(br.omega, list(wanted)):
+        for w, j in polyline_crossings(br.omega, list(wanted)):
             w0, w1 = float(br.omega[j]), float(br.omega[j + 1])
             t = 0.0 if w1 == w0 else (w - w0) / (w1 - w0)
             a = (1 - t) * float(br.amplitude[j]) + t * float(br.amplitude[j + 1])
@@ -1227,7 +1207,7 @@ def _general_solutions_at(approx: Approximation, targets: list[float], **options
     traced over a covering window and every solution at each requested frequency is found by
     Newton from the traced curve where it crosses the frequency and from the seeding grid
     there."""
-    window = _covering_window(targets)
+    window = covering_window(targets)
     unknown = sorted(set(options) - set(_TRACER_DEFAULTS))
     if unknown:
         raise ParameterError(
@@ -1262,7 +1242,7 @@ def _general_solutions_at(approx: Approximation, targets: list[float], **options
     starts_u, starts_w = [], []
     crossing_count = 0
     for u_c, w_c, _ in curves:
-        for w, j in _crossings(w_c, list(wanted)):
+        for w, j in polyline_crossings(w_c, list(wanted)):
             w0, w1 = float(w_c[j]), float(w_c[j + 1])
             t = 0.0 if w1 == w0 else (w - w0) / (w1 - w0)
             starts_u.append((1 - t) * u_c[j] + t * u_c[j + 1])

@@ -34,13 +34,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
+from perturb import checks
 from perturb.errors import ParameterError
 
 __all__ = [
@@ -488,24 +489,16 @@ _DEFAULT_NEWTON = NewtonOptions()
 
 
 def _newton_options(options: NewtonOptions | None, knobs: dict[str, Any]) -> NewtonOptions:
-    """``options`` (default: the defaults) with the keyword arguments ``knobs`` in place of
-    its fields; an unknown keyword is a ParameterError naming it."""
-    if options is None:
-        options = _DEFAULT_NEWTON
-    elif not isinstance(options, NewtonOptions):
-        raise ParameterError(
-            f"damped_newton: options = {options!r}: expected a NewtonOptions (or keywords)"
-        )
-    if not knobs:
-        return options
-    unknown = sorted(set(knobs) - _NEWTON_FIELDS)
-    if unknown:
-        raise ParameterError(
-            f"damped_newton: unknown keyword argument(s) {', '.join(unknown)}; expected "
-            f"{', '.join(sorted(_NEWTON_FIELDS))} (fields of NewtonOptions) or jac, options, "
-            "merit, modify_step, admissible, bounds, solve, catch"
-        )
-    return replace(options, **knobs)
+    return checks.options_with(
+        NewtonOptions,
+        options,
+        knobs,
+        "damped_newton",
+        _NEWTON_FIELDS,
+        default=_DEFAULT_NEWTON,
+        hint=" (fields of NewtonOptions) or jac, options, merit, modify_step, admissible, "
+        "bounds, solve, catch",
+    )
 
 
 def damped_newton(

@@ -51,7 +51,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Literal
 
@@ -200,21 +200,7 @@ class BasinOptions:
 
 
 def _options(cls: type, options: Any, knobs: dict[str, Any], where: str) -> Any:
-    """``options`` (default: ``cls()``) with the keyword arguments ``knobs`` of ``where`` in
-    place of its fields; a keyword that is no field of ``cls`` is refused by name."""
-    if options is None:
-        options = cls()
-    elif not isinstance(options, cls):
-        raise ParameterError(
-            f"{where}: options = {options!r}: expected a {cls.__name__} (or its fields as keywords)"
-        )
-    fields = cls.__dataclass_fields__
-    unknown = sorted(set(knobs) - set(fields))
-    if unknown:
-        raise ParameterError(
-            f"{where}: unknown option(s) {', '.join(unknown)}; expected {', '.join(fields)}"
-        )
-    return replace(options, **knobs) if knobs else options
+    return checks.options_with(cls, options, knobs, where)
 
 
 _TWO_PI = 2.0 * math.pi

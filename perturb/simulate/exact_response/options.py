@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 from perturb import checks
@@ -119,21 +119,9 @@ def exact_options(
     allowed: frozenset[str],
     where: str,
 ) -> ExactResponseOptions:
-    """``options`` (default: the defaults) with the keyword arguments ``knobs`` of ``where``
-    in place of its fields; only the fields ``allowed`` may be given as keywords."""
-    if options is None:
-        options = ExactResponseOptions()
-    elif not isinstance(options, ExactResponseOptions):
-        raise ParameterError(
-            f"{where}: options = {options!r}: expected an ExactResponseOptions (or keywords)"
-        )
-    unknown = sorted(set(knobs) - allowed)
-    if unknown:
-        raise ParameterError(
-            f"{where}: unknown option(s) {', '.join(unknown)}; "
-            f"expected {', '.join(sorted(allowed))}"
-        )
-    return replace(options, **knobs) if knobs else options
+    """``options`` with the keywords ``knobs`` of ``where`` in place of its fields
+    (:func:`perturb.checks.options_with`); only the fields ``allowed`` may be keywords."""
+    return checks.options_with(ExactResponseOptions, options, knobs, where, allowed)
 
 
 def parameter_window(window: Sequence[float]) -> tuple[float, float]:
