@@ -12,6 +12,7 @@ import math
 import numpy as np
 import pytest
 
+from perturb.errors import ParameterError
 from perturb.numeric.continuation import (
     ContinuationOptions,
     Corrector,
@@ -59,7 +60,7 @@ def test_options_object_and_keywords_trace_the_same_curve():
 
 
 def test_unknown_keyword_and_bad_options_are_refused():
-    with pytest.raises(TypeError, match="ds_maximum"):
+    with pytest.raises(ParameterError, match="ds_maximum"):
         continue_curve(circle, circle_jac, [1.0], 0.0, (-2.0, 2.0), ds_maximum=0.1)
     with pytest.raises(Exception, match="ContinuationOptions"):
         continue_curve(circle, circle_jac, [1.0], 0.0, (-2.0, 2.0), {"ds_max": 0.1})

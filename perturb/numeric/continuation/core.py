@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from perturb import checks
 from perturb.errors import ParameterError
 from perturb.numeric.continuation.corrector import (
     BorderedCorrector,
@@ -164,23 +165,16 @@ def continue_curve(
 
     Raises
     ------
-    TypeError
-        For a keyword that is not an option.
     ParameterError
-        For a bad window, a start outside it, non-positive step settings, a bad direction or
+        For a keyword that is not an option, ``options`` not a ContinuationOptions, a bad
+        window, a start outside it, non-positive step settings, a bad direction or
         callables returning wrong shapes.
     ContinuationError
         When the start cannot be corrected onto the curve.
     """
-    unknown = sorted(set(keywords) - _OPTION_NAMES)
-    if unknown:
-        raise TypeError(f"continue_curve() got unexpected keyword arguments: {unknown}")
-    if options is None:
-        options = ContinuationOptions(**keywords)
-    elif not isinstance(options, ContinuationOptions):
-        raise ParameterError(f"options = {options!r}: expected a ContinuationOptions")
-    elif keywords:
-        options = dataclasses.replace(options, **keywords)
+    options = checks.options_with(
+        ContinuationOptions, options, keywords, "continue_curve", _OPTION_NAMES
+    )
     return _trace(residual, jacobian, u0, lam0, window, options)
 
 
