@@ -732,3 +732,29 @@ def test_pool_workers_die_with_a_killed_parent(tmp_path):
             os.killpg(job.pid, signal.SIGKILL)
         except (ProcessLookupError, PermissionError):
             pass
+
+
+def test_swept_dead_zone_breakpoint_matches_the_closed_form_peak():
+    # Sweeping a breakpoint (d) leaves its order against the other breakpoint undecidable
+    # with d symbolic, so each cell derives its own balance. The single-harmonic balance of
+    # x'' + mu x' + k1 x + k2 (x - sat_d(x)) = F cos(Omega t) has, for A > d, the equivalent
+    # stiffness k_eq(A) = k1 + k2 [1 - (2/pi)(asin(d/A) + (d/A) sqrt(1 - (d/A)^2))], and
+    # the amplitude equation [(k_eq - W)^2 + mu^2 W] A^2 = F^2 (W = Omega^2) peaks at
+    # W = k_eq - mu^2/2, where A^2 mu^2 (k_eq - mu^2/4) = F^2 (derived here, not by perturb)
+    from scipy.optimize import brentq
+
+    text = '[model]\nname = "deadzone"\n[ask]\nomega = [0.5, 2.0]\n'
+    scene = ps.SweepScene(parse_scene(text), "peak_amplitude", "approximation")
+    ds = ps.sweep(scene, {"d": [0.5, 1.0]}, "serial")
+    assert not ds.failed.any()
+    k1, k2, mu, F = 0.1, 1.0, 0.05, 0.5
+    for d in (0.5, 1.0):
+
+        def k_eq(A, d=d):
+            r = d / A
+            return k1 + k2 * (1 - (2 / math.pi) * (math.asin(r) + r * math.sqrt(1 - r * r)))
+
+        A = brentq(lambda A: A * A * mu * mu * (k_eq(A) - mu * mu / 4) - F * F, d, 1e3, xtol=1e-14)
+        cell = ds.sel(d=d)
+        assert float(cell.peak_amplitude) == pytest.approx(A, rel=1e-9)
+        assert float(cell.peak_omega) == pytest.approx(math.sqrt(k_eq(A) - mu * mu / 2), rel=1e-6)

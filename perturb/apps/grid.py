@@ -549,17 +549,44 @@ class ApproximationKernel:
     SCAN = np.geomspace(1e-8, 1e8, 2000)
 
     def __init__(self, spec: Mapping[str, Any]) -> None:
+        from perturb.errors import NonsmoothError
         from perturb.methods.registry import spec as method_spec
         from perturb.model.parsing import real_symbol
-        from perturb.numeric.amplitude import compile_response
+        from perturb.simulate.flows.system import frequency_symbol
 
         self.spec = spec
         self.names = list(spec["swept"])
         osc = _spec_oscillator(spec)
         _check_swept(osc, self.names, frequency_ok=False)
         free = osc.with_params({n: None for n in self.names})
-        method = spec["method"]
-        approx = method_spec(method).resolve()(free)
+        self._free = free
+        self._method = spec["method"]
+        self._cells: dict[tuple[float, ...], Any] = {}
+        try:
+            approx = method_spec(self._method).resolve()(free)
+        except NonsmoothError:
+            # A swept breakpoint (a dead zone's d, a clearance): with the parameter left
+            # symbolic the order of the breakpoints is undecidable, so the Fourier coefficients
+            # cannot be written once for the whole grid. Each cell then derives and compiles
+            # its own (slower, and still exact).
+            sym = frequency_symbol(free)
+            if sym is None:
+                raise
+            self.solver = None
+            self.frequency_name = sym.name
+        else:
+            self.solver = self._compile(approx, [real_symbol(n) for n in self.names])
+            self.frequency_name = approx.frequency.name
+        self._force = _ForceRange(free, self.names)
+        self.window = (float(spec["omega"][0]), float(spec["omega"][1]))
+        self.quantity = spec["quantity"]
+        self.options = spec["options"]
+        if self.quantity == "frequency_response":
+            self.omegas = np.linspace(*self.window, self.options["omega_points"])
+
+    def _compile(self, approx: Any, syms: Sequence[Any]) -> Any:
+        from perturb.numeric.amplitude import compile_response
+
         if (
             approx.frequency_polynomial is None
             or approx.amplitude is None
@@ -567,19 +594,28 @@ class ApproximationKernel:
             or len(approx.frequency_polynomial) > 3
         ):
             raise PerturbError(
-                f"method {method!r} gives no amplitude equation of degree <= 2 in Omega^2 with "
-                "an amplitude and a phase: use hb1, shb, kb, ms or mlp, or solver = 'simulation'"
+                f"method {self._method!r} gives no amplitude equation of degree <= 2 in "
+                "Omega^2 with an amplitude and a phase: use hb1, shb, kb, ms or mlp, or "
+                "solver = 'simulation'"
             )
-        syms = [real_symbol(n) for n in self.names]
         # no stability is computed: "slow_flow" only asks for a valid approximation
-        self.solver = compile_response(approx, "slow_flow", parameters=syms)
-        self._force = _ForceRange(free, self.names)
-        self.window = (float(spec["omega"][0]), float(spec["omega"][1]))
-        self.quantity = spec["quantity"]
-        self.options = spec["options"]
-        self.frequency_name = approx.frequency.name
-        if self.quantity == "frequency_response":
-            self.omegas = np.linspace(*self.window, self.options["omega_points"])
+        return compile_response(approx, "slow_flow", parameters=list(syms))
+
+    def _solver(self, p: Sequence[float]) -> tuple[Any, tuple[float, ...]]:
+        """The compiled response for the swept values ``p`` and the arguments it takes."""
+        if self.solver is not None:
+            return self.solver, tuple(p)
+        from perturb.methods.registry import spec as method_spec
+
+        key = tuple(float(v) for v in p)
+        solver = self._cells.get(key)
+        if solver is None:
+            cell = self._free.with_params(dict(zip(self.names, key, strict=True)))
+            solver = self._compile(method_spec(self._method).resolve()(cell), [])
+            if len(self._cells) >= 64:  # a worker sees one chunk of cells: keep a few
+                self._cells.pop(next(iter(self._cells)))
+            self._cells[key] = solver
+        return solver, ()
 
     def schema(self) -> dict[str, tuple[tuple[str, ...], dict[str, np.ndarray]]]:
         """Per output: its dimensions beyond the grid's and their coordinates."""
@@ -597,7 +633,8 @@ class ApproximationKernel:
         return {name: ((), {}) for name in _PEAK_VARS}
 
     def _in_window(self, a: np.ndarray, p: Sequence[float]) -> tuple[np.ndarray, ...]:
-        wlo, whi, in_lo, in_hi = self.solver.window_roots(a, *self.window, *p)
+        solver, q = self._solver(p)
+        wlo, whi, in_lo, in_hi = solver.window_roots(a, *self.window, *q)
         return in_lo, in_hi, wlo, whi
 
     def peak(self, p: Sequence[float]) -> dict[str, float]:
@@ -636,7 +673,8 @@ class ApproximationKernel:
         lo_ok, hi_ok, wlo, whi = self._in_window(arr, p)
         W = float(wlo[0] if lo_ok[0] else whi[0])
         w = math.sqrt(W)
-        xmin, xmax = self.solver.extremes(arr, np.array([w]), *p)
+        solver, q = self._solver(p)
+        xmin, xmax = solver.extremes(arr, np.array([w]), *q)
         lo_x, hi_x = float(xmin[0]), float(xmax[0])
         return {
             "peak_amplitude": max(abs(lo_x), abs(hi_x)),
@@ -651,12 +689,13 @@ class ApproximationKernel:
         nw, S = self.omegas.size, self.options["max_solutions"]
         # no search for root pairs between two scan points: it would cost several times the
         # rest of a cell
-        iw, roots = self.solver.roots_at(self.omegas, *p, points=self.SCAN.size, pairs=False)
+        solver, q = self._solver(p)
+        iw, roots = solver.roots_at(self.omegas, *q, points=self.SCAN.size, pairs=False)
         amp = np.full((nw, S), np.nan)
         first = np.full((nw, S), np.nan)
         count = np.zeros(nw)
         if roots.size:
-            xmin, xmax = self.solver.extremes(roots, self.omegas[iw], *p)
+            xmin, xmax = solver.extremes(roots, self.omegas[iw], *q)
             size = np.maximum(np.abs(xmin), np.abs(xmax))
             for j in range(nw):
                 sel = np.flatnonzero(iw == j)
