@@ -60,29 +60,41 @@ Models
 
 from __future__ import annotations
 
+import math
+import re
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
-from perturb.errors import ModelError
+from perturb.errors import ModelError, ParameterError
 
 if TYPE_CHECKING:
     from perturb.model.system import System
 
-__all__ = ["SystemSpec", "BUILTIN_SYSTEMS", "builtin_system"]
+__all__ = [
+    "SystemSpec",
+    "BUILTIN_SYSTEMS",
+    "builtin_system",
+    "builtin_outputs",
+    "mount_system",
+    "mount_outputs",
+]
 
 
 @dataclass(frozen=True)
 class SystemSpec:
     """A named builtin system: equations (one per coordinate / first-order state), stops as
-    ``(name, combination, lower, upper)`` text, default parameter values, a description."""
+    ``(name, combination, lower, upper)`` text, default parameter values, a description, and
+    named outputs (expression text in the states and parameters, e.g. the mount's chamber
+    pressures, for :func:`perturb.simulate.step_response.step_response`)."""
 
     name: str
     equations: tuple[str, ...]
     defaults: Mapping[str, float]
     description: str
     stops: tuple[tuple[str, str, str, str], ...] = ()
+    outputs: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
 
     def build(self, **params: Any) -> System:
         """The model as a :class:`~perturb.model.system.System` (defaults overridden)."""
@@ -93,8 +105,15 @@ class SystemSpec:
         return System.parse(self.equations, values, name=self.name, elements=elements)
 
 
-def _spec(name, equations, defaults, description, stops=()) -> SystemSpec:
-    return SystemSpec(name, tuple(equations), MappingProxyType(defaults), description, stops)
+def _spec(name, equations, defaults, description, stops=(), outputs=None) -> SystemSpec:
+    return SystemSpec(
+        name,
+        tuple(equations),
+        MappingProxyType(defaults),
+        description,
+        stops,
+        MappingProxyType(dict(outputs or {})),
+    )
 
 
 _B = "((x1 - x2 - d)*Heaviside(x1 - x2 - d) + (x1 - x2 + d)*Heaviside(-x1 + x2 - d))"
@@ -116,6 +135,123 @@ _MOUNT = {
     "V_gap": 7.5e-7,
     "X": -2.4e-3,
 }
+
+
+def _mount_spec(name: str, decoupler: str, vacuum: bool, ramp: bool) -> SystemSpec:
+    """The He-Singh mount family as text: fixed or free decoupler, with or without vacuum, an
+    ideal step or a ramp (see :func:`mount_system`)."""
+    free = decoupler == "free"
+    disp = "x" if ramp else "X"
+    vol = "(V_i + V_d)" if free else "V_i"
+    u = f"(A_r*{disp} - {vol})"
+    p1 = (
+        f"({u}/C1 + (1/C1_vac - 1/C1)*({u} + p_vac*C1)*Heaviside(-p_vac*C1 - {u}))"
+        if vacuum
+        else f"{u}/C1"
+    )
+    p2 = f"{vol}/C2"
+    eqs = [f"I_i*V_i'' + R_i*V_i' + {p2} - {p1} = 0"]
+    if free:
+        eqs.append(f"I_d*V_d'' + R_d*V_d' + {p2} - {p1} = 0")
+    if ramp:
+        # the displacement as a first-order state x, driven by the clock state: the ramp is
+        # then a step element on the clock, and the vacuum knee (which moves with x during the
+        # ramp) stays a fixed surface of the state
+        eqs += ["clock' = 1", "x' = X/rise*Heaviside(rise - clock)"]
+    text = " ".join(eqs)
+    defaults = {
+        k: v
+        for k, v in {**_MOUNT, "X": _MOUNT["X"] if free else -3.7e-3, "rise": 8.0e-3}.items()
+        if re.search(rf"\b{k}\b", text)
+    }
+    outputs = {"p1": p1, "p2": p2, "flow": "V_i' + V_d'" if free else "V_i'"}
+    if free:
+        outputs["plate"] = "V_d - V_gap"
+        defaults["V_gap"] = _MOUNT["V_gap"]
+    stops = (("decoupler", "V_d", "0", "2*V_gap"),) if free else ()
+    what = (
+        ("free decoupler V_d on stops 0..2 V_gap" if free else "fixed decoupler")
+        + (", top-chamber vacuum below -p_vac" if vacuum else ", no vacuum (linear)")
+        + (", displacement ramped to X in rise seconds" if ramp else ", ideal step X")
+    )
+    return _spec(name, eqs, defaults, f"He-Singh hydraulic mount: {what}", stops, outputs)
+
+
+def mount_system(
+    *, decoupler: str = "free", vacuum: bool = True, rise: float = 0.0, **params: Any
+) -> System:
+    r"""The He–Singh hydraulic mount after a step of the displacement to ``X``.
+
+    The lumped equations of ``derivations/hydraulic_mount.py`` (``simulate_mount``), in the
+    track and decoupler volumes ``V_i``, ``V_d`` (SI units):
+    ``I_i V_i'' + R_i V_i' = p_1 - p_2``, with a free decoupler also
+    ``I_d V_d'' + R_d V_d' = p_1 - p_2`` and the stop ``0 <= V_d <= 2 V_gap`` (plastic; the
+    plate starts on the top stop, ``V_d = 0``), with a fixed one ``V_d = 0``;
+    ``p_2 = (V_i + V_d)/C_2`` and, with the top chamber's compression
+    ``u = A_r x - V_i - V_d``, ``p_1 = u/C_1`` or, with ``vacuum``, the PWL pressure with the
+    knee ``u_k = -p_v C_1`` of the builtin ``mount``.
+
+    Parameters
+    ----------
+    decoupler : {"free", "fixed"}
+    vacuum : bool
+        Top-chamber vacuum (compliance ``C_1v`` below ``p_1 = -p_v``); without it the fixed
+        decoupler model is linear (its step response has a closed form).
+    rise : float
+        ``0``: ideal step ``x = X`` (states ``V``, ``V'``). ``> 0``: the displacement ramps from
+        0 to ``X`` in ``rise`` seconds; two first-order states are added, the clock ``clock``
+        (``clock' = 1``) and the displacement ``x`` (``x' = (X/rise) H(rise - clock)``), so the
+        ramped system is still autonomous and piecewise affine. Start from ``clock = x = 0``.
+    **params
+        Parameter values overriding the defaults (``Mount()`` of the script; ``X`` is
+        ``-3.7e-3`` for the fixed and ``-2.4e-3`` for the free decoupler).
+
+    Returns
+    -------
+    System
+        Named ``mount``, ``mount_fixed``, ``mount_fixed_linear`` (ideal steps; the builtins of
+        those names) or ``mount_free_linear`` / ``..._ramp``. Named outputs (``p1``, ``p2``,
+        ``flow``, ``plate``): ``mount_outputs(...)``.
+
+    Raises
+    ------
+    ParameterError
+        For a decoupler other than "free"/"fixed", a non-boolean ``vacuum`` or a ``rise`` that
+        is not a finite number ``>= 0``.
+    """
+    return _mount_family(decoupler, vacuum, rise).build(
+        **({"rise": rise} if rise > 0 else {}), **params
+    )
+
+
+def mount_outputs(*, decoupler: str = "free", vacuum: bool = True, rise: float = 0.0):
+    """The named outputs of :func:`mount_system` (name -> expression text): ``p1``, ``p2``
+    (chamber pressures), ``flow`` (total flow out of the top chamber, zero at the extrema of
+    ``p_1``) and, with a free decoupler, ``plate`` (plate position as a volume, ``-V_gap``
+    on the top stop)."""
+    return _mount_family(decoupler, vacuum, rise).outputs
+
+
+def _mount_family(decoupler: Any, vacuum: Any, rise: Any) -> SystemSpec:
+    if decoupler not in ("free", "fixed"):
+        raise ParameterError(f"decoupler = {decoupler!r}: expected 'free' or 'fixed'")
+    if not isinstance(vacuum, bool):
+        raise ParameterError(f"vacuum = {vacuum!r}: expected True or False")
+    if (
+        isinstance(rise, bool)
+        or not isinstance(rise, int | float)
+        or not math.isfinite(rise)
+        or rise < 0
+    ):
+        raise ParameterError(f"rise = {rise!r}: expected a finite number >= 0 (seconds)")
+    name = {
+        ("free", True): "mount",
+        ("free", False): "mount_free_linear",
+        ("fixed", True): "mount_fixed",
+        ("fixed", False): "mount_fixed_linear",
+    }[decoupler, vacuum] + ("_ramp" if rise > 0 else "")
+    return _mount_spec(name, decoupler, vacuum, rise > 0)
+
 
 #: The builtin multi-coordinate systems, by name.
 BUILTIN_SYSTEMS: Mapping[str, SystemSpec] = MappingProxyType(
@@ -153,7 +289,10 @@ BUILTIN_SYSTEMS: Mapping[str, SystemSpec] = MappingProxyType(
                 "He-Singh hydraulic mount after a step X: inertia track V_i, free decoupler "
                 "V_d on stops 0..2 V_gap, top-chamber vacuum below -p_vac",
                 (("decoupler", "V_d", "0", "2*V_gap"),),
+                {"p1": _P1, "p2": _P2, "flow": "V_i' + V_d'", "plate": "V_d - V_gap"},
             ),
+            _mount_spec("mount_fixed", "fixed", vacuum=True, ramp=False),
+            _mount_spec("mount_fixed_linear", "fixed", vacuum=False, ramp=False),
             _spec(
                 "mount_linear",
                 (
@@ -218,6 +357,26 @@ BUILTIN_SYSTEMS: Mapping[str, SystemSpec] = MappingProxyType(
 )
 
 
+def builtin_outputs(name: str) -> Mapping[str, str]:
+    """The named outputs of a builtin system (name -> expression text; may be empty).
+
+    Raises
+    ------
+    ModelError
+        For an unknown name (the message lists the known ones).
+    """
+    return _builtin_spec(name).outputs
+
+
+def _builtin_spec(name: str) -> SystemSpec:
+    try:
+        return BUILTIN_SYSTEMS[name]
+    except KeyError:
+        raise ModelError(
+            f"unknown system {name!r}: expected one of {', '.join(BUILTIN_SYSTEMS)}"
+        ) from None
+
+
 def builtin_system(name: str, **params: Any) -> System:
     """A builtin system by name, defaults overridden by ``params``.
 
@@ -226,10 +385,4 @@ def builtin_system(name: str, **params: Any) -> System:
     ModelError
         For an unknown name (the message lists the known ones).
     """
-    try:
-        spec = BUILTIN_SYSTEMS[name]
-    except KeyError:
-        raise ModelError(
-            f"unknown system {name!r}: expected one of {', '.join(BUILTIN_SYSTEMS)}"
-        ) from None
-    return spec.build(**params)
+    return _builtin_spec(name).build(**params)
