@@ -76,6 +76,15 @@ Its switching-function derivatives :math:`s_j^{(p)} = \tilde c_j^T\tilde A^p z` 
 :math:`\|\tilde c_j^T\tilde A^p\|_2\,\|z(\tau_a)\|_2\,e^{\nu(\tau - \tau_a)}` with the
 logarithmic norm :math:`\nu = \max(0, \lambda_{\max}((\tilde A + \tilde A^T)/2))`.
 
+Units
+-----
+States of very different magnitudes (pressures ~1e4 Pa next to flows ~1e-5 m^3/s) make the
+eigenvectors ill conditioned through the units alone.  The propagator then works on
+:math:`z = D^{-1}y` with one power-of-two diagonal ``D`` for all regions (balancing of
+:math:`\sum_r |A_r|`, applied only when it shrinks that matrix's norm by more than 16): same
+eigenvalues, well-conditioned eigenvectors, exact conversion.  Results are returned in the
+system's units.
+
 Switching
 ---------
 Inside region ``r`` the switching function ``j`` has a sign :math:`\sigma_j` and
@@ -267,6 +276,9 @@ class AffineTrajectory:
         for k in np.unique(idx):
             sel = idx == k
             out[:, sel] = self._pieces[int(k)].state(ta[sel] - self.starts[int(k)])
+        model = self._pieces[0].region.model
+        if model.scaled:
+            out *= model.D[:, None]  # the pieces hold the scaled state z = y / D
         return out[:, 0] if scalar else out
 
 
@@ -729,6 +741,41 @@ def _expm(M: np.ndarray) -> np.ndarray:
     return E
 
 
+#: the state is rescaled only when balancing shrinks the norm of the regions' matrices by
+#: more than this factor (a well-scaled system keeps its arithmetic bit for bit)
+_BALANCE_GAIN = 16.0
+
+
+def _state_scale(system: PiecewiseAffineSystem) -> np.ndarray:
+    r"""The diagonal ``D`` (powers of two) of the internal state ``z = D^{-1} y``.
+
+    A system whose states differ by many orders of magnitude (the hydraulic mount: pressures
+    ~1e4 Pa next to flows ~1e-5 m^3/s, entries of ``A`` from 1e-7 to 2.5e10) has eigenvectors
+    that are ill conditioned only through the units (``cond(V) ~ 1e8``): the modal form is
+    refused and the augmented exponential's grid step follows ``|A| ~ 2.5e10`` although the
+    eigenvalues are a few hundred.  The similarity ``D^{-1} A D`` has the same eigenvalues
+    and, with ``D`` from :func:`scipy.linalg.matrix_balance` of ``sum_r |A_r|`` (one ``D`` for
+    every region, so the surfaces are shared), rows and columns of comparable norms.  Powers
+    of two make ``y = D z`` and ``D^{-1} y`` exact.  ``D = I`` unless balancing reduces the
+    1-norm of ``sum_r |A_r|`` by more than ``_BALANCE_GAIN``."""
+    n = system.n
+    S = np.zeros((n, n))
+    for reg in system.regions.values():
+        S += np.abs(np.asarray(reg.A, dtype=float))
+    one = np.ones(n)
+    norm = float(S.sum(axis=0).max())
+    if not (norm > 0.0 and math.isfinite(norm)):
+        return one
+    _, (scale, _) = scipy.linalg.matrix_balance(S, permute=False, separate=True)
+    scale = np.asarray(scale, dtype=float)
+    if scale.shape != (n,) or not np.all(np.isfinite(scale) & (scale > 0.0)):
+        return one
+    # exact powers of two (matrix_balance returns them; rounding guards against any other)
+    scale = np.exp2(np.round(np.log2(scale)))
+    balanced = float((S * (scale[None, :] / scale[:, None])).sum(axis=0).max())
+    return scale if balanced * _BALANCE_GAIN < norm else one
+
+
 class _Model:
     """The per-system data of the propagator: surfaces as arrays and the region cache."""
 
@@ -737,22 +784,40 @@ class _Model:
         self.representation = representation
         n = system.n
         self.n = n
-        self.C = np.array([s.normal for s in system.surfaces], dtype=float).reshape(-1, n)
+        # the internal state is z = y / D (D a power-of-two diagonal, see _state_scale): every
+        # array below is of the scaled system, and y = D z is exact in binary floating point
+        D = _state_scale(system)
+        self.D, self.Dinv = D, 1.0 / D
+        self.scaled = bool(np.any(D != 1.0))
+        C = np.array([s.normal for s in system.surfaces], dtype=float).reshape(-1, n)
+        self.C = C * D[None, :]
         self.d = np.array([s.offset for s in system.surfaces], dtype=float)
         self.cc = np.einsum("ij,ij->i", self.C, self.C)
         self.omegas = np.array([h.omega for h in system.inputs], dtype=float)
-        self.u = np.array([h.u for h in system.inputs], dtype=float).reshape(-1, n)
-        self.v = np.array([h.v for h in system.inputs], dtype=float).reshape(-1, n)
+        self.u = np.array([h.u for h in system.inputs], dtype=float).reshape(-1, n) * self.Dinv
+        self.v = np.array([h.v for h in system.inputs], dtype=float).reshape(-1, n) * self.Dinv
         self.uv = self.u - 1j * self.v
         self.continuous = tuple(system.continuous) or (False,) * len(system.surfaces)
         self._regions: dict[tuple[int, ...], _ModalRegion | _ExpmRegion] = {}
+        self._Ab: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
+
+    def region_data(self, key: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """``(A, b)`` of the scaled system in region ``key`` (ModelError when missing)."""
+        ab = self._Ab.get(key)
+        if ab is None:
+            data = self.system.region(key)  # ModelError naming the pattern when missing
+            A = np.asarray(data.A, dtype=float)
+            b = np.asarray(data.b, dtype=float)
+            if self.scaled:
+                A = self.Dinv[:, None] * A * self.D[None, :]
+                b = b * self.Dinv
+            ab = self._Ab[key] = (A, b)
+        return ab
 
     def region(self, key: tuple[int, ...]) -> _ModalRegion | _ExpmRegion:
         reg = self._regions.get(key)
         if reg is None:
-            data = self.system.region(key)  # ModelError naming the pattern when missing
-            A = np.asarray(data.A, dtype=float)
-            b = np.asarray(data.b, dtype=float)
+            A, b = self.region_data(key)
             reg = None
             if self.representation in ("auto", "modal"):
                 lam, V = np.linalg.eig(A)
@@ -775,9 +840,10 @@ class _Model:
             return np.zeros(self.n)
         return np.cos(om * t) @ self.u + np.sin(om * t) @ self.v
 
-    def field(self, key: tuple[int, ...], t: float, y: np.ndarray) -> np.ndarray:
-        data = self.system.region(key)
-        return data.A @ y + data.b + self.forcing(t)
+    def field(self, key: tuple[int, ...], t: float, z: np.ndarray) -> np.ndarray:
+        """The scaled field ``z' = D^-1 y'`` in region ``key``."""
+        A, b = self.region_data(key)
+        return A @ z + b + self.forcing(t)
 
     def initial_pattern(self, t: float, y: np.ndarray) -> tuple[tuple[int, ...], set[int]]:
         """The region holding ``y`` at ``t`` and the surfaces it lies exactly on.
@@ -1125,9 +1191,13 @@ def _check_args(system, y0, t0, t1, max_events, max_steps) -> tuple[np.ndarray, 
 
 
 def _run(model: _Model, y0: np.ndarray, t0: float, t1: float, max_events: int, max_steps: int):
-    key, on = model.initial_pattern(t0, y0)
+    """Propagate ``y0`` (the system's units) over ``[t0, t1]``: the pieces work on the scaled
+    state ``z = y / D``; the events and the final state are in the system's units."""
+    D = model.D
+    z0 = y0 * model.Dinv if model.scaled else y0
+    key, on = model.initial_pattern(t0, z0)
     budget = _Budget(max_steps)
-    t, y = t0, y0
+    t, y = t0, z0
     touching = on
     pieces: list = []
     events: list[AffineEvent] = []
@@ -1141,7 +1211,7 @@ def _run(model: _Model, y0: np.ndarray, t0: float, t1: float, max_events: int, m
         for tau, j in tangs:
             yt = piece.state1(tau)
             # inside side +1 (s >= 0) touches from above: a minimum of s, direction -1
-            events.append(AffineEvent(t + tau, j, -key[j], key, key, yt, True))
+            events.append(AffineEvent(t + tau, j, -key[j], key, key, yt * D, True))
         if hit is None:
             pieces.append((t, t1, piece))
             break
@@ -1165,7 +1235,7 @@ def _run(model: _Model, y0: np.ndarray, t0: float, t1: float, max_events: int, m
                     f"and {new}); {EVENT_DRIVEN_HINT}"
                 )
         pieces.append((t, t_c, piece))
-        ev = AffineEvent(t_c, j, new[j], key, new, y_c, False)
+        ev = AffineEvent(t_c, j, new[j], key, new, y_c * D, False)
         events.append(ev)
         crossings.append(ev)
         if len(events) > max_events:
@@ -1184,7 +1254,7 @@ def _run(model: _Model, y0: np.ndarray, t0: float, t1: float, max_events: int, m
                 )
         t, y, key, touching = t_c, y_c, new, {j}
     t_last, _, last = pieces[-1]
-    y_end = last.state1(t1 - t_last)
+    y_end = last.state1(t1 - t_last) * D
     if not np.all(np.isfinite(y_end)):
         raise PerturbError(
             f"the orbit escapes to infinity in region {last.region.key} before t = {t1!r} "
@@ -1287,8 +1357,9 @@ def _sensitivity(model: _Model, run: _Run) -> np.ndarray:
             j = ev.surface
             if model.continuous[j]:
                 continue  # S = I exactly: f+ = f- on the surface
-            fm = model.field(ev.pattern_before, ev.time, ev.y)
-            fp = model.field(ev.pattern_after, ev.time, ev.y)
+            z = ev.y * model.Dinv  # (exact: powers of two)
+            fm = model.field(ev.pattern_before, ev.time, z)
+            fp = model.field(ev.pattern_after, ev.time, z)
             c = model.C[j]
             rate = float(c @ fm)
             if rate == 0.0:
@@ -1298,6 +1369,8 @@ def _sensitivity(model: _Model, run: _Run) -> np.ndarray:
                     "unbounded and the flow is not differentiable there"
                 )
             M = M + np.outer(fp - fm, c @ M) / rate
+    if model.scaled:
+        M = model.D[:, None] * M * model.Dinv[None, :]  # dy1/dy0 = D (dz1/dz0) D^-1
     if not np.all(np.isfinite(M)):
         raise PerturbError("the sensitivity overflows (non-finite): shorten the interval")
     return M
