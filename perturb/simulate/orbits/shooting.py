@@ -66,7 +66,9 @@ States of any dimension
     path below; for ``n != 2`` the summary numbers describe the first state (``x1``), the
     multipliers are ``numpy.linalg.eigvals`` of the monodromy, and
     :meth:`PeriodicOrbit.max_abs` gives ``max |.|`` of every state or of any combination.
-    Limit cycles of autonomous systems take two states only (for now).
+    Limit cycles of autonomous systems (:func:`limit_cycle`) take ``n`` states too, the phase
+    condition on the velocity of the first coordinate (or ``phase_state``); autonomous multiple
+    shooting takes two states only (for now).
 
 Orbit data
     Multipliers are the eigenvalues of the monodromy.  Amplitude (max :math:`|x|`), mean and
@@ -943,8 +945,8 @@ def _two_states(flow: Any, who: str) -> None:
     n = state_dimension(flow)
     if n != 2:
         raise ParameterError(
-            f"{who}: the flow {flow!r} has {n} states: limit cycles (phase condition v0 = 0) "
-            "are computed for two-state (x, v) flows only so far"
+            f"{who}: the flow {flow!r} has {n} states: autonomous multiple shooting (phase "
+            "condition v0 = 0) takes two-state (x, v) flows only so far; use limit_cycle"
         )
 
 
@@ -972,11 +974,12 @@ def reject_equilibrium(flow: Flow, y0: np.ndarray, P: float, what: str, rn: floa
 _RUNAWAY = 100.0
 
 
-def _settled_start(flow: Flow, y: np.ndarray, T0: float) -> np.ndarray | None:
-    """``(x_max, 0, P)`` of the attractor reached from ``y``: 50 guessed periods of transient,
-    then two successive maxima of ``x`` (``v`` crossing from + to -, located by linear
-    interpolation on a 1/64-period grid) give the state and the period; ``None`` when the
-    transient diverges, stops at an equilibrium, or shows no two maxima in 16 periods."""
+def _settled_start(flow: Flow, y: np.ndarray, T0: float, k: int = 1) -> np.ndarray | None:
+    """``(y*, P)`` of the attractor reached from ``y``: 50 guessed periods of transient, then
+    two successive crossings of state ``k`` from + to - (for ``(x, v)``, ``k = 1``: maxima of
+    ``x``), located by linear interpolation on a 1/64-period grid, give the state (state ``k``
+    set to 0) and the period; ``None`` when the transient diverges, stops at an equilibrium, or
+    shows no two crossings in 16 periods."""
     try:
         z = np.asarray(flow(y, 0.0, 50.0 * T0).y, dtype=float)
         h = T0 / 64.0
@@ -985,20 +988,44 @@ def _settled_start(flow: Flow, y: np.ndarray, T0: float) -> np.ndarray | None:
             z1 = np.asarray(flow(z, t, t + h).y, dtype=float)
             if not np.all(np.isfinite(z1)):
                 return None
-            if z[1] > 0.0 >= z1[1]:
-                f = z[1] / (z[1] - z1[1])
-                crossings.append((t + f * h, z[0] + f * (z1[0] - z[0])))
+            if z[k] > 0.0 >= z1[k]:
+                f = z[k] / (z[k] - z1[k])
+                crossings.append((t + f * h, z + f * (z1 - z)))
                 if len(crossings) == 2:
                     break
             z, t = z1, t + h
-    except (ArithmeticError, ValueError, RuntimeError):
+    except (ArithmeticError, ValueError, RuntimeError, PerturbError):
         return None
     if len(crossings) < 2:
         return None
-    (t1, _), (t2, x2) = crossings
-    if not (t2 - t1 > 0.0 and math.isfinite(x2)):
+    (t1, _), (t2, y2) = crossings
+    if not (t2 - t1 > 0.0 and np.all(np.isfinite(y2))):
         return None
-    return np.array([x2, 0.0, t2 - t1])
+    y2 = np.array(y2, dtype=float)
+    y2[k] = 0.0
+    return np.append(y2, t2 - t1)
+
+
+def _phase_index(flow: Any, n: int, phase_state: int | None) -> int:
+    """The state held at zero by the phase condition: ``phase_state``, else ``v`` of ``(x, v)``,
+    else the velocity of the first coordinate of the flow's system (``system_model``)."""
+    if phase_state is not None:
+        if isinstance(phase_state, bool) or not isinstance(phase_state, int | np.integer):
+            raise ParameterError(f"phase_state = {phase_state!r}: expected a state index")
+        if not 0 <= phase_state < n:
+            raise ParameterError(
+                f"phase_state = {phase_state!r}: expected a state index in 0 .. {n - 1}"
+            )
+        return int(phase_state)
+    if n == 2:
+        return 1
+    coords = getattr(getattr(flow, "system_model", None), "coordinates", None)
+    if coords:
+        return len(coords)
+    raise ParameterError(
+        f"limit_cycle: the flow {flow!r} has {n} states and no declared coordinates: pass "
+        "phase_state= (the index of a state that vanishes once per cycle, e.g. a velocity)"
+    )
 
 
 def limit_cycle(
@@ -1007,6 +1034,7 @@ def limit_cycle(
     period_guess: float,
     *,
     phase: str = "velocity",
+    phase_state: int | None = None,
     tol: float = 1e-12,
     max_iter: int = 50,
     unit_tol: float = UNIT_TOL,
@@ -1016,7 +1044,9 @@ def limit_cycle(
     Parameters
     ----------
     flow
-        An autonomous flow (``flow.period is None``).
+        An autonomous flow (``flow.period is None``) of any number of states
+        (:func:`state_dimension`): an ODE flow of a smooth system, the event-driven flow of a
+        piecewise-smooth one (stick-slip).
     y_guess, period_guess
         Initial state and period.
     phase
@@ -1028,6 +1058,10 @@ def limit_cycle(
         systems, whose orbits come in families (fix :math:`y_0 = (A, 0)` to pick the orbit of
         turning point :math:`A`); for an isolated limit cycle it converges only if ``y_guess``
         lies on it.
+    phase_state
+        With ``n != 2`` states, the index of the state held at zero by the velocity phase
+        condition (default: the velocity of the first coordinate of the flow's
+        ``system_model``, e.g. ``x1'``); for ``(x, v)`` it is ``v`` (index 1).
     tol, max_iter, unit_tol
         As in :func:`periodic_orbit`.
 
@@ -1043,28 +1077,29 @@ def limit_cycle(
     """
     flow = check_flow(flow)
     _check_autonomous(flow, "limit_cycle")
-    _two_states(flow, "limit_cycle")
-    y = _state(y_guess, "y_guess")
+    n = state_dimension(flow)
+    y = _state(y_guess, "y_guess", n)
+    k = _phase_index(flow, n, phase_state)
     T0 = check_positive(period_guess, "period_guess")
     tol = check_positive(tol, "tol")
     max_iter = check_count(max_iter, "max_iter", 0)
     if phase not in ("velocity", "anchor"):
         raise ParameterError(f"phase = {phase!r}: expected 'velocity' or 'anchor'")
-    eye = np.eye(2)
+    eye = np.eye(n)
     what = f"limit cycle shooting (phase = {phase!r})"
 
     if phase == "velocity":
 
         def evaluate(z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            yy, T = z[:2], z[2]
+            yy, T = z[:n], z[n]
             res = flow(yy, 0.0, T, sensitivity=True)
             M = np.asarray(res.sensitivity, dtype=float)
             f = np.asarray(flow.vector_field(T, res.y), dtype=float)
-            J = np.zeros((3, 3))
-            J[:2, :2] = M - eye
-            J[:2, 2] = f
-            J[2, 1] = 1.0
-            return np.append(res.y - yy, yy[1]), J, M
+            J = np.zeros((n + 1, n + 1))
+            J[:n, :n] = M - eye
+            J[:n, n] = f
+            J[n, k] = 1.0
+            return np.append(res.y - yy, yy[k]), J, M
 
         z0 = np.append(y, T0)
     else:
@@ -1084,16 +1119,16 @@ def limit_cycle(
             tol=tol,
             max_iter=max_iter,
             # the residual is a state difference: scale by the state, not the period
-            scale=lambda z: _state_scale(z[:2] if phase == "velocity" else y),
+            scale=lambda z: _state_scale(z[:n] if phase == "velocity" else y),
             what=what,
             # a positive period, and no run-away: from a poor guess on a relaxation cycle the
             # iterates can double |x| while the period shrinks, each step stiffer than the last
             admissible=lambda z: (
                 bool(z[-1] > 0.0)
-                and (phase != "velocity" or _state_scale(z[:2]) <= _RUNAWAY * _state_scale(y))
+                and (phase != "velocity" or _state_scale(z[:n]) <= _RUNAWAY * _state_scale(y))
             ),
         )
-        y0 = out.z[:2].copy() if phase == "velocity" else y.copy()
+        y0 = out.z[:n].copy() if phase == "velocity" else y.copy()
         P = float(out.z[-1])
         reject_equilibrium(flow, y0, P, what, out.rnorm, out.iterations)
         return out, y0, P
@@ -1108,7 +1143,7 @@ def limit_cycle(
         # the first error standing.
         if phase != "velocity":
             raise
-        start = _settled_start(flow, y, T0)
+        start = _settled_start(flow, y, T0, k)
         if start is None:
             raise first from None
         try:
