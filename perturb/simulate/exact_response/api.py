@@ -15,8 +15,9 @@ from numpy.typing import ArrayLike
 
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
+from perturb.model.system import System
 from perturb.response import Branch, Response
-from perturb.simulate.exact_response.branches import exact_branches, undamped_note
+from perturb.simulate.exact_response.branches import exact_branches, output_of, undamped_note
 from perturb.simulate.exact_response.march import Tracer
 from perturb.simulate.exact_response.options import (
     ORBIT_FIELDS,
@@ -34,7 +35,7 @@ from perturb.simulate.orbits.shooting import (
 
 
 def continue_orbits(
-    oscillator: Oscillator | FlowFamily,
+    oscillator: Oscillator | System | FlowFamily,
     start: float,
     y_guess: ArrayLike,
     window: Sequence[float],
@@ -43,6 +44,7 @@ def continue_orbits(
     m: int = 1,
     t0: float = 0.0,
     directions: Literal["both", "forward"] = "both",
+    output: str | ArrayLike | None = None,
     options: ExactResponseOptions | None = None,
     **knobs: Any,
 ) -> ContinuationBranch:
@@ -51,12 +53,14 @@ def continue_orbits(
     Parameters
     ----------
     oscillator
-        The system, or a :class:`~perturb.simulate.flows.factory.FlowFamily` built from it (exact
-        flow for PWL models, ``solve_ivp`` otherwise).
+        The oscillator or :class:`~perturb.model.system.System`, or a
+        :class:`~perturb.simulate.flows.factory.FlowFamily` built from it (exact flow for PWL
+        models, ``solve_ivp`` otherwise).
     start
         Parameter value of the seed (inside ``window``).
     y_guess
-        ``(x, v)`` at ``t0`` near an orbit; polished by Newton at ``start`` first.
+        ``(x, v)`` at ``t0`` near an orbit (a system's ``n`` states); polished by Newton at
+        ``start`` first.
     window
         ``(low, high)``: the branch stops at the edges, with a point exactly on them.
     parameter
@@ -67,6 +71,8 @@ def continue_orbits(
         Phase of the section.
     directions
         ``'both'`` (default) or ``'forward'`` (increasing parameter at the seed).
+    output
+        Systems: what the amplitude measures (see :func:`exact_branches`).
     options : ExactResponseOptions, optional
         The tuning knobs: ``ds_max`` (output spacing, default 0.005), ``ds_min``, ``tol``,
         ``max_points`` and ``max_periods`` (budgets per direction; default 20000 points and
@@ -105,20 +111,31 @@ def continue_orbits(
     if directions not in ("both", "forward"):
         raise ParameterError(f"directions = {directions!r}: expected 'both' or 'forward'")
     st = settings(o.ds_max, o.ds_min, o.tol, o.max_points, max_periods)
-    tracer = Tracer(family, m, float(t0), (lo, hi), st, closed_form=o.closed_form)
+    system = getattr(family, "system", None)
+    out_vec, out_label = None, ""
+    if system is not None:
+        out_vec, out_label = output_of(system, output)
+    elif output is not None:
+        raise ParameterError(
+            f"output = {output!r}: an oscillator's amplitude is max |x|; output is for systems"
+        )
+    tracer = Tracer(family, m, float(t0), (lo, hi), st, closed_form=o.closed_form, output=out_vec)
+    tracer.output_label = out_label
     pt = tracer.start_point(start, y_guess)
     return tracer.trace(pt, directions)[0]
 
 
 def exact_frequency_response(
-    oscillator: Oscillator,
+    oscillator: Oscillator | System,
     window: Sequence[float] = (0.2, 2.0),
     **options: Any,
 ) -> Response:
     """Every branch found by :func:`exact_branches` as a :class:`~perturb.response.Response`
     (method ``'exact'`` for PWL models, ``'shooting'`` for the ODE flow of smooth ones); the
-    options are those of :func:`exact_branches`.  ``notes`` say which branches are closed
-    loops and which are mirror images."""
+    options are those of :func:`exact_branches` (``output=`` for a
+    :class:`~perturb.model.system.System`: what the ``amplitude`` column measures; the
+    per-coordinate columns are in :meth:`ExactBranches.columns` of :func:`exact_branches`).
+    ``notes`` say which branches are closed loops and which are mirror images."""
     return exact_branches(oscillator, window, **options).to_response()
 
 

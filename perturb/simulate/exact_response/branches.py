@@ -18,6 +18,7 @@ from numpy.typing import ArrayLike
 
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
+from perturb.model.system import System
 from perturb.progress import Progress
 from perturb.simulate.exact_response.march import Tracer
 from perturb.simulate.exact_response.options import (
@@ -48,10 +49,11 @@ from perturb.simulate.orbits.shooting import (
 # public: every branch
 # =============================================================================================
 def exact_branches(
-    oscillator: Oscillator,
+    oscillator: Oscillator | System,
     window: Sequence[float] = (0.2, 2.0),
     *,
     seeds: Sequence[tuple[float, ArrayLike]] = (),
+    output: str | ArrayLike | None = None,
     options: ExactResponseOptions | None = None,
     **knobs: Any,
 ) -> ExactBranches:
@@ -69,15 +71,30 @@ def exact_branches(
     ``symmetry`` (odd systems), every branch that is not its own image under
     :math:`(x, t) \to (-x, t + T/2)` gets its mirror image.
 
+    A :class:`~perturb.model.system.System` of several coordinates (its forcing frequency the
+    parameter ``Omega``) is traced the same way on its exact piecewise-affine flow
+    (:class:`~perturb.simulate.flows.affine_exact.AffineExactFlow`; ``SystemODEFlow`` when not
+    piecewise linear): the shooting problem has the system's ``n`` states per node, the
+    closed-form arcs of single segments are replaced by seeds from the steady state of every
+    linear region that stays inside its region (exact orbits, traced numerically), and every
+    point also carries ``max |q_k|`` and the mean of every coordinate
+    (:meth:`ExactBranches.columns`); ``amplitude`` measures ``output``.
+
     Parameters
     ----------
     oscillator
-        Forced at one frequency parameter; all other parameters set.
+        Forced at one frequency parameter; all other parameters set. Or a System.
     window
         ``(low, high)`` forcing frequencies, ``low > 0``.
     seeds
-        Pairs ``(Omega, (x0, v0))`` at ``t = 0``, each only a start of Newton on the exact
-        flow (a seed that does not converge is counted in a note).
+        Pairs ``(Omega, (x0, v0))`` at ``t = 0`` (a system: ``(Omega, y0)`` with its ``n``
+        states), each only a start of Newton on the exact flow (a seed that does not converge
+        is counted in a note).
+    output : str or array_like, optional
+        Systems only: what ``amplitude``, ``first_harmonic_amplitude`` and ``mean`` measure: a
+        coordinate name or a linear combination (``"x1 - x2"``, :meth:`System.output
+        <perturb.model.system.System.output>`), or the combination vector; default the first
+        coordinate.
     options : ExactResponseOptions, optional
         The tuning knobs below (default: the defaults); see :class:`ExactResponseOptions`.
     **knobs
@@ -124,8 +141,13 @@ def exact_branches(
     )
     max_seconds = o.max_seconds
     max_periods = 2e5 if o.max_periods is None else o.max_periods
-    if not isinstance(oscillator, Oscillator):
-        raise ParameterError(f"oscillator = {oscillator!r}: expected an Oscillator")
+    is_system = isinstance(oscillator, System)
+    if not isinstance(oscillator, Oscillator) and not is_system:
+        raise ParameterError(f"oscillator = {oscillator!r}: expected an Oscillator or a System")
+    if output is not None and not is_system:
+        raise ParameterError(
+            f"output = {output!r}: an oscillator's amplitude is max |x|; output is for systems"
+        )
     lo, hi = parameter_window(window)
     if lo <= 0:
         raise ParameterError(f"window = {window!r}: forcing frequencies must be positive")
@@ -145,6 +167,7 @@ def exact_branches(
         raise ParameterError(f"max_seconds = {max_seconds!r}: expected a positive number or None")
     n_workers = resolve_workers(o.workers)
     family = FlowFamily(oscillator)
+    out_vec, out_label = output_of(oscillator, output) if is_system else (None, "")
     st = settings(o.ds_max, o.ds_min, o.tol, o.max_points, max_periods)
     if max_seconds is not None:
         st.deadline = time.monotonic() + float(max_seconds)
@@ -161,8 +184,10 @@ def exact_branches(
                 {k: float(v) for k, v in oscillator.params.items() if v is not None}
             ),
             method="exact" if family.exact else "shooting",
+            **_labels(oscillator, out_label),
         )
-    tracer = Tracer(family, 1, 0.0, (lo, hi), st, closed_form=o.closed_form)
+    tracer = Tracer(family, 1, 0.0, (lo, hi), st, closed_form=o.closed_form, output=out_vec)
+    tracer.output_label = out_label
     spec = Speculator(tracer, n_workers)
     try:
         return _exact_branches(
@@ -185,7 +210,7 @@ def exact_branches(
 
 
 def _exact_branches(
-    oscillator: Oscillator,
+    oscillator: Oscillator | System,
     tracer: Tracer,
     spec: Speculator,
     t_begin: float,
@@ -251,10 +276,14 @@ def _exact_branches(
         return True
 
     raw: list[tuple[float, np.ndarray]] = [(float(p), np.asarray(y, float)) for p, y in seeds]
+    n = eng.n
     for p, y in raw:
-        if not lo <= p <= hi or y.shape != (2,) or not np.all(np.isfinite(y)):
-            raise ParameterError(f"seed ({p}, {y.tolist()}): expected (Omega in window, (x0, v0))")
+        if not lo <= p <= hi or y.shape != (n,) or not np.all(np.isfinite(y)):
+            what = "(x0, v0)" if n == 2 and not eng.nd else f"y0 of {n} states"
+            raise ParameterError(f"seed ({p}, {y.tolist()}): expected (Omega in window, {what})")
     closed_seeds = tracer.closed.seeds() if tracer.closed is not None else []
+    if eng.nd:
+        closed_seeds = region_seeds(tracer)
     total = len(closed_seeds) + len(raw) + 2 * sweep_points
     # seeds differ widely in cost (a seed on a known branch costs nothing): no estimate of
     # the time left, which jumped about (~205 s left, then ~91 s, done at 48 s)
@@ -298,7 +327,10 @@ def _exact_branches(
         child = None
         seed2 = None
         if period_doubling:
-            child = Tracer(family, 2, 0.0, (lo, hi), st, closed_form=False, registry=reg)
+            child = Tracer(
+                family, 2, 0.0, (lo, hi), st, closed_form=False, registry=reg, output=eng.output
+            )
+            child.output_label = tracer.output_label
 
             def seed2(p: float, y: np.ndarray) -> None:
                 # period-2 motion met by a sweep: its branch (e.g. a detached period-2 loop
@@ -395,7 +427,94 @@ def _exact_branches(
             {k: float(v) for k, v in oscillator.params.items() if v is not None}
         ),
         method="exact" if family.exact else "shooting",
+        **_labels(oscillator, tracer.output_label),
     )
+
+
+def _labels(model: Oscillator | System, output: str) -> dict[str, Any]:
+    """The coordinates and output label of an ExactBranches (systems only)."""
+    if not isinstance(model, System):
+        return {}
+    return {"coordinates": (*model.coordinates, *model.first_order), "output": output}
+
+
+def output_of(system: System, output: str | ArrayLike | None) -> tuple[np.ndarray, str]:
+    """The output combination of a system and its label: a coordinate name or combination
+    text (:meth:`System.output`), a vector over the states, or None (the first coordinate)."""
+    names = system.state_names
+    if output is None:
+        output = (*system.coordinates, *system.first_order)[0]
+    if isinstance(output, str):
+        return system.output(output), output
+    try:
+        c = np.array(output, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        c = np.zeros(0)
+    if c.size != len(names) or not np.all(np.isfinite(c)) or not np.any(c):
+        raise ParameterError(
+            f"output = {output!r}: expected a coordinate name, a combination such as "
+            f"'x1 - x2', or {len(names)} numbers (not all zero) over {', '.join(names)}"
+        )
+    label = " + ".join(f"{v:g}*{nm}" for v, nm in zip(c, names, strict=True) if v != 0.0)
+    return c, label.replace("+ -", "- ")
+
+
+def region_seeds(tracer: Tracer, n_grid: int = 64) -> list[Pt]:
+    r"""Seeds of a piecewise-affine system: at ``n_grid`` frequencies of the window, the steady
+    state of every linear region, :math:`y(t) = -A^{-1}b + \operatorname{Re}\sum_k
+    (i\omega_k I - A)^{-1}(u_k - i v_k) e^{i\omega_k t}`, where it stays inside its region over
+    the whole period (every switching function keeps its sign at 256 samples): an exact
+    orbit. One seed per run of such frequencies (its middle), polished by Newton; as the
+    closed-form seeds of an oscillator (the saddle branch of the nsd device inside
+    :math:`|x_1| < 1`, the orbits off resonance that touch no contact), they reach branches no
+    sweep settles on. None for other flows."""
+    eng = tracer.eng
+    pas0 = eng.affine0
+    if pas0 is None or not pas0.inputs:
+        return []
+    grid = np.linspace(eng.lo, eng.hi, n_grid)
+    keys = sorted(pas0.regions)
+    inside = {k: np.zeros(n_grid, dtype=bool) for k in keys}
+    states: dict[tuple[tuple[int, ...], int], np.ndarray] = {}
+    C = np.array([q.normal for q in pas0.surfaces]).reshape(-1, eng.n)
+    d = np.array([q.offset for q in pas0.surfaces])
+    for gi, p in enumerate(grid):
+        try:
+            pas = eng.flow(float(p)).affine_system
+        except PerturbError:
+            continue
+        T = float(pas.period)
+        ts = T * np.arange(256) / 256
+        for k in keys:
+            reg = pas.regions[k]
+            I = np.eye(eng.n)
+            try:
+                y = np.tile(-np.linalg.solve(reg.A, reg.b)[:, None], (1, ts.size))
+                for h in pas.inputs:
+                    Zk = np.linalg.solve(1j * h.omega * I - reg.A, h.u - 1j * h.v)
+                    y = y + (Zk[:, None] * np.exp(1j * h.omega * ts)[None, :]).real
+            except np.linalg.LinAlgError:
+                continue
+            if not np.all(np.isfinite(y)):
+                continue
+            S = C @ y - d[:, None]
+            want = np.array(k, dtype=float)[:, None]
+            if S.size and not np.all(S * want > 0.0):
+                continue
+            inside[k][gi] = True
+            states[(k, gi)] = y[:, 0].copy()
+    out = []
+    for k in keys:
+        idx = np.flatnonzero(inside[k])
+        if idx.size == 0:
+            continue
+        for run in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
+            gi = int(run[len(run) // 2])
+            try:
+                out.append(tracer.polish(float(grid[gi]), states[(k, gi)], max_iter=12))
+            except (ShootingError, PerturbError):
+                continue
+    return out
 
 
 def undamped_note(family: FlowFamily, window: tuple[float, float]) -> str | None:
@@ -406,7 +525,19 @@ def undamped_note(family: FlowFamily, window: tuple[float, float]) -> str | None
     the free oscillations form families of periodic orbits rather than isolated ones; the
     sweeps, seeds and stability tests of the exact continuation all assume damping."""
     osc = family.oscillator
-    if family.exact:
+    system = getattr(family, "system", None)
+    if system is not None:
+        # a system: undamped when the flow preserves volume in every region (tr A = 0:
+        # det M = 1 on every orbit, Liouville)
+        try:
+            flow = family.at(0.5 * (window[0] + window[1]))
+        except PerturbError:
+            return None
+        pas = getattr(flow, "affine_system", None)
+        if pas is None:
+            return None
+        dissipative = any(float(np.trace(r.A)) != 0.0 for r in pas.regions.values())
+    elif family.exact:
         try:
             mu = float(family.at(0.5 * (window[0] + window[1])).system.damping)
         except PerturbError:
@@ -447,7 +578,7 @@ def _virtual_sweep(
     eng, reg = tracer.eng, tracer.registry
     grid = np.linspace(eng.lo, eng.hi, max(2, n))[::direction]
     state: tuple[int, int] | None = None
-    y = np.zeros(2)
+    y = np.zeros(eng.n)
     fresh = True  # just left a branch (or at rest): the transient may be long
     for p in grid:
         bar.update()
@@ -471,7 +602,7 @@ def _virtual_sweep(
                 y = flow(y, eng.t0, eng.t0 + transient * T).y
                 y1 = flow(y, eng.t0, eng.t0 + T).y
             except PerturbError:
-                y = np.zeros(2)
+                y = np.zeros(eng.n)
                 break
             eng.periods += transient + 1
             eng.calls += 2

@@ -70,8 +70,11 @@ class Tracer:
         *,
         closed_form: bool = True,
         registry: Registry | None = None,
+        output: np.ndarray | None = None,
     ) -> None:
-        self.eng = Engine(family, m, t0, window, st.tol)
+        self.eng = Engine(family, m, t0, window, st.tol, output=output)
+        #: what the amplitude measures (systems; set by the caller, e.g. "x1 - x2")
+        self.output_label = ""
         self.st = st
         self.closed = Closed(self.eng) if (closed_form and self.eng.closed_form) else None
         self.registry = registry if registry is not None else Registry(self.eng.Sp, st.ds_max)
@@ -87,11 +90,11 @@ class Tracer:
         strongly unstable orbit (rounding times ``|M|``), where no step decreases it, is
         accepted when the Newton correction is below ``1e-9`` relative."""
         eng = self.eng
-        Z = np.array(Z, dtype=float).reshape(-1, 2)
+        Z = np.array(Z, dtype=float).reshape(-1, eng.n)
         N = Z.shape[0]
 
         def residual(z: np.ndarray) -> tuple[np.ndarray, np.ndarray, Eval]:
-            ev = eng.evaluate(z.reshape(N, 2), p, gp=False)
+            ev = eng.evaluate(z.reshape(N, eng.n), p, gp=False)
             return ev.r, ev.Gz, ev
 
         res = damped_newton(
@@ -122,8 +125,8 @@ class Tracer:
                 max_iter,
                 res.z,
             )
-        pt = Pt(p, res.z)
-        eng.finish(pt, res.data, res.z_evaluated.reshape(N, 2), p)
+        pt = Pt(p, res.z, eng.n)
+        eng.finish(pt, res.data, res.z_evaluated.reshape(N, eng.n), p)
         return pt
 
     def polish(self, p: float, y: ArrayLike, max_iter: int = 40) -> Pt:
@@ -142,7 +145,7 @@ class Tracer:
         eng = self.eng
         flow = eng.flow(p)
         P = eng.m * float(flow.period)
-        Z = np.empty((N, 2))
+        Z = np.empty((N, eng.n))
         Z[0] = y
         tn = eng.node_times(P, N)
         old_t = eng.node_times(P, old.N) if old is not None else None
@@ -181,8 +184,8 @@ class Tracer:
         need = nodes_needed(pt.max_mult, self.eng.m)
         if need > pt.N or need < pt.N - self.eng.m:
             Z = self.propagate_nodes(pt.p, pt.y0, need, old=pt if need > pt.N else None)
-            new = Pt(pt.p, Z)
-            for a in ("mult", "stats", "sig", "switches", "mode", "seg", "grazing"):
+            new = Pt(pt.p, Z, self.eng.n)
+            for a in ("mult", "stats", "sig", "switches", "mode", "seg", "grazing", "extra"):
                 setattr(new, a, getattr(pt, a))
             ref = pt.tangent3()
             self.with_jacobian(new)
@@ -252,7 +255,7 @@ class Tracer:
                 break
             final = False
             if cur.mode == "closed" and cur.J is None:
-                dirp = 1.0 if dir3[2] >= 0 else -1.0
+                dirp = 1.0 if dir3[-1] >= 0 else -1.0
                 new, final, graze = self._closed_step(cur, dirp)
                 if graze:
                     new.grazing = True
@@ -279,7 +282,7 @@ class Tracer:
                         work.append(eng.periods - periods0)
                     reason = "window edge"
                     break
-                new = self.to_closed(new, 1.0 if new.tangent3()[2] >= 0 else -1.0)
+                new = self.to_closed(new, 1.0 if new.tangent3()[-1] >= 0 else -1.0)
                 if new.mode != "closed":
                     new = self.renode(new)
             h = key_step(cur, new, eng.Sp)
@@ -408,8 +411,9 @@ class Tracer:
             return None
         q.tangent = new.tangent if new.N == q.N else None
         if q.tangent is None:
-            q.tangent = np.r_[new.tangent3()[:2], np.zeros(2 * q.N - 2), new.tangent3()[2]]
-        return self.to_closed(q, 1.0 if new.tangent3()[2] >= 0 else -1.0)
+            t3, n = new.tangent3(), eng.n
+            q.tangent = np.r_[t3[:n], np.zeros(n * q.N - n), t3[n]]
+        return self.to_closed(q, 1.0 if new.tangent3()[-1] >= 0 else -1.0)
 
     def _closed_step(self, cur: Pt, dirp: float) -> tuple[Pt, bool, bool]:
         """Next closed-form point: (point, reached the window edge, grazes).  The parameter
@@ -518,7 +522,7 @@ class Tracer:
             return pt
         if pt.J is None:
             self.with_jacobian(pt)
-        self.set_tangent(pt, None, np.array([0.0, 0.0, 1.0]))
+        self.set_tangent(pt, None, np.r_[np.zeros(self.eng.n), 1.0])
         return pt
 
     def trace(
@@ -580,6 +584,15 @@ class Tracer:
             periods=float(periods),
             family=eng.family,
             ds_max=self.st.ds_max,
+            **(
+                {
+                    "coordinates": tuple(eng.coordinate_names),
+                    "output": self.output_label,
+                    "output_vector": eng.output,
+                }
+                if eng.nd
+                else {}
+            ),
         )
 
 
@@ -597,6 +610,12 @@ def _freeze_point(q: Pt) -> ContinuationPoint:
     sig = np.array(q.sig, dtype=float)
     sig.setflags(write=False)
     mm = q.max_mult
+    extra: dict[str, np.ndarray] = {}
+    if q.extra is not None:
+        for name, arr in zip(("coordinate_amplitudes", "coordinate_means"), q.extra, strict=True):
+            a = np.array(arr, dtype=float)
+            a.setflags(write=False)
+            extra[name] = a
     return ContinuationPoint(
         parameter=float(q.p),
         y0=y0,
@@ -611,6 +630,7 @@ def _freeze_point(q: Pt) -> ContinuationPoint:
         source=q.source,
         signature=sig,
         nodes=nodes,
+        **extra,
     )
 
 
@@ -626,10 +646,10 @@ def _special_points(pts: list[Pt], points: Sequence[ContinuationPoint]) -> list[
             i,
             float((1 - w) * a.parameter + w * b.parameter),
             float((1 - w) * a.amplitude + w * b.amplitude),
-            (float(y[0]), float(y[1])),
+            tuple(float(v) for v in y),
         )
 
-    tp = [q.tangent[2] for q in points]
+    tp = [q.tangent[-1] for q in points]
     fold_at = set()
     refined = {i for i, q in enumerate(pts) if q.fold}
     for i in sorted(refined):
@@ -639,7 +659,7 @@ def _special_points(pts: list[Pt], points: Sequence[ContinuationPoint]) -> list[
         q = points[i]
         out.append(
             SpecialPoint(
-                "fold", i, float(q.parameter), float(q.amplitude), (float(q.y0[0]), float(q.y0[1]))
+                "fold", i, float(q.parameter), float(q.amplitude), tuple(float(v) for v in q.y0)
             )
         )
     for i in range(n - 1):

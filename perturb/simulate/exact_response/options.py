@@ -15,6 +15,7 @@ from typing import Any
 from perturb import checks
 from perturb.errors import ParameterError
 from perturb.model.oscillator import Oscillator
+from perturb.model.system import System
 from perturb.simulate.flows.factory import FlowFamily
 
 
@@ -141,13 +142,15 @@ def settings(ds_max: float, ds_min: float, tol: float, max_points: int, max_peri
     return Settings(float(ds_max), float(ds_min), float(tol), int(max_points), float(max_periods))
 
 
-def flow_family(oscillator: Oscillator | FlowFamily, parameter: str | None) -> FlowFamily:
+def flow_family(oscillator: Oscillator | System | FlowFamily, parameter: str | None) -> FlowFamily:
     if isinstance(oscillator, FlowFamily):
         if parameter is not None and parameter != oscillator.parameter:
             raise ParameterError(
                 f"parameter = {parameter!r} but the FlowFamily varies {oscillator.parameter!r}"
             )
         return oscillator
-    if not isinstance(oscillator, Oscillator):
-        raise ParameterError(f"oscillator = {oscillator!r}: expected an Oscillator or FlowFamily")
+    if not isinstance(oscillator, Oscillator | System):
+        raise ParameterError(
+            f"oscillator = {oscillator!r}: expected an Oscillator, a System or a FlowFamily"
+        )
     return FlowFamily(oscillator, parameter)

@@ -56,18 +56,22 @@ class Pt:
         "source",
         "blocks",
         "fold",
+        "extra",
         "_zmax",
     )
 
-    def __init__(self, p: float, Z: np.ndarray) -> None:
+    def __init__(self, p: float, Z: np.ndarray, n: int = 2) -> None:
         self.p = float(p)
-        self.Z = np.array(Z, dtype=float).reshape(-1, 2)
+        # n states per node: (x, v) of an oscillator, the state of a System
+        self.Z = np.array(Z, dtype=float).reshape(-1, n)
         # max |Z| for R, asked for by every proximity test (Z is never changed in place)
         self._zmax = float(np.max(np.abs(self.Z)))
         self.J: np.ndarray | None = None  # [G_z | G_p], unscaled, at (or next to) the point
-        self.mult = np.zeros(2, dtype=complex)
-        self.stats = (0.0, 0.0, 0.0)  # amplitude, first harmonic, mean
-        self.sig = np.zeros(2 * SIG_PHASES)  # states at SIG_PHASES phases per forcing period
+        self.mult = np.zeros(n, dtype=complex)
+        self.stats = (0.0, 0.0, 0.0)  # amplitude, first harmonic, mean (of the output)
+        self.sig = np.zeros(n * SIG_PHASES)  # states at SIG_PHASES phases per forcing period
+        # systems: (max |q_k|, mean q_k) of every coordinate, arrays; None for an oscillator
+        self.extra: tuple[np.ndarray, np.ndarray] | None = None
         self.switches = -1
         self.mode = "shoot"  # or "closed"
         self.seg = -1
@@ -97,7 +101,7 @@ class Pt:
     def D(self, Sp: float) -> np.ndarray:
         """Scales of (Z, p): a unit step is the orbit size (shared by the N nodes) or the
         window."""
-        out = np.full(2 * self.N + 1, self.R * math.sqrt(self.N))
+        out = np.full(self.Z.size + 1, self.R * math.sqrt(self.N))
         out[-1] = Sp
         return out
 
@@ -105,10 +109,13 @@ class Pt:
         return np.append(self.Z.ravel(), self.p)
 
     def tangent3(self) -> np.ndarray:
+        """The tangent's components on ``(y0, p)`` (the first node and the parameter),
+        normalised: ``(x0, v0, p)`` for an oscillator."""
         t = self.tangent
+        n = self.Z.shape[1]
         if t is None:
-            return np.zeros(3)
-        v = np.array([t[0], t[1], t[-1]])
+            return np.zeros(n + 1)
+        v = np.array([t[0], t[1], t[-1]]) if n == 2 else np.r_[t[:n], t[-1]]
         n = np.linalg.norm(v)
         return v / n if n > 0 else v
 
@@ -117,7 +124,7 @@ class Pt:
         after 0, 1, .., m-1 forcing periods (the signature shifted by whole periods)."""
         if m == 1:
             return [self.key()]
-        phases = self.sig.reshape(-1, 2)
+        phases = self.sig.reshape(-1, self.Z.shape[1])
         tail = np.concatenate((self.stats, (self.p, self.R)))
         return [
             np.concatenate((np.roll(phases, -j * SIG_PHASES, axis=0).ravel(), tail))
@@ -146,6 +153,13 @@ class Eval:
 
 def node_growth(M: np.ndarray, N: int) -> float:
     """Growth of a perturbation over one of ``N`` node intervals, from the monodromy."""
+    if M.shape[0] != 2:
+        # n states: the spectral radius itself
+        try:
+            rho = float(np.max(np.abs(np.linalg.eigvals(M))))
+        except np.linalg.LinAlgError:
+            return NODE_GROWTH
+        return max(1.0, rho) ** (1.0 / N) if math.isfinite(rho) else NODE_GROWTH
     tr = abs(float(M[0, 0] + M[1, 1]))
     det = abs(float(M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]))
     rho = 0.5 * (tr + math.sqrt(tr * tr + 4.0 * det))  # bounds the spectral radius
@@ -167,7 +181,13 @@ class Engine:
     """Flows, residuals, Jacobians and the work counter of one continuation problem."""
 
     def __init__(
-        self, family: FlowFamily, m: int, t0: float, window: tuple[float, float], tol: float
+        self,
+        family: FlowFamily,
+        m: int,
+        t0: float,
+        window: tuple[float, float],
+        tol: float,
+        output: np.ndarray | None = None,
     ) -> None:
         self.family = family
         self.m = int(m)
@@ -179,16 +199,32 @@ class Engine:
         self.calls = 0
         self._flows: OrderedDict[float, Any] = OrderedDict()
         self.exact = bool(family.exact)
-        sym = frequency_symbol(family.oscillator)
-        # the forcing frequency must stay positive (other parameters may change sign)
-        self.positive = sym is not None and sym.name == family.parameter
+        # a System of n states (None: an oscillator, the (x, v) code paths below)
+        self.model_system = getattr(family, "system", None)
+        self.n = int(getattr(family, "n_states", 2))
+        self.nd = self.model_system is not None
+        if self.nd:
+            # the forcing frequency must stay positive (other parameters may change sign)
+            self.positive = family.parameter == "Omega" or family._scaled is not None
+            name = self.model_system.name
+            self._nd_setup(output)
+        else:
+            sym = frequency_symbol(family.oscillator)
+            self.positive = sym is not None and sym.name == family.parameter
+            name = family.oscillator.name
         probe = self.flow(0.5 * (self.lo + self.hi))
         if getattr(probe, "period", None) is None:
             raise ParameterError(
-                f"the flow of {family.oscillator.name!r} has no forcing period: continuation of "
+                f"the flow of {name!r} has no forcing period: continuation of "
                 "forced orbits needs a periodic forcing"
             )
         self.system0 = getattr(probe, "system", None)
+        if self.nd:
+            self._continuous = False
+            self._dw = None
+            self.closed_form = False
+            self.affine0 = getattr(probe, "affine_system", None)
+            return
         # own sensitivities from the trajectory pieces where saltation is the identity
         self._continuous = self.exact and bool(np.all(self.system0.continuous_at()))
         self._dw = self._frequency_rates() if self.exact else None
@@ -266,12 +302,13 @@ class Engine:
         flow = self.flow(p)
         P = self.m * float(flow.period)
         N = Z.shape[0]
+        n = self.n
         tn = self.node_times(P, N)
-        r = np.empty(2 * N)
-        Gz = np.zeros((2 * N, 2 * N))
+        r = np.empty(n * N)
+        Gz = np.zeros((n * N, n * N))
         own = self._continuous
         Gp = np.empty(2 * N) if (gp and self._dw is not None) else None
-        M = np.eye(2)
+        M = np.eye(n)
         blocks = []
         trajs: list[Any] | None = [] if self.exact else None
         switches = 0
@@ -298,10 +335,10 @@ class Engine:
                 Mi, zeta = np.asarray(res.sensitivity, dtype=float), None
             blocks.append(Mi)
             j = (i + 1) % N
-            r[2 * i : 2 * i + 2] = yb - Z[j]
-            Gz[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] += Mi
-            Gz[2 * i, 2 * j] -= 1.0
-            Gz[2 * i + 1, 2 * j + 1] -= 1.0
+            r[n * i : n * i + n] = yb - Z[j]
+            Gz[n * i : n * i + n, n * i : n * i + n] += Mi
+            for k in range(n):
+                Gz[n * i + k, n * j + k] -= 1.0
             M = Mi @ M
             switches += int(n_ev)
             if Gp is not None:
@@ -325,10 +362,11 @@ class Engine:
         flow = self.flow(p + h)
         P = self.m * float(flow.period)
         N = Z.shape[0]
+        n = self.n
         tn = self.node_times(P, N)
-        rh = np.empty(2 * N)
+        rh = np.empty(n * N)
         for i in range(N):
-            rh[2 * i : 2 * i + 2] = flow(Z[i], tn[i], tn[i + 1]).y - Z[(i + 1) % N]
+            rh[n * i : n * i + n] = flow(Z[i], tn[i], tn[i + 1]).y - Z[(i + 1) % N]
         self.periods += self.m
         self.calls += N
         return (rh - r) / h
@@ -419,6 +457,14 @@ class Engine:
         reused: the statistics cost no propagation)."""
         flow = self.flow(p_ev)
         P = self.m * float(flow.period)
+        if self.nd:
+            pt.mult = monodromy_multipliers(ev.M, None)
+            pt.switches = ev.switches
+            pt.stats, pt.extra, pt.sig = self.nd_statistics(flow, Zev, P, ev.trajs)
+            pt.J = None
+            pt.blocks = ev.blocks
+            pt.source = "multiple shooting" if pt.N > 1 else "shooting"
+            return
         det = flow.sensitivity_determinant(self.t0, self.t0 + P)  # None: not known exactly
         pt.mult = monodromy_multipliers(ev.M, det)
         pt.switches = ev.switches
@@ -478,6 +524,126 @@ class Engine:
                 if sign * xr > sign * best[which]:
                     best[which] = xr
         return max(abs(best[0]), abs(best[1])), first, mean, sig
+
+    # -- systems of n states ----------------------------------------------------------------------
+    def _nd_setup(self, output: np.ndarray | None) -> None:
+        """The functionals whose statistics a point carries: the output ``c . y`` (default:
+        the first coordinate) and every coordinate (second-order coordinates and first-order
+        states; velocities are not coordinates)."""
+        system = self.model_system
+        n, n2 = self.n, len(system.coordinates)
+        self.coordinate_names = (*system.coordinates, *system.first_order)
+        self.coordinate_index = np.array([*range(n2), *range(2 * n2, n)], dtype=int)
+        if output is None:
+            c = np.zeros(n)
+            c[0] = 1.0
+        else:
+            c = np.asarray(output, dtype=float).reshape(-1)
+            if c.shape != (n,) or not np.all(np.isfinite(c)) or not np.any(c):
+                raise ParameterError(
+                    f"output = {np.asarray(output).tolist()!r}: expected {n} finite numbers, "
+                    f"not all zero (a combination of {', '.join(system.state_names)})"
+                )
+        self.output = c
+        rows = [c] + [np.eye(n)[k] for k in self.coordinate_index]
+        # the output row again when it is a coordinate: computed once
+        self._funcs = np.array(rows)
+        same = [k for k in range(1, len(rows)) if np.array_equal(rows[k], c)]
+        self._out_is = same[0] if same else None
+
+    def _nd_field(self, flow: Any, t: np.ndarray, X: np.ndarray) -> np.ndarray:
+        """The vector field at the samples ``(t_j, X[:, j])``: vectorised per region for the
+        exact affine flow, one call per sample otherwise."""
+        pas = getattr(flow, "affine_system", None)
+        if pas is None:
+            return np.array([flow.vector_field(float(tj), X[:, j]) for j, tj in enumerate(t)]).T
+        F = np.empty_like(X)
+        if pas.surfaces:
+            C = np.array([q.normal for q in pas.surfaces])
+            d = np.array([q.offset for q in pas.surfaces])
+            signs = (C @ X - d[:, None]) >= 0.0  # s = 0 counts as +1, as pattern() does
+            code = signs.T @ (1 << np.arange(len(d)))
+        else:
+            signs = np.zeros((0, X.shape[1]), dtype=bool)
+            code = np.zeros(X.shape[1], dtype=int)
+        for cval in np.unique(code):
+            sel = code == cval
+            j = int(np.flatnonzero(sel)[0])
+            key = tuple(1 if sg else -1 for sg in signs[:, j])
+            reg = pas.region(key)
+            F[:, sel] = reg.A @ X[:, sel] + reg.b[:, None]
+        for h in pas.inputs:
+            F += np.outer(h.u, np.cos(h.omega * t)) + np.outer(h.v, np.sin(h.omega * t))
+        return F
+
+    def nd_statistics(
+        self, flow: Any, Z: np.ndarray, P: float, trajs: list[Any] | None = None
+    ) -> tuple[tuple[float, float, float], tuple[np.ndarray, np.ndarray], np.ndarray]:
+        """Statistics of an orbit of a System over one orbit period: ``(max |c.y|, first
+        harmonic of c.y, mean of c.y)`` for the output ``c``, ``(max |q_k|, mean q_k)`` of every
+        coordinate, and the signature (every state at ``SIG_PHASES`` phases per period).
+
+        ``STAT_SAMPLES`` samples per forcing period (exact dense output for the affine flow);
+        each extremum is then located in its bracketing sample interval as the root of the
+        derivative of the cubic Hermite interpolant of the values and rates (``c . f``, the
+        vector field at the samples) and the state there evaluated on the orbit itself (the
+        exact trajectory, or a short flow call), so the value is exact up to the square of the
+        location error (~1e-11 relative); a few regula-falsi steps on the rate follow when
+        that error estimate is larger (a switch inside the interval)."""
+        m, N, n = self.m, Z.shape[0], self.n
+        ns = STAT_SAMPLES * m
+        t = self.t0 + P * np.arange(ns + 1) / ns
+        node_t = self.node_times(P, N)
+        idx = np.clip(np.searchsorted(node_t, t, side="right") - 1, 0, N - 1)
+        if trajs is None and self.exact:
+            trajs = [flow.trajectory(Z[i], node_t[i], node_t[i + 1]) for i in range(N)]
+        X = np.empty((n, ns + 1))
+        for i in range(N):
+            sel = idx == i
+            if not np.any(sel):
+                continue
+            a, b = node_t[i], node_t[i + 1]
+            ts = np.clip(t[sel], a, b)
+            if trajs is not None:
+                X[:, sel] = trajs[i](ts)
+            else:
+                X[:, sel] = np.asarray(flow(Z[i], a, b, t_eval=ts).ys).T
+                self.periods += self.m / N
+                self.calls += 1
+        F = self._nd_field(flow, t, X)
+        G = self._funcs @ X
+        Gd = self._funcs @ F
+
+        def state_at(j: int, tt: float) -> np.ndarray:
+            # the orbit at tt in sample interval [t_j, t_j+1] (never over a node)
+            i = int(idx[j])
+            tt = min(max(tt, node_t[i]), node_t[i + 1])
+            if trajs is not None:
+                return np.asarray(trajs[i](tt), dtype=float)
+            if tt <= t[j]:
+                return X[:, j]
+            self.calls += 1
+            return flow(X[:, j], float(t[j]), tt).y
+
+        K = G.shape[0]
+        amps = np.empty(K)
+        means = G[:, :ns].mean(axis=1)
+        for k in range(K):
+            if k == 0 and self._out_is is not None:
+                continue
+            best = 0.0
+            for sign in (1.0, -1.0):
+                j = int(np.argmax(sign * G[k, :ns]))
+                v = _refine_nd(self._funcs[k], G[k], Gd[k], t, j, sign, ns, state_at, flow)
+                best = max(best, abs(v))
+            amps[k] = best
+        if self._out_is is not None:
+            amps[0] = amps[self._out_is]
+        c = np.fft.rfft(G[0, :ns]) / ns
+        first = float(2.0 * abs(c[m])) if m < c.size else 0.0
+        mean = float(c[0].real)
+        sig = X[:, : ns : STAT_SAMPLES // SIG_PHASES].T.ravel().copy()
+        return (float(amps[0]), first, mean), (amps[1:].copy(), means[1:].copy()), sig
 
     @staticmethod
     def _reversal_extremum(
@@ -567,3 +733,69 @@ def _hermite5_extremum(x0, d0, s0, x1, d1, s1, sign) -> tuple[float, float]:
             break
         s = sn
     return s, val(s)
+
+
+def _refine_nd(c, g, gd, t, j, sign, ns, state_at, flow, max_iter: int = 4) -> float:
+    """``c . y`` at its extremum (max for ``sign`` +1, min for -1) next to sample ``j``.
+
+    In the sample interval where the rate ``gd`` changes sign: the root of the derivative of
+    the cubic Hermite interpolant of ``(g, gd)`` (error O(h^3) in time), the state evaluated
+    there on the orbit; while the estimated value error ``|rate| * |step| / 2`` exceeds
+    1e-13 of the value, regula falsi on the rate with the new point (at most ``max_iter``
+    evaluations).  The sample value when the rate does not change sign (a kink)."""
+    gj = float(g[j])
+    rj = sign * float(gd[j])
+    if rj > 0.0:
+        a, b = j, j + 1
+    elif rj < 0.0:
+        a, b = (j - 1, j) if j > 0 else (ns - 1, ns)
+    else:
+        return gj
+    ra, rb = sign * float(gd[a]), sign * float(gd[b])
+    if not (ra > 0.0 >= rb):
+        return gj
+    ta, tb = float(t[a]), float(t[b])
+    h = tb - ta
+    ga, gb = sign * float(g[a]), sign * float(g[b])
+    # derivative of the cubic Hermite interpolant (unit interval): q(s) = A s^2 + B s + C
+    ma, mb = ra * h, rb * h
+    qa = 6.0 * ga + 3.0 * ma - 6.0 * gb + 3.0 * mb
+    qb = -6.0 * ga - 4.0 * ma + 6.0 * gb - 2.0 * mb
+    qc = ma
+    lo, hi = 0.0, 1.0
+    s = ra / (ra - rb)
+    for _ in range(40):
+        q = (qa * s + qb) * s + qc
+        if q > 0.0:
+            lo = s
+        else:
+            hi = s
+        dq = 2.0 * qa * s + qb
+        sn = s - q / dq if dq != 0.0 else 0.5 * (lo + hi)
+        if not lo < sn < hi:
+            sn = 0.5 * (lo + hi)
+        if abs(sn - s) < 1e-15:
+            s = sn
+            break
+        s = sn
+    # the orbit itself at the estimate; regula falsi on the rate while the value may be off
+    best = gj
+    lo_t, hi_t, rlo, rhi = ta, tb, ra, rb
+    tt = ta + s * h
+    for _ in range(max_iter):
+        y = state_at(a, tt)
+        val = float(c @ y)
+        if sign * val > sign * best:
+            best = val
+        rate = sign * float(c @ np.asarray(flow.vector_field(tt, y), dtype=float))
+        if rate > 0.0:
+            lo_t, rlo = tt, rate
+        else:
+            hi_t, rhi = tt, rate
+        # step to the rate's root ~ rate / g''; the value error is ~ rate * step / 2
+        curv = (rlo - rhi) / max(hi_t - lo_t, 1e-300)
+        step = abs(rate) / curv if curv > 0.0 else hi_t - lo_t
+        if abs(rate) * step <= 1e-13 * max(1.0, abs(val)) or hi_t - lo_t <= 1e-14 * h:
+            break
+        tt = lo_t + (hi_t - lo_t) * rlo / (rlo - rhi) if rlo != rhi else 0.5 * (lo_t + hi_t)
+    return best

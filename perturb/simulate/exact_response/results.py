@@ -43,14 +43,14 @@ class SpecialPoint:
     parameter, amplitude : float
         Linear interpolation of the test function's zero.
     y0 : tuple of float
-        Interpolated ``(x, v)`` at ``t0``.
+        Interpolated ``(x, v)`` at ``t0`` (the whole state for a system).
     """
 
     kind: SpecialKind
     index: int
     parameter: float
     amplitude: float
-    y0: tuple[float, float]
+    y0: tuple[float, ...]
 
     def __repr__(self) -> str:
         return (
@@ -66,9 +66,9 @@ class ContinuationPoint:
     Attributes
     ----------
     parameter : float
-    y0 : ndarray, shape (2,)
-        ``(x, v)`` at ``t0`` (read-only).
-    multipliers : ndarray of complex, shape (2,)
+    y0 : ndarray, shape (2,) or (n,)
+        ``(x, v)`` at ``t0`` (read-only); a system's state ``(q, q', p)``.
+    multipliers : ndarray of complex, shape (2,) or (n,)
         Floquet multipliers by decreasing modulus.
     max_multiplier : float
         Largest modulus (capped at ``1e300``).
@@ -76,21 +76,26 @@ class ContinuationPoint:
         ``max_multiplier < 1``.
     amplitude, first_harmonic_amplitude, mean : float
         ``max |x|`` over the orbit period, the amplitude of the component at the forcing
-        frequency, and the mean of ``x``.
-    tangent : ndarray, shape (3,)
-        Unit tangent in scaled ``(x0, v0, p)`` (state over the orbit size, parameter over the
-        window), oriented along the branch.
+        frequency, and the mean of ``x`` (for a system: of its output ``c . y``).
+    tangent : ndarray, shape (3,) or (n + 1,)
+        Unit tangent in scaled ``(x0, v0, p)`` (``(y0, p)`` for a system; state over the
+        orbit size, parameter over the window), oriented along the branch.
     switches : int
         Breakpoint crossings per orbit period (``-1`` for smooth flows, which do not count).
     source : str
         ``'closed form'`` (orbit inside one linear segment: exact formula), ``'shooting'``,
         ``'multiple shooting'`` or ``'mirror'`` (image of another branch's orbit under the
         symmetry of an odd system).
-    signature : ndarray, shape (16m,)
-        ``(x, v)`` at ``t0 + kT/8``, ``k = 0 .. 8m-1``: with the amplitude, first harmonic
-        and mean, what the proximity tests (joins, closed loops, duplicate seeds) compare.
+    signature : ndarray, shape (16m,) or (8mn,)
+        ``(x, v)`` (every state) at ``t0 + kT/8``, ``k = 0 .. 8m-1``: with the amplitude,
+        first harmonic and mean, what the proximity tests (joins, closed loops, duplicate
+        seeds) compare.
     nodes : ndarray or None
-        Multiple-shooting nodes ``(N, 2)`` when ``N > 1``.
+        Multiple-shooting nodes ``(N, 2)`` (``(N, n)``) when ``N > 1``.
+    coordinate_amplitudes, coordinate_means : ndarray or None
+        Systems only (None for an oscillator): ``max_t |q_k(t)|`` and the mean of ``q_k`` for
+        every coordinate ``q_k`` (second-order coordinates, then first-order states; the
+        order of :attr:`ContinuationBranch.coordinates`).
     """
 
     parameter: float
@@ -106,8 +111,18 @@ class ContinuationPoint:
     source: str
     signature: np.ndarray
     nodes: np.ndarray | None = None
+    coordinate_amplitudes: np.ndarray | None = None
+    coordinate_means: np.ndarray | None = None
 
     def __repr__(self) -> str:
+        if self.y0.size != 2:
+            ys = ", ".join(f"{v:.8g}" for v in self.y0)
+            return (
+                f"ContinuationPoint(p={self.parameter:.8g}, y0=({ys}), "
+                f"amplitude={self.amplitude:.8g}, "
+                f"{'stable' if self.stable else 'unstable'}, max|mu|={self.max_multiplier:.4g}, "
+                f"{self.source})"
+            )
         return (
             f"ContinuationPoint(p={self.parameter:.8g}, y0=({self.y0[0]:.8g}, {self.y0[1]:.8g}), "
             f"amplitude={self.amplitude:.8g}, {'stable' if self.stable else 'unstable'}, "
@@ -139,6 +154,16 @@ class ContinuationBranch:
         Work: propagated time in forcing periods (the exact propagator dominates the cost).
     family : FlowFamily
         The flows (not printed).
+    ds_max : float
+        Output spacing of the run.
+    coordinates : tuple of str
+        Systems: the names of the coordinates whose statistics every point carries
+        (``coordinate_amplitudes``, ``coordinate_means``); empty for an oscillator.
+    output : str
+        Systems: what ``amplitude``, ``first_harmonic_amplitude`` and ``mean`` measure (a
+        coordinate name or combination); empty for an oscillator (``x``).
+    output_vector : ndarray or None
+        Systems: the output as a combination of the states (``System.output``).
     """
 
     parameter: str
@@ -152,6 +177,9 @@ class ContinuationBranch:
     periods: float
     family: FlowFamily = field(repr=False, compare=False)
     ds_max: float = 0.005
+    coordinates: tuple[str, ...] = ()
+    output: str = ""
+    output_vector: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.points)
@@ -184,8 +212,39 @@ class ContinuationBranch:
 
     @property
     def states(self) -> np.ndarray:
-        """``y0`` of every point, shape ``(n, 2)``."""
-        return np.array([q.y0 for q in self.points]).reshape(-1, 2)
+        """``y0`` of every point, shape ``(points, 2)`` (``(points, n)`` for a system)."""
+        width = self.points[0].y0.size if self.points else 2
+        return np.array([q.y0 for q in self.points]).reshape(-1, width)
+
+    @property
+    def coordinate_amplitudes(self) -> np.ndarray:
+        """Systems: ``max |q_k|`` of every point and coordinate, shape
+        ``(points, len(coordinates))`` (``(points, 0)`` for an oscillator)."""
+        k = len(self.coordinates)
+        return np.array(
+            [q.coordinate_amplitudes if k else () for q in self.points], dtype=float
+        ).reshape(-1, k)
+
+    @property
+    def coordinate_means(self) -> np.ndarray:
+        """Systems: the mean of ``q_k`` of every point and coordinate (as
+        :attr:`coordinate_amplitudes`)."""
+        k = len(self.coordinates)
+        return np.array(
+            [q.coordinate_means if k else () for q in self.points], dtype=float
+        ).reshape(-1, k)
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """Systems: the extra columns of every point, ``amplitude_<name>`` and
+        ``mean_<name>`` per coordinate (in :attr:`coordinates` order, amplitudes first);
+        empty for an oscillator."""
+        amps, means = self.coordinate_amplitudes, self.coordinate_means
+        out: dict[str, np.ndarray] = {}
+        for k, name in enumerate(self.coordinates):
+            out[f"amplitude_{name}"] = amps[:, k].copy()
+        for k, name in enumerate(self.coordinates):
+            out[f"mean_{name}"] = means[:, k].copy()
+        return out
 
     def _kind(self, kind: str) -> tuple[SpecialPoint, ...]:
         return tuple(s for s in self.special_points if s.kind == kind)
@@ -258,6 +317,11 @@ class ExactBranches:
     params : mapping
     method : str
         ``'exact'`` for the exact PWL propagator, ``'shooting'`` for the ODE flow.
+    coordinates : tuple of str
+        Systems: the coordinates whose statistics every point carries (see
+        :meth:`columns`); empty for an oscillator.
+    output : str
+        Systems: what the ``amplitude`` column measures; empty for an oscillator.
     """
 
     branches: tuple[ContinuationBranch, ...]
@@ -268,6 +332,14 @@ class ExactBranches:
     model: str
     params: Any
     method: str
+    coordinates: tuple[str, ...] = ()
+    output: str = ""
+
+    def columns(self) -> tuple[dict[str, np.ndarray], ...]:
+        """Systems: per branch (the order of :meth:`to_response`), the extra columns
+        ``amplitude_<name>``, ``mean_<name>`` of every coordinate (:meth:`ContinuationBranch.
+        columns`); empty dicts for an oscillator."""
+        return tuple(b.columns() for b in self.branches)
 
     def __len__(self) -> int:
         return len(self.branches)
@@ -324,6 +396,9 @@ def polish_at(branch: ContinuationBranch, j: int, w: float) -> PeriodicOrbit | N
             # one period from y0 amplifies its rounding by the multiplier: the statistics of a
             # strongly unstable orbit come from nodes that each grow it by NODE_GROWTH at most
             n = nodes_needed(orbit.max_multiplier, branch.m)
+            if y.size != 2:
+                _, Y = orbit.sample_states(n)
+                return multiple_shooting(flow, Y.T.copy(), m=branch.m, t0=branch.t0)
             _, x, v = orbit.sample(n)
             orbit = multiple_shooting(flow, np.column_stack([x, v]), m=branch.m, t0=branch.t0)
         return orbit

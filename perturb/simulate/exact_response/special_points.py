@@ -38,7 +38,8 @@ def branch_off(parent: Tracer, pts: list[Pt], sp: SpecialPoint, child: Tracer) -
             parent.with_jacobian(crit)
     except PerturbError:
         return None
-    M = np.eye(2)
+    n = parent.eng.n
+    M = np.eye(n)
     for B in crit.blocks:
         M = B @ M
     w, V = np.linalg.eig(M)
@@ -50,7 +51,7 @@ def branch_off(parent: Tracer, pts: list[Pt], sp: SpecialPoint, child: Tracer) -
     reps = mc // pm
     Np = crit.N
     # eigenfunction at the parent's nodes, over the child's period
-    W = np.empty((Np * reps, 2))
+    W = np.empty((Np * reps, n))
     wv = phi.copy()
     for j in range(Np * reps):
         W[j] = wv
@@ -58,8 +59,8 @@ def branch_off(parent: Tracer, pts: list[Pt], sp: SpecialPoint, child: Tracer) -
     Zc = np.tile(crit.Z, (reps, 1))
     st = child.st
     parent_poly = Poly.of(pts, child.eng.Sp, child.st.ds_max, pm)
-    Dc = np.r_[np.full(2 * Zc.shape[0], R * math.sqrt(Zc.shape[0])), child.eng.Sp]
-    dvec = np.r_[phi, np.zeros(2 * Zc.shape[0] - 2), 0.0]
+    Dc = np.r_[np.full(n * Zc.shape[0], R * math.sqrt(Zc.shape[0])), child.eng.Sp]
+    dvec = np.r_[phi, np.zeros(n * Zc.shape[0] - n), 0.0]
     for delta in (2.0, 6.0, 0.7):
         for sgn in (1.0, -1.0):
             dist = delta * st.ds_max
@@ -85,7 +86,7 @@ def branch_off(parent: Tracer, pts: list[Pt], sp: SpecialPoint, child: Tracer) -
                 continue  # back on the parent branch
             if q.J is None:
                 child.with_jacobian(q)
-            child.set_tangent(q, None, np.array([0.0, 0.0, 1.0]))
+            child.set_tangent(q, None, np.r_[np.zeros(child.eng.n), 1.0])
             return q
     return None
 
@@ -131,7 +132,15 @@ def switch_branch(
     if sp.kind not in ("branch_point", "period_doubling"):
         raise ParameterError(f"{sp!r}: expected a branch point or a period doubling")
     st = settings(ds_max or branch.ds_max, 1e-7, tol, max_points, max_periods)
-    parent = Tracer(branch.family, branch.m, branch.t0, branch.window, st, closed_form=False)
+    parent = Tracer(
+        branch.family,
+        branch.m,
+        branch.t0,
+        branch.window,
+        st,
+        closed_form=False,
+        output=branch.output_vector,
+    )
     pts = [_thaw(branch, j) for j in range(len(branch.points))]
     for j in (sp.index, sp.index + 1):
         pts[j].mode = "shoot"
@@ -145,6 +154,7 @@ def switch_branch(
         st,
         closed_form=mc == 1,
         registry=parent.registry,
+        output=branch.output_vector,
     )
     if mc == branch.m:
         parent.registry.add(pts, branch.m)
@@ -158,12 +168,15 @@ def _thaw(branch: ContinuationBranch, j: int) -> Pt:
     """An internal point from a frozen one (no Jacobian)."""
     q = branch.points[j]
     Z = q.nodes if q.nodes is not None else q.y0[None, :]
-    pt = Pt(q.parameter, Z)
+    n = q.y0.size
+    pt = Pt(q.parameter, Z, n)
     pt.mult = np.array(q.multipliers)
     pt.stats = (q.amplitude, q.first_harmonic_amplitude, q.mean)
     pt.sig = np.array(q.signature)
     pt.switches = q.switches
     pt.source = q.source
     pt.mode = "closed" if q.source == "closed form" else "shoot"
-    pt.tangent = np.r_[q.tangent[:2], np.zeros(2 * pt.N - 2), q.tangent[2]]
+    if q.coordinate_amplitudes is not None and q.coordinate_means is not None:
+        pt.extra = (np.array(q.coordinate_amplitudes), np.array(q.coordinate_means))
+    pt.tangent = np.r_[q.tangent[:n], np.zeros(n * pt.N - n), q.tangent[n]]
     return pt

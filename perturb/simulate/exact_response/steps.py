@@ -81,6 +81,8 @@ class Poly:
         return self.keys.n
 
     def append(self, key: np.ndarray) -> None:
+        if not self.keys.n and self.keys.arr.shape[1:] != key.shape:
+            self.keys = _Growing(key.shape)  # an empty polyline of another state size
         if self.keys.n:
             prev = self.keys.arr[-1]
             # the segment's length in the metric of segment_distance (a margin of the
@@ -257,14 +259,14 @@ def correct_point(
         if not (eng.lo - 0.5 * Sp < p < eng.hi + 0.5 * Sp) or (eng.positive and p <= 0.0):
             return None
         try:
-            ev = eng.evaluate(u[:-1].reshape(N, 2), p)
+            ev = eng.evaluate(u[:-1].reshape(N, eng.n), p)
         except PerturbError:
             return None
         return Evaluation(ev.r, ev.Gz, ev.Gp, ev)
 
     def fd_column(u: np.ndarray, r: np.ndarray) -> np.ndarray | None:
         try:
-            return eng.gp_fd(u[:-1].reshape(N, 2), float(u[-1]), r)
+            return eng.gp_fd(u[:-1].reshape(N, eng.n), float(u[-1]), r)
         except PerturbError:
             return None
 
@@ -295,9 +297,12 @@ def correct_point(
     )
     if c is None:
         return None, newton.evaluations
-    pt = Pt(float(c.x[-1]), c.x[:-1])
+    pt = Pt(float(c.x[-1]), c.x[:-1], eng.n)
     eng.finish(
-        pt, c.evaluation.payload, c.x_evaluated[:-1].reshape(N, 2).copy(), float(c.x_evaluated[-1])
+        pt,
+        c.evaluation.payload,
+        c.x_evaluated[:-1].reshape(N, eng.n).copy(),
+        float(c.x_evaluated[-1]),
     )
     pt.J = np.hstack([c.evaluation.ju, c.jl[:, None]])
     if ctl is not None:
@@ -319,8 +324,10 @@ def scaled_chord(a: Pt, b: Pt, Sp: float) -> np.ndarray | None:
 
 
 def chord3(a: Pt, b: Pt, Sp: float) -> np.ndarray:
-    """Scaled chord on (x0, v0, p)."""
+    """Scaled chord on (x0, v0, p) (on ``(y0, p)`` for n states)."""
     R = max(a.R, b.R)
+    if a.Z.shape[1] != 2:
+        return np.r_[(b.Z[0] - a.Z[0]) / R, (b.p - a.p) / Sp]
     return np.array([(b.Z[0, 0] - a.Z[0, 0]) / R, (b.Z[0, 1] - a.Z[0, 1]) / R, (b.p - a.p) / Sp])
 
 
@@ -333,5 +340,6 @@ def orient(pt: Pt, t: np.ndarray, prev: Pt | None, ref3: np.ndarray | None, Sp: 
         ref3 = chord3(prev, pt, Sp)
     if ref3 is None:
         return t
-    t3 = np.array([t[0], t[1], t[-1]])
+    n = pt.Z.shape[1]
+    t3 = np.array([t[0], t[1], t[-1]]) if n == 2 else np.r_[t[:n], t[-1]]
     return -t if float(t3 @ ref3) < 0 else t

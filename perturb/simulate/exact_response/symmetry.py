@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 
+from perturb.errors import PerturbError
 from perturb.model.symmetry import is_odd_symmetric, mirror_nodes
 from perturb.simulate.exact_response.base import SIG_PHASES
 from perturb.simulate.exact_response.march import Tracer
@@ -27,7 +28,29 @@ def engine_is_odd_symmetric(eng: Engine) -> bool:
     :math:`|x|, |v| \le 16` (past the breakpoints of the builtin models) to ``1e-10``."""
     for p in (eng.lo + 0.3 * eng.Sp, eng.lo + 0.8 * eng.Sp):
         flow = eng.flow(p)
+        if eng.n != 2:
+            if not _odd_n(flow.vector_field, float(flow.period), eng.n):
+                return False
+            continue
         if not is_odd_symmetric(flow.vector_field, float(flow.period), 16.0, rtol=1e-10):
+            return False
+    return True
+
+
+def _odd_n(vector_field, period: float, n: int, samples: int = 64, extent: float = 16.0) -> bool:
+    r""":math:`f(t + T/2, -y) = -f(t, y)` for a system of ``n`` states, at ``samples``
+    pseudo-random times and states in :math:`[-16, 16]^n` (a fixed seed), to 1e-10 relative
+    (the test of :func:`perturb.model.symmetry.is_odd_symmetric`, which samples two states)."""
+    rng = np.random.default_rng(1)
+    for _ in range(samples):
+        t = float(rng.uniform(0.0, period))
+        y = rng.uniform(-extent, extent, n)
+        try:
+            a = np.asarray(vector_field(t, y), float)
+            b = np.asarray(vector_field(t + 0.5 * period, -y), float)
+        except (PerturbError, ValueError, ArithmeticError):
+            return False
+        if not np.all(np.abs(a + b) <= 1e-10 * (1.0 + np.abs(a))):
             return False
     return True
 
@@ -61,10 +84,12 @@ def mirror_point(tracer: Tracer, q: Pt) -> Pt:
             Z[i] = -flow(q.Z[k], tn[k], tau).y
             eng.periods += m * (tau - tn[k]) / P
             eng.calls += 1
-    r = Pt(q.p, Z)
+    r = Pt(q.p, Z, eng.n)
     r.mult = q.mult.copy()
     r.stats = (q.stats[0], q.stats[1], -q.stats[2])
-    r.sig = -np.roll(q.sig.reshape(-1, 2), -(SIG_PHASES // 2), axis=0).ravel()
+    r.sig = -np.roll(q.sig.reshape(-1, eng.n), -(SIG_PHASES // 2), axis=0).ravel()
+    if q.extra is not None:
+        r.extra = (q.extra[0].copy(), -q.extra[1])
     r.switches, r.grazing, r.mode, r.fold = q.switches, q.grazing, "shoot", q.fold
     r.source = "mirror"
     return r
@@ -77,10 +102,11 @@ def mirror_branch(tracer: Tracer, pts: list[Pt]) -> list[Pt]:
     for i, (r, q) in enumerate(zip(out, pts, strict=True)):
         tq = q.tangent3()
         a, b = out[max(i - 1, 0)], out[min(i + 1, n - 1)]
-        sec = chord3(a, b, Sp)[:2] if n > 1 else np.zeros(2)
+        k = r.Z.shape[1]
+        sec = chord3(a, b, Sp)[:k] if n > 1 else np.zeros(k)
         ns = float(np.linalg.norm(sec))
-        ypart = sec / ns * math.sqrt(max(0.0, 1 - tq[2] ** 2)) if ns > 0 else np.zeros(2)
-        r.tangent = np.r_[ypart, np.zeros(2 * r.N - 2), tq[2]]
+        ypart = sec / ns * math.sqrt(max(0.0, 1 - tq[k] ** 2)) if ns > 0 else np.zeros(k)
+        r.tangent = np.r_[ypart, np.zeros(k * r.N - k), tq[k]]
     return out
 
 
