@@ -173,6 +173,20 @@ def _cmd_models(args: argparse.Namespace) -> int:
         print(f"    {spec.equation}")
         print(f"    {spec.description}")
         print(f"    defaults: {defaults}")
+    from perturb.model.system_builtins import BUILTIN_SYSTEMS
+
+    print()
+    print("systems of several coordinates (MODEL as below, or equations separated by ';'):")
+    for sys_spec in BUILTIN_SYSTEMS.values():
+        defaults = ", ".join(f"{k}={v:g}" for k, v in sys_spec.defaults.items())
+        print(f"{sys_spec.name}")
+        for equation in sys_spec.equations:
+            print(f"    {equation}")
+        for stop_name, on, lower, upper in sys_spec.stops:
+            print(f"    stop {stop_name}: {lower} <= {on} <= {upper}")
+        print(f"    {sys_spec.description}")
+        print(f"    states: {', '.join(sys_spec.build().state_names)}")
+        print(f"    defaults: {defaults}")
     return 0
 
 
@@ -275,18 +289,50 @@ def parse_omega(text: str) -> tuple[str, list[float]]:
     return "points", values
 
 
+def _names_system(text: str) -> bool:
+    """Whether MODEL names a system of several coordinates: a builtin system or equations
+    separated by ``;`` (decided on the text, before anything is parsed)."""
+    from perturb.model.system_builtins import BUILTIN_SYSTEMS
+
+    return text in BUILTIN_SYSTEMS or ";" in text
+
+
 def _model_from_arg(text: str, params: dict[str, float]):
+    """MODEL: a builtin oscillator, a builtin system, one equation (an oscillator) or several
+    equations separated by ``;`` (a :class:`~perturb.model.system.System`, one equation per
+    coordinate or first-order state, parsed safely)."""
     from perturb.model.builtins import BUILTIN_MODELS, builtin_model
     from perturb.model.oscillator import Oscillator
+    from perturb.model.system_builtins import BUILTIN_SYSTEMS, builtin_system
 
     if text in BUILTIN_MODELS:
         return builtin_model(text, **params)
+    if text in BUILTIN_SYSTEMS:
+        return builtin_system(text, **params)
+    if ";" in text:
+        from perturb.model.system import System
+
+        parts = [part.strip() for part in text.split(";") if part.strip()]
+        return System.parse(parts, params)
     if "''" in text:
         return Oscillator.parse(text, params)
     raise PerturbError(
-        f"model {text!r}: expected a builtin name ({', '.join(BUILTIN_MODELS)}) or an "
-        "equation such as \"x'' + mu*x' + x + x**3 = F*cos(Omega*t)\""
+        f"model {text!r}: expected a builtin name ({', '.join(BUILTIN_MODELS)}), a builtin "
+        f"system ({', '.join(BUILTIN_SYSTEMS)}), an equation such as "
+        "\"x'' + mu*x' + x + x**3 = F*cos(Omega*t)\" or one equation per coordinate "
+        "separated by ';'"
     )
+
+
+def _oscillator_from_arg(text: str, params: dict[str, float], command: str):
+    """MODEL for a command that takes one coordinate only."""
+    if _names_system(text):
+        raise PerturbError(
+            f"model {text!r} is a system of several coordinates: perturb {command} takes "
+            "one coordinate (an oscillator); systems take frc --method exact, simulate and "
+            "periodic"
+        )
+    return _model_from_arg(text, params)
 
 
 def _check_outputs(**outputs: str | None) -> None:
@@ -461,15 +507,23 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from perturb.simulate.time_history import time_history
 
     _check_outputs(out=args.out, plot=args.plot)
-    if args.method not in INTEGRATORS:
+    system = _names_system(args.model)
+    if args.method not in INTEGRATORS and not (system and args.method == "events"):
         raise ParameterError(f"--method {args.method!r}: expected one of {', '.join(INTEGRATORS)}")
     whole(args.samples, "--samples", 2, MAX_SAMPLES, "rows of the output")
     t0, t1 = _pair("--t", args.t.replace(":", ","))
-    y0 = _pair("--y0", args.y0)
+    if system:
+        y0 = None if args.y0 is None else _numbers("--y0", args.y0)
+    else:
+        y0 = _pair("--y0", "0,0" if args.y0 is None else args.y0)
     if not t1 > t0:
         raise ParameterError(f"--t {args.t!r}: expected t0:t1 with t1 > t0")
     params = dict(parse_param(p) for p in args.param or ())
     osc = _model_from_arg(args.model, params)
+    if not system:
+        from perturb.solve import check_oscillator_output
+
+        check_oscillator_output(osc, args.output)
     w = _forcing_frequency(osc)
     periods = (t1 - t0) * max(w, 1.0) / (2 * math.pi)
     if periods > MAX_PERIODS:
@@ -485,6 +539,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                 f"--h {args.h}: {(t1 - t0) / args.h:.4g} steps over --t {args.t}; "
                 f"expected at most {MAX_LCP_STEPS}"
             )
+    if system:
+        return _simulate_system(args, osc, y0, (t0, t1))
     hist = time_history(osc, y0, (t0, t1), method=args.method, samples=args.samples, h=args.h)
     text = hist.to_csv(args.out)
     if args.plot:
@@ -498,6 +554,89 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _numbers(flag: str, text: str) -> list[float]:
+    """``--y0`` of a system: a comma list of finite numbers (its count is checked against
+    the model's states once the model is built)."""
+    parts = text.split(",")
+    try:
+        [float(p) for p in parts]
+    except ValueError:
+        raise ParameterError(
+            f"{flag} {text!r}: expected the states as numbers separated by commas, like 0.3,0,0,0"
+        ) from None
+    return [parse_number(p, flag) for p in parts]
+
+
+def _simulate_system(args: argparse.Namespace, system, y0, t_span) -> int:
+    """``perturb simulate`` on a system of several coordinates: CSV ``t``, every state,
+    ``output``; the plot of every coordinate and the output."""
+    from perturb.solve import system_time_history
+
+    if args.method in ("event", "lcp"):
+        raise ParameterError(
+            f"--method {args.method}: the event-driven and LCP integrators take one "
+            f"coordinate; a system ({system.name!r}) takes --method auto, exact, ode or events"
+        )
+    if args.h is not None:
+        raise ParameterError(
+            f"--h {args.h}: the step of --method lcp, which takes one coordinate; a system "
+            "takes --method auto, exact or ode"
+        )
+    names = system.state_names
+    if y0 is not None and len(y0) != len(names):
+        raise ParameterError(
+            f"--y0 {args.y0!r}: expected {len(names)} numbers, the states "
+            f"{', '.join(names)} of {system.name!r}"
+        )
+    hist = system_time_history(
+        system, y0, t_span, method=args.method, samples=args.samples, output=args.output
+    )
+    text = hist.to_csv(args.out)
+    if args.plot:
+        from perturb.apps.scene import plot_system_history, system_title
+
+        with _atomic_figure(args.plot) as tmp:
+            plot_system_history(hist, tmp, title=system_title(system))
+    print(repr(hist), file=sys.stderr)
+    if args.out is None:
+        sys.stdout.write(text)
+    return 0
+
+
+def _multipliers_text(mu) -> str:
+    """Floquet multipliers as one CSV field: ``re+imj`` numbers separated by spaces (each
+    readable by Python's ``complex``)."""
+    return " ".join(
+        f"{float(z.real)!r}{'-' if z.imag < 0 else '+'}{abs(float(z.imag))!r}j" for z in mu
+    )
+
+
+def _periodic_system(args: argparse.Namespace, system) -> str:
+    """The CSV of ``perturb periodic`` on a system: the SDOF columns (of ``--output``), each
+    coordinate's ``amplitude_<name>`` and ``mean_<name>``, the multipliers and the initial
+    state ``y0_<state>``."""
+    from perturb.solve import orbit_columns, periodic_orbits, system_coordinates
+
+    orbits = periodic_orbits(system, args.omega, m=args.m, output=args.output)
+    coords = system_coordinates(system)
+    cols = ["omega", "m", "amplitude", "first_harmonic_amplitude", "mean", "stable"]
+    cols += ["max_multiplier", "stability"]
+    cols += [f"amplitude_{c}" for c in coords] + [f"mean_{c}" for c in coords]
+    cols += ["multipliers"] + [f"y0_{name}" for name in system.state_names]
+    lines = [",".join(cols)]
+    for o in orbits:
+        num = orbit_columns(system, o, args.output)
+        row = [repr(float(args.omega)), str(o.m)]
+        row += [repr(num[k]) for k in ("amplitude", "first_harmonic_amplitude", "mean")]
+        row += [str(int(o.max_multiplier < 1)), repr(float(o.max_multiplier)), o.stability]
+        row += [repr(num[f"amplitude_{c}"]) for c in coords]
+        row += [repr(num[f"mean_{c}"]) for c in coords]
+        row += [_multipliers_text(o.multipliers)] + [repr(float(v)) for v in o.y0]
+        lines.append(",".join(row))
+    print(f"{len(orbits)} period-{args.m} orbits at Omega = {args.omega}", file=sys.stderr)
+    return "\n".join(lines) + "\n"
+
+
 def _cmd_periodic(args: argparse.Namespace) -> int:
     from perturb.solve import periodic_orbits
 
@@ -508,6 +647,16 @@ def _cmd_periodic(args: argparse.Namespace) -> int:
     _check_omega_range("--omega", str(args.omega), [args.omega])
     params = dict(parse_param(p) for p in args.param or ())
     osc = _model_from_arg(args.model, params)
+    from perturb.solve import check_oscillator_output, is_system
+
+    if is_system(osc):
+        text = _periodic_system(args, osc)
+        if args.out:
+            _write_text(args.out, text)
+        else:
+            sys.stdout.write(text)
+        return 0
+    check_oscillator_output(osc, args.output)
     orbits = periodic_orbits(osc, args.omega, m=args.m)
     cols = "omega,m,amplitude,first_harmonic_amplitude,mean,stable,max_multiplier,stability,x0,v0"
     lines = [cols]
@@ -545,7 +694,7 @@ def _cmd_derive(args: argparse.Namespace) -> int:
         )
     options = method.validate({"order": args.order}, prefix="--", stage="derive")
     params = dict(parse_param(p) for p in args.param or ())
-    osc = _model_from_arg(args.model, params)
+    osc = _oscillator_from_arg(args.model, params, "derive")
     approx = derive(osc, method.name, use_cache=not args.no_cache, **options)
     # files first: the summary may go to a pipe that closes early
     if args.latex:
@@ -677,7 +826,11 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=_methods_epilog(("auto", "reference", "symbolic", "numeric")),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("model", help="builtin model name (perturb models) or an equation string")
+    p.add_argument(
+        "model",
+        help="builtin model or system name (perturb models), an equation string, or one "
+        "equation per coordinate separated by ';'",
+    )
     p.add_argument(
         "--method",
         default="hb1",
@@ -726,14 +879,28 @@ def build_parser() -> argparse.ArgumentParser:
         choices=["exact"],
         help="add a rel_error column against the exact solution (default: none)",
     )
+    p.add_argument(
+        "--output",
+        help="systems: what the amplitude (simulate: the output column) measures, a "
+        "coordinate or a linear combination such as x2 or 'x1 - x2' (default: the first "
+        "coordinate); an oscillator takes x only",
+    )
     p.add_argument("--out", help="CSV file (default: standard output)")
     p.add_argument("--plot", help="PNG file (default: none)")
     p.set_defaults(func=_cmd_frc)
 
     p = sub.add_parser("simulate", help="time history (exact, event-driven, LCP or ODE)")
-    p.add_argument("model", help="builtin model name or an equation string")
+    p.add_argument(
+        "model",
+        help="builtin model or system name, an equation string, or one equation per "
+        "coordinate separated by ';'",
+    )
     p.add_argument("--param", action="append", metavar="NAME=VALUE", help="parameter value")
-    p.add_argument("--y0", default="0,0", help="initial state x0,v0 (default 0,0)")
+    p.add_argument(
+        "--y0",
+        help="initial state x0,v0 (default 0,0); for a system its states in the order "
+        "perturb models lists (default all 0)",
+    )
     p.add_argument(
         "--t",
         default="0:100",
@@ -746,14 +913,32 @@ def build_parser() -> argparse.ArgumentParser:
         default=2001,
         help=f"output samples (default 2001, at most {MAX_SAMPLES})",
     )
-    p.add_argument("--method", default="auto", help="auto, exact, event, lcp or ode (default auto)")
+    p.add_argument(
+        "--method",
+        default="auto",
+        help="auto, exact, event, lcp or ode (default auto); a system: auto, exact, ode or "
+        "events (auto: events with stops or friction, exact when piecewise affine, else ode)",
+    )
     p.add_argument("--h", type=_finite("--h"), help="LCP step (default: period/200)")
-    p.add_argument("--out", help="CSV file t,x,v (default: standard output)")
+    p.add_argument(
+        "--output",
+        help="systems: what the amplitude (simulate: the output column) measures, a "
+        "coordinate or a linear combination such as x2 or 'x1 - x2' (default: the first "
+        "coordinate); an oscillator takes x only",
+    )
+    p.add_argument(
+        "--out",
+        help="CSV file t,x,v (a system: t, every state, output) (default: standard output)",
+    )
     p.add_argument("--plot", help="PNG file")
     p.set_defaults(func=_cmd_simulate)
 
     p = sub.add_parser("periodic", help="all periodic orbits at one forcing frequency")
-    p.add_argument("model", help="builtin model name or an equation string")
+    p.add_argument(
+        "model",
+        help="builtin model or system name, an equation string, or one equation per "
+        "coordinate separated by ';'",
+    )
     p.add_argument("--param", action="append", metavar="NAME=VALUE", help="parameter value")
     p.add_argument("--omega", type=_finite("--omega"), required=True, help="forcing frequency")
     p.add_argument(
@@ -761,6 +946,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         default=1,
         help=f"forcing periods per orbit (default 1, at most {MAX_SUBHARMONIC})",
+    )
+    p.add_argument(
+        "--output",
+        help="systems: what the amplitude (simulate: the output column) measures, a "
+        "coordinate or a linear combination such as x2 or 'x1 - x2' (default: the first "
+        "coordinate); an oscillator takes x only",
     )
     p.add_argument("--out", help="CSV file (default: standard output)")
     p.set_defaults(func=_cmd_periodic)

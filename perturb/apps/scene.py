@@ -88,7 +88,7 @@ __all__ = [
 ]
 
 _KEYS: dict[str, set[str]] = {
-    "model": {"name", "equation"},
+    "model": {"name", "equation", "system", "equations", "output"},
     "params": set(),  # any parameter name
     "ask": {
         "kind",
@@ -102,6 +102,11 @@ _KEYS: dict[str, set[str]] = {
         "values",
         "transient_periods",
         "record_periods",
+        "times",
+        "outputs",
+        "crossings",
+        "active",
+        "method",
     },
     "method": {"name", "order", "harmonics", "all_branches"},
     "compare": {"reference", "methods"},
@@ -170,9 +175,40 @@ class Scene:
         )
     )
     source: str = "<scene>"
+    #: A system of several coordinates (``[model] system``, ``equations`` or the ``name`` of
+    #: a builtin system) instead of an oscillator.
+    is_system: bool = False
+    equations: tuple[str, ...] | None = None
+    #: ``[model] output``: what a system's ``amplitude`` measures.
+    output: str | None = None
+    #: A system's initial state: ``n`` numbers, or ``{state: value}`` (others 0).
+    state0: tuple[float, ...] | Mapping[str, float] | None = None
+    #: ``[ask] outputs`` / ``crossings`` / ``active`` of a system's step response.
+    step_outputs: tuple[str, ...] | Mapping[str, str] | None = None
+    crossings: tuple[str, ...] = ()
+    active: Mapping[str, int | None] | None = None
+
+    def model_object(self):
+        """The scene's model with its parameter values: an
+        :class:`~perturb.model.oscillator.Oscillator`, or a
+        :class:`~perturb.model.system.System` for a system scene."""
+        if not self.is_system:
+            return self.oscillator()
+        if self.equations is not None:
+            from perturb.model.system import System
+
+            return System.parse(list(self.equations), dict(self.params), name=self.model)
+        from perturb.model.system_builtins import builtin_system
+
+        return builtin_system(self.model, **self.params)
 
     def oscillator(self) -> Oscillator:
-        """The model with the scene's parameter values."""
+        """The model with the scene's parameter values (an oscillator scene)."""
+        if self.is_system:
+            raise PerturbError(
+                f"scene {self.source}: the model {self.model!r} is a system of several "
+                "coordinates, not an oscillator: use Scene.model_object()"
+            )
         if self.equation is not None:
             return Oscillator.parse(self.equation, dict(self.params), name=self.model)
         return builtin_model(self.model, **self.params)
@@ -203,6 +239,9 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
         ``"scene <source>: ..."`` naming the first bad table, key or value.
     """
     data = _scene_tables(text, source)
+    system = _system_model_table(source, data.get("model", {}))
+    if system is not None:
+        return _parse_system_scene(source, data, system)
     name, equation = _model_table(source, data.get("model", {}))
     params = _params_table(source, data.get("params", {}))
     kind, points, fields = _ask_table(source, data.get("ask", {}))
@@ -649,16 +688,23 @@ def run_scene(scene: Scene, out_dir: str | Path = "out", *, log=None) -> dict[st
         names["latex"] = scene.outputs["latex"]
     check_distinct(out / n for n in names.values())
     out.mkdir(parents=True, exist_ok=True)
-    osc = scene.oscillator()
+    osc = scene.model_object()
     say(f"[perturb] scene {scene.source}: {osc}")
     paths = {"csv": out / names["csv"], "png": out / names["png"]}
-    runner = {
-        "frequency_response": _run_frequency_response,
-        "backbone": _run_backbone,
-        "time_history": _run_time_history,
-        "step_response": _run_time_history,
-        "bifurcation_diagram": _run_bifurcation,
-    }[scene.kind]
+    if scene.is_system:
+        runner = {
+            "frequency_response": _run_system_frequency_response,
+            "time_history": _run_system_time_history,
+            "step_response": _run_system_step_response,
+        }[scene.kind]
+    else:
+        runner = {
+            "frequency_response": _run_frequency_response,
+            "backbone": _run_backbone,
+            "time_history": _run_time_history,
+            "step_response": _run_time_history,
+            "bifurcation_diagram": _run_bifurcation,
+        }[scene.kind]
     report = {
         "scene": scene.source,
         "kind": scene.kind,
@@ -1207,4 +1253,504 @@ def _run_bifurcation(scene: Scene, osc: Oscillator, out: Path, paths: dict, say)
         "period_1": int(np.sum(diag.period == 1)),
         "subharmonic": int(np.sum(diag.period > 1)),
         "not_periodic": int(np.sum(diag.period == 0)),
+    }
+
+
+def plot_system_history(history, path=None, *, title: str | None = None):
+    """A system's time history: every coordinate against ``t`` (velocities left out) above,
+    the output combination below.
+
+    Parameters
+    ----------
+    history : perturb.solve.SystemHistory
+    path : str or Path, optional
+        Where the figure is saved (complete or absent).
+    title : str, optional
+        Plain text (wrapped); default names the integrator.
+    """
+    import textwrap
+
+    from perturb.report.figures import mathtext_safe, save_figure
+
+    fig, (ax1, ax2) = _subplots(2)
+    names = history.state_names
+    shown = [k for k, name in enumerate(names) if not name.endswith("'")]
+    for k in shown:
+        ax1.plot(history.t, history.y[:, k], lw=0.8, label=names[k])
+    ax1.set_ylabel("coordinates")
+    ax1.legend(fontsize=7, loc="upper right")
+    ax2.plot(history.t, history.output, lw=0.8, color="k")
+    ax2.set_xlabel("$t$")
+    ax2.set_ylabel(mathtext_safe(f"output {history.output_name}"))
+    for ax in (ax1, ax2):
+        ax.grid(alpha=0.3)
+    text = title or f"time history ({history.method})"
+    fig.suptitle("\n".join(textwrap.wrap(mathtext_safe(text), 130)), fontsize=8)
+    if path is not None:
+        save_figure(fig, path)
+    _close(fig)
+    return fig
+
+
+def _subplots(rows: int):
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    return plt.subplots(rows, 1, figsize=(8, 5.5), dpi=110, layout="constrained", sharex=True)
+
+
+def system_title(system) -> str:
+    """A figure title for a system: its name, its equations as given, its parameter values."""
+    from perturb.model.system_builtins import BUILTIN_SYSTEMS
+
+    params = ", ".join(f"{k}={v:g}" for k, v in system.params.items() if v is not None)
+    spec = BUILTIN_SYSTEMS.get(system.name)
+    if spec is not None and system.source == "; ".join(spec.equations):
+        return f"{system.name}: {spec.description}   [{params}]"
+    return f"{system.name}: {system.source}   [{params}]"
+
+
+# ------------------------------------------------------------------------------------------
+# Systems of several coordinates (issue 15)
+# ------------------------------------------------------------------------------------------
+
+#: The ``[ask]`` keys of each kind a system scene takes (besides ``kind``).
+_SYSTEM_KIND_KEYS: dict[str, set[str]] = {
+    "frequency_response": {"omega", "points"},
+    "time_history": {"y0", "t", "samples"},
+    "step_response": {
+        "y0",
+        "t",
+        "times",
+        "samples",
+        "points",
+        "outputs",
+        "crossings",
+        "active",
+        "method",
+    },
+}
+#: Most equations of a system scene (bounded parsing work).
+_MAX_EQUATIONS = 64
+
+
+def _system_model_table(source: str, model: dict) -> dict | None:
+    """``[model]`` of a system scene: ``system = "nsd2"`` (or ``name`` = a builtin system), or
+    ``equations = [...]`` (one per coordinate / first-order state, parsed safely when the
+    scene runs; ``name`` labels them), and ``output``; None for an oscillator's scene.
+
+    Raises
+    ------
+    PerturbError
+        ``output`` for an oscillator, ``equation`` with a system, both ``system`` and
+        ``equations``, an unknown builtin system, equations that are not a list of strings.
+    """
+    from perturb.model.system_builtins import BUILTIN_SYSTEMS
+
+    name, system, equations = model.get("name"), model.get("system"), model.get("equations")
+    if system is None and equations is None and name not in BUILTIN_SYSTEMS:
+        if "output" in model:
+            raise _scene_error(
+                source,
+                f"[model] output = {model['output']!r}: applies to systems of several "
+                "coordinates ([model] system or equations); an oscillator's amplitude is "
+                "max |x|",
+            )
+        return None
+    if "equation" in model:
+        raise _scene_error(
+            source,
+            "[model] equation is one oscillator's equation: a system takes "
+            "equations = [...] (one per coordinate) or system = '<builtin>'",
+        )
+    if system is not None and equations is not None:
+        raise _scene_error(source, "[model] give system = '<builtin>' or equations, not both")
+    if system is not None:
+        if not isinstance(system, str) or system not in BUILTIN_SYSTEMS:
+            raise _scene_error(
+                source,
+                f"[model] system = {system!r}: expected one of {', '.join(BUILTIN_SYSTEMS)}",
+            )
+        if name is not None and name != system:
+            raise _scene_error(
+                source, f"[model] name = {name!r} and system = {system!r}: give one of them"
+            )
+    if equations is not None:
+        ok = (
+            isinstance(equations, list)
+            and 1 <= len(equations) <= _MAX_EQUATIONS
+            and all(isinstance(e, str) and e.strip() for e in equations)
+        )
+        if not ok:
+            raise _scene_error(
+                source,
+                f"[model] equations = {equations!r}: expected a list of 1 to {_MAX_EQUATIONS} "
+                "equation strings, one per coordinate",
+            )
+        if name is not None and not isinstance(name, str):
+            raise _scene_error(source, f"[model] name = {name!r}: expected a string")
+    output = model.get("output")
+    if output is not None and (not isinstance(output, str) or not output.strip()):
+        raise _scene_error(
+            source,
+            f"[model] output = {output!r}: expected a coordinate or a linear combination "
+            "such as 'x1 - x2'",
+        )
+    return {
+        "model": system or (name if equations is None else (name or "custom")),
+        "equations": None if equations is None else tuple(equations),
+        "output": None if output is None else output.strip(),
+    }
+
+
+def _parse_system_scene(source: str, data: dict, model: dict) -> Scene:
+    """The rest of a system scene: ``[params]``, ``[ask]`` (kinds frequency_response,
+    time_history, step_response), ``[method]``, ``[output]``; ``[compare]``, ``[plot]`` and
+    ``[accuracy]`` are for oscillators (for now)."""
+    params = _params_table(source, data.get("params", {}))
+    ask = data.get("ask", {})
+    kind = ask.get("kind", "frequency_response")
+    if kind not in _KINDS:
+        raise _scene_error(source, f"[ask] kind = {kind!r}: expected one of {', '.join(_KINDS)}")
+    if kind not in _SYSTEM_KIND_KEYS:
+        raise _scene_error(
+            source,
+            f"[ask] kind = {kind!r} takes one coordinate (an oscillator); a system of several "
+            f"coordinates takes {', '.join(_SYSTEM_KIND_KEYS)}",
+        )
+    for key in ask:
+        if key != "kind" and key not in _SYSTEM_KIND_KEYS[kind]:
+            raise _scene_error(
+                source,
+                f"[ask] {key!r} does not apply to kind {kind!r} of a system: expected one of "
+                + ", ".join(sorted(_SYSTEM_KIND_KEYS[kind])),
+            )
+    for table in ("compare", "plot", "accuracy"):
+        if data.get(table):
+            raise _scene_error(
+                source, f"[{table}] applies to oscillators; a system scene does not take it (yet)"
+            )
+    fields: dict = _system_ask_fields(source, ask, kind)
+    fields["method"] = _system_method(source, data.get("method", {}), ask, kind)
+    outputs = _output_table(source, data.get("output", {}), kind)
+    if "latex" in data.get("output", {}):
+        raise _scene_error(
+            source, "[output] latex: a system's exact response has no derivation to write"
+        )
+    outputs.pop("latex", None)
+    return Scene(
+        model=str(model["model"]),
+        equation=None,
+        params=MappingProxyType(params),
+        kind=kind,
+        outputs=MappingProxyType(outputs),
+        source=source,
+        is_system=True,
+        equations=model["equations"],
+        output=model["output"],
+        **fields,
+    )
+
+
+def _system_ask_fields(source: str, ask: dict, kind: str) -> dict:
+    """``[ask]`` of a system scene as :class:`Scene` fields."""
+    fields: dict = {}
+    if kind == "frequency_response":
+        fields["omega"] = _interval(source, "omega", ask.get("omega", [0.2, 2.0]), positive=True)
+        points = ask.get("points", 2000)
+        if not _is_count(points, 10, 10**6):
+            raise _scene_error(
+                source, f"[ask] points = {points!r}: expected an integer in [10, 1e6]"
+            )
+        fields["points"] = points
+        return fields
+    for a, b in (("t", "times"), ("samples", "points")):
+        if a in ask and b in ask:
+            raise _scene_error(source, f"[ask] {a} and {b} are one setting: give one of them")
+    span = ask.get("t", ask.get("times"))
+    if span is not None:
+        fields["t"] = _interval(source, "t" if "t" in ask else "times", span, positive=False)
+    count_key = "samples" if "samples" in ask else "points"
+    if count_key in ask:
+        value = ask[count_key]
+        if not _is_count(value, 2, 10**7):
+            raise _scene_error(
+                source, f"[ask] {count_key} = {value!r}: expected an integer in [2, 10000000]"
+            )
+        fields["samples"] = value
+    if "y0" in ask:
+        fields["state0"] = _state_table(source, ask["y0"])
+    if "outputs" in ask:
+        value = ask["outputs"]
+        if isinstance(value, list) and value and all(isinstance(v, str) and v for v in value):
+            fields["step_outputs"] = tuple(value)
+        elif (
+            isinstance(value, dict)
+            and value
+            and all(isinstance(v, str) and v for v in value.values())
+        ):
+            fields["step_outputs"] = MappingProxyType(dict(value))
+        else:
+            raise _scene_error(
+                source,
+                f"[ask] outputs = {value!r}: expected a list of output names or expressions, "
+                "or a table name = expression",
+            )
+    if "crossings" in ask:
+        value = ask["crossings"]
+        if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
+            raise _scene_error(
+                source, f"[ask] crossings = {value!r}: expected a list of output names"
+            )
+        fields["crossings"] = tuple(value)
+    if "active" in ask:
+        value = ask["active"]
+        modes = {-1: -1, 0: None, 1: 1}
+        if not isinstance(value, dict) or not all(
+            isinstance(v, int) and not isinstance(v, bool) and v in modes for v in value.values()
+        ):
+            raise _scene_error(
+                source,
+                f"[ask] active = {value!r}: expected a table stop = -1 (resting on its lower "
+                "limit), 1 (upper) or 0 (free)",
+            )
+        fields["active"] = MappingProxyType({k: modes[v] for k, v in value.items()})
+    return fields
+
+
+def _state_table(source: str, value: object) -> tuple[float, ...] | Mapping[str, float]:
+    """``[ask] y0`` of a system: a list of the ``n`` states, or a table ``state = value``
+    (the others 0); the count and names are checked against the model when it is built."""
+    if isinstance(value, list) and value and all(_is_finite(v) for v in value):
+        return tuple(float(v) for v in value)
+    if isinstance(value, dict) and all(_is_finite(v) for v in value.values()):
+        return MappingProxyType({str(k): float(v) for k, v in value.items()})
+    raise _scene_error(
+        source,
+        f"[ask] y0 = {value!r}: expected the states as a list of finite numbers, or a table "
+        "state = value (the others 0)",
+    )
+
+
+def _system_method(source: str, table: dict, ask: dict, kind: str) -> str:
+    """``[method] name`` of a system scene: ``exact`` for a frequency response (the
+    approximations take one coordinate), an integrator for a time history, a step-response
+    solver (also as ``[ask] method``) for a step response."""
+    extra = sorted(set(table) - {"name"})
+    if extra:
+        raise _scene_error(
+            source,
+            f"[method] {', '.join(extra)}: options of the approximations, which take one "
+            "coordinate; a system scene takes [method] name only",
+        )
+    if "method" in ask and "name" in table:
+        raise _scene_error(source, "[ask] method and [method] name are one setting: give one")
+    if kind == "frequency_response":
+        name = table.get("name", "exact")
+        spec = _method_spec(source, "[method] name =", name)
+        if spec.name != "exact":
+            raise _scene_error(
+                source,
+                f"[method] name = {name!r} ({spec.title}) is a method for one coordinate; a "
+                "system of several coordinates takes 'exact' (for now)",
+            )
+        return "exact"
+    if kind == "time_history":
+        from perturb.solve import SYSTEM_INTEGRATORS
+
+        name = table.get("name", "auto")
+        if name not in SYSTEM_INTEGRATORS:
+            raise _scene_error(
+                source,
+                f"[method] name = {name!r}: a system's time history takes one of "
+                + ", ".join(SYSTEM_INTEGRATORS),
+            )
+        return name
+    from perturb.simulate.step_response import METHODS
+
+    name = ask.get("method", table.get("name", "auto"))
+    if name not in METHODS:
+        raise _scene_error(
+            source,
+            f"method = {name!r}: a system's step response takes one of {', '.join(METHODS)}",
+        )
+    return name
+
+
+def _initial_state(scene: Scene, system):
+    """The scene's initial state in the system's state order (zero by default)."""
+    import numpy as np
+
+    names = system.state_names
+    y = np.zeros(len(names))
+    if scene.state0 is None:
+        return y
+    if isinstance(scene.state0, Mapping):
+        for key, value in scene.state0.items():
+            if key not in names:
+                raise _scene_error(
+                    scene.source,
+                    f"[ask] y0: {key!r} is not a state of {system.name!r}: expected one of "
+                    + ", ".join(names),
+                )
+            y[names.index(key)] = value
+        return y
+    if len(scene.state0) != len(names):
+        raise _scene_error(
+            scene.source,
+            f"[ask] y0 = {list(scene.state0)!r}: expected {len(names)} numbers, the states "
+            + ", ".join(names),
+        )
+    return np.array(scene.state0, dtype=float)
+
+
+def _run_system_time_history(scene: Scene, system, out: Path, paths: dict, say) -> dict:
+    from perturb.solve import system_time_history
+
+    y0 = _initial_state(scene, system)
+    say(f"[perturb] integrating over t in {scene.t} from y0 = {list(y0)} ({scene.method}) ...")
+    hist = system_time_history(
+        system, y0, scene.t, method=scene.method, samples=scene.samples, output=scene.output
+    )
+    say(f"[perturb] {hist!r}")
+    hist.to_csv(paths["csv"])
+    plot_system_history(hist, paths["png"], title=system_title(system))
+    return {
+        "t": list(scene.t),
+        "y0": [float(v) for v in y0],
+        "states": list(system.state_names),
+        "output": hist.output_name,
+        "integrator": hist.method,
+    }
+
+
+def _step_outputs(scene: Scene, system) -> dict[str, str]:
+    """The step response's named outputs: ``[ask] outputs`` (names of the builtin's outputs,
+    state names or expressions), default the builtin's named outputs; the builtin's outputs
+    named in ``[ask] crossings`` and ``[model] output`` (as ``output``) added."""
+    from perturb.model.system_builtins import BUILTIN_SYSTEMS, builtin_outputs
+
+    named = dict(builtin_outputs(scene.model)) if scene.model in BUILTIN_SYSTEMS else {}
+    if scene.step_outputs is None:
+        wanted = dict(named)
+    elif isinstance(scene.step_outputs, Mapping):
+        wanted = dict(scene.step_outputs)
+    else:
+        wanted = {item: named.get(item, item) for item in scene.step_outputs}
+    for name in scene.crossings:  # a crossing of a builtin's named output needs it computed
+        if name not in wanted and name in named:
+            wanted[name] = named[name]
+    if scene.output is not None:
+        wanted.setdefault("output", scene.output)
+    return wanted
+
+
+def _run_system_step_response(scene: Scene, system, out: Path, paths: dict, say) -> dict:
+    import numpy as np
+
+    from perturb.simulate.step_response import step_response
+
+    y0 = _initial_state(scene, system)
+    outputs = _step_outputs(scene, system)
+    times = np.linspace(scene.t[0], scene.t[1], scene.samples)
+    say(
+        f"[perturb] step response over t in {scene.t} ({scene.samples} samples, {scene.method}) ..."
+    )
+    r = step_response(
+        system,
+        times,
+        y0=y0,
+        method=scene.method,
+        active=None if scene.active is None else dict(scene.active),
+        outputs=outputs or None,
+        crossings=scene.crossings,
+    )
+    say(f"[perturb] {r}".replace("\n", "\n[perturb] "))
+    names = list(r.state_names) + list(r.outputs)
+    cols = [np.asarray(r.times)] + [np.asarray(r.states)[:, k] for k in range(len(r.state_names))]
+    cols += [np.asarray(r.outputs[k]) for k in r.outputs]
+    lines = [",".join(["t", *names])]
+    for j in range(len(r.times)):
+        lines.append(",".join(repr(float(c[j])) for c in cols))
+    write_text(paths["csv"], "\n".join(lines) + "\n")
+    _plot_step_response(r, paths["png"], system_title(system))
+    info: dict = {
+        "t": list(scene.t),
+        "samples": scene.samples,
+        "y0": [float(v) for v in y0],
+        "states": list(r.state_names),
+        "outputs": outputs,
+        "solver": r.method,
+        "events": len(r.events),
+        "crossings": {k: [float(t) for t in v] for k, v in r.crossings.items()},
+    }
+    if r.equilibrium is not None:
+        info["equilibrium"] = [float(v) for v in r.equilibrium]
+    return info
+
+
+def _plot_step_response(r, png: Path, title: str) -> None:
+    """Coordinates (velocities left out) in one panel, each output in its own (their units
+    differ: a pressure, a flow)."""
+    import textwrap
+
+    import numpy as np
+
+    from perturb.report.figures import mathtext_safe, save_figure
+
+    outputs = list(r.outputs)[:5]  # a readable figure: at most five output panels
+    fig, axes = _subplots(1 + len(outputs))
+    axes = np.atleast_1d(axes)
+    states = np.asarray(r.states)
+    for k, name in enumerate(r.state_names):
+        if not name.endswith("'"):
+            axes[0].plot(r.times, states[:, k], lw=0.8, label=name)
+    axes[0].set_ylabel("coordinates")
+    axes[0].legend(fontsize=7, loc="best")
+    for ax, name in zip(axes[1:], outputs, strict=True):
+        ax.plot(r.times, r.outputs[name], lw=0.8, color="k")
+        ax.set_ylabel(mathtext_safe(name))
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("$t$")
+    text = f"step response ({r.method}) of {title}"
+    fig.suptitle("\n".join(textwrap.wrap(mathtext_safe(text), 130)), fontsize=8)
+    save_figure(fig, png)
+    _close(fig)
+
+
+def _run_system_frequency_response(scene: Scene, system, out: Path, paths: dict, say) -> dict:
+    """A system's exact frequency response (:func:`perturb.solve.frequency_response`): the
+    CSV (the SDOF columns of ``[model] output``, then ``amplitude_<name>`` and ``mean_<name>``
+    of every coordinate) and the figure of the output's amplitude, stable solid."""
+    from perturb.solve import frequency_response, system_response_columns
+
+    say(
+        f"[perturb] tracing the exact frequency response of {system.name} over Omega in "
+        f"{scene.omega} ..."
+    )
+    resp = frequency_response(system, "exact", scene.omega, output=scene.output)
+    say(f"[perturb] {resp!r}".replace("\n", "\n[perturb] "))
+    extra = system_response_columns(resp)
+    resp.to_csv(paths["csv"], extra=extra)
+    from perturb.report.figures import frequency_response_figure
+
+    fig = frequency_response_figure([resp], paths["png"], title=system_title(system))
+    _close(fig)
+    notes = [f"{resp.method}: {n}" for n in resp.notes]
+    if not resp.branches:
+        notes.append(
+            f"exact: no periodic solution found for Omega in [{scene.omega[0]:g}, "
+            f"{scene.omega[1]:g}] (an empty answer, not a proof that none exists)"
+        )
+    return {
+        "omega": list(scene.omega),
+        "method": "exact",
+        "output": scene.output or system.coordinates[0] if system.coordinates else None,
+        "branches": len(resp.branches),
+        "points": int(sum(len(b) for b in resp.branches)),
+        "columns": list(extra),
+        "notes": notes,
     }
