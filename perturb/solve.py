@@ -46,6 +46,7 @@ it runs.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
@@ -78,6 +79,7 @@ __all__ = [
     "system_coordinates",
     "check_oscillator_output",
     "SYSTEM_METHODS",
+    "SystemResponse",  # noqa: F822 - built on first access (module __getattr__)
     "SYSTEM_INTEGRATORS",
     "orbit_columns",
     "system_time_history",
@@ -100,16 +102,21 @@ DEFAULT_HARMONICS = 15
 
 def frequency_response(
     oscillator: Oscillator,
-    method: str = "hb1",
+    method: str | None = None,
     Omega: Sequence[float] = (0.2, 2.0),
     *,
     frequencies: Sequence[float] | None = None,
+    output: str | None = None,
     **options: Any,
 ) -> Response:
     """The frequency response of ``oscillator`` by ``method``.
 
     Parameters
     ----------
+    oscillator
+        An :class:`~perturb.model.oscillator.Oscillator`, or a
+        :class:`~perturb.model.system.System` of several coordinates (method ``"exact"``
+        only, for now: the answer is a :class:`SystemResponse`, see :func:`_system_response`).
     method
         A name (or alias) of :data:`perturb.methods.registry.REGISTRY`: ``"exact"``
         (continuation of exact periodic orbits), ``"hb"`` (numeric multi-harmonic balance,
@@ -140,6 +147,11 @@ def frequency_response(
         and the options of :func:`perturb.simulate.exact_response.exact_branches`. With
         ``"auto"``: ``rtol`` (relative amplitude tolerance in ``(0, 1)``, default
         ``1e-3``), ``spots`` / ``n_spots`` (spot-check frequencies), ``points``.
+        Default: ``"hb1"`` for an oscillator, ``"exact"`` for a system.
+    output
+        Systems: what the ``amplitude``, ``first_harmonic_amplitude`` and ``mean`` columns
+        measure, a coordinate or a linear combination (``"x2"``, ``"x1 - x2"``; default the
+        first coordinate). An oscillator takes its coordinate only (``"x"``).
 
     Raises
     ------
@@ -157,7 +169,10 @@ def frequency_response(
     with ``bias=True`` in all its unknowns (``a_n, b_n, c_0``), stability by Hill's method
     truncated at its highest harmonic.
     """
-    spec = registry.spec(method)
+    if is_system(oscillator):
+        return _system_response(oscillator, method, Omega, frequencies, output, options)
+    check_oscillator_output(oscillator, output)
+    spec = registry.spec("hb1" if method is None else method)
     if frequencies is not None:
         frequencies = checks.frequencies(frequencies, MAX_FREQUENCIES)
     if spec.kind == "symbolic":
@@ -958,3 +973,184 @@ def _event_flow(system: Any, y0: Any) -> Any:
         pass  # a singular linear part (a free rigid-body mode): the states' own size
     scale = size if size > 0 else 1.0
     return SystemEventFlow(system, rtol=1e-11, atol=1e-12 * scale)
+
+
+@functools.cache
+def _response_class() -> type:
+    """:class:`SystemResponse`, defined on first use: the response module loads NumPy, which
+    importing this module does not."""
+    from dataclasses import dataclass, field
+
+    from perturb.response import Response
+
+    @dataclass(frozen=True, eq=False, repr=False)  # Response's short repr
+    class SystemResponse(Response):
+        """A system's frequency response: the :class:`~perturb.response.Response` columns
+        measure ``output``; ``columns`` holds, per branch, ``amplitude_<name>`` and
+        ``mean_<name>`` of every coordinate (arrays), which :meth:`to_csv` appends."""
+
+        output: str = ""
+        coordinates: tuple[str, ...] = ()
+        columns: tuple[Any, ...] = field(default=())
+
+        def extra_columns(self) -> dict[str, list[float]]:
+            """The per-coordinate columns, one value per CSV row."""
+            names = [f"amplitude_{c}" for c in self.coordinates]
+            names += [f"mean_{c}" for c in self.coordinates]
+            return {n: [float(v) for cols in self.columns for v in cols[n]] for n in names}
+
+        def to_csv(self, path: Any = None, extra: Any = None) -> str:
+            """The CSV of :class:`~perturb.response.Response`, then ``amplitude_<name>``,
+            ``mean_<name>`` of every coordinate, then ``extra``."""
+            return super().to_csv(path, extra={**self.extra_columns(), **dict(extra or {})})
+
+    SystemResponse.__module__ = __name__
+    SystemResponse.__qualname__ = "SystemResponse"
+    return SystemResponse
+
+
+def __getattr__(name: str) -> Any:
+    # SystemResponse is built on first access (see _response_class)
+    if name == "SystemResponse":
+        return _response_class()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _system_response(
+    system: Any,
+    method: str | None,
+    Omega: Sequence[float],
+    frequencies: Sequence[float] | None,
+    output: str | None,
+    options: dict[str, Any],
+) -> Any:
+    """:func:`frequency_response` of a :class:`~perturb.model.system.System`: the exact
+    branches (:func:`perturb.simulate.exact_response.exact_branches` with ``output``) as a
+    :class:`SystemResponse`; at listed ``frequencies``, every orbit found there
+    (:func:`periodic_orbits` and the crossings of the branches traced over a covering
+    window, polished by shooting at each frequency), each its own one-point branch.
+
+    Raises
+    ------
+    ParameterError
+        A method other than ``"exact"`` (the approximations take one coordinate), or an
+        option ``"exact"`` does not take.
+    """
+    spec = registry.spec("exact" if method is None else method)
+    if spec.name not in SYSTEM_METHODS:
+        raise ParameterError(
+            f"method {spec.name!r} ({spec.title}) is for one coordinate (an Oscillator); a "
+            f"system of several coordinates ({system.name!r}) takes method 'exact' for now"
+        )
+    options = spec.validate(dict(options))
+    for key in ("approximation", "approximation_seeds"):
+        if key in options:
+            raise ParameterError(
+                f"{key}: approximations start the exact solver of one coordinate; a system "
+                "takes seeds=[(Omega, y0), ...] with its n states"
+            )
+    system_output(system, output)  # a bad output is refused before any work
+    if frequencies is not None:
+        return _system_solutions_at(
+            system, checks.frequencies(frequencies, MAX_FREQUENCIES), output, options
+        )
+    from perturb.simulate.exact_response import exact_branches
+
+    found = exact_branches(system, Omega, output=output, **options)
+    resp = found.to_response()
+    cls = _response_class()
+    return cls(
+        resp.branches,
+        resp.method,
+        resp.model,
+        resp.params,
+        resp.folds,
+        resp.notes,
+        output=system_output(system, output)[1],
+        coordinates=system_coordinates(system),
+        columns=found.columns(),
+    )
+
+
+def _system_solutions_at(
+    system: Any, frequencies: list[float], output: str | None, options: dict[str, Any]
+) -> Any:
+    """Every orbit of a system found at exactly ``frequencies`` (see :func:`_system_response`)."""
+    import numpy as np
+
+    from perturb.response import Branch
+    from perturb.simulate.exact_response import exact_branches
+    from perturb.simulate.exact_response.api import ONE_FREQUENCY_WINDOW
+    from perturb.simulate.exact_response.results import polish_at
+
+    targets = sorted(set(frequencies))
+    if len(targets) == 1:
+        window = (targets[0] / ONE_FREQUENCY_WINDOW, targets[0] * ONE_FREQUENCY_WINDOW)
+    else:
+        window = (targets[0], targets[-1])
+    notes: list[str] = []
+    found_at = {
+        w: list(_system_periodic_orbits(system, w, 1, (), 3, 100, None, output)) for w in targets
+    }
+    seeds = list(options.pop("seeds", ())) + [
+        (w, o.y0) for w, orbits in found_at.items() for o in orbits
+    ]
+    if "options" not in options:
+        options.setdefault("max_seconds", 120.0)  # a bounded tracing, as for one oscillator
+    try:
+        traced = exact_branches(system, window, seeds=seeds, output=output, **options)
+    except PerturbError as exc:
+        traced = None
+        notes.append(f"continuation over [{window[0]:.6g}, {window[1]:.6g}] failed: {exc}")
+    if traced is not None:
+        for bi, br in enumerate(traced.branches):
+            p = br.parameters
+            for j in range(len(p) - 1):
+                lo, hi = sorted((p[j], p[j + 1]))
+                for w in targets:
+                    if not lo <= w <= hi or (w == p[j + 1] and j + 1 < len(p) - 1):
+                        continue
+                    orbit = polish_at(br, j, w)
+                    if orbit is None:
+                        notes.append(f"branch {bi}: shooting at Omega = {w!r} failed")
+                        continue
+                    scale = max(1.0, float(np.abs(orbit.y0).max()))
+                    if not any(
+                        o.m == orbit.m and float(np.abs(o.y0 - orbit.y0).max()) <= 1e-6 * scale
+                        for o in found_at[w]
+                    ):
+                        found_at[w].append(orbit)
+    branches, columns = [], []
+    coords = system_coordinates(system)
+    for w in targets:
+        at_w = system.with_params(Omega=w) if "Omega" in system.params else system
+        rows = [(orbit_columns(at_w, o, output), o) for o in found_at[w]]
+        rows.sort(key=lambda r: (r[0]["amplitude"], r[0]["mean"]))
+        for num, o in rows:
+            branches.append(
+                Branch(
+                    omega=[w],
+                    amplitude=[num["amplitude"]],
+                    first_harmonic_amplitude=[num["first_harmonic_amplitude"]],
+                    mean=[num["mean"]],
+                    stable=[o.max_multiplier < 1.0],
+                    max_multiplier=[o.max_multiplier],
+                )
+            )
+            columns.append(
+                {k: np.array([num[k]]) for k in num if k.startswith(("amplitude_", "mean_"))}
+            )
+        notes.append(f"{len(rows)} orbits at Omega = {w!r} (one per branch)")
+    method = traced.method if traced is not None else "exact"
+    params = {k: v for k, v in system.params.items() if k != "Omega"}
+    cls = _response_class()
+    return cls(
+        tuple(branches),
+        "exact" if method is None else str(method),
+        system.name,
+        params,
+        notes=tuple(notes),
+        output=system_output(system, output)[1],
+        coordinates=coords,
+        columns=tuple(columns),
+    )

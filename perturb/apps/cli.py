@@ -403,6 +403,10 @@ def _cmd_frc(args: argparse.Namespace) -> int:
     from perturb.methods.registry import check_points, spec
 
     _check_outputs(out=args.out, plot=args.plot)
+    if _names_system(args.model):
+        return _frc_system(args)
+    if args.method is None:
+        args.method = "hb1"  # the default of an oscillator (a system's is exact)
     method = spec(args.method, what="--method")
     if args.compare not in (None, "exact"):
         raise PerturbError(f"--compare {args.compare!r}: expected exact")
@@ -428,6 +432,9 @@ def _cmd_frc(args: argparse.Namespace) -> int:
         options["all_branches"] = True
     params = dict(parse_param(p) for p in args.param or ())
     osc = _model_from_arg(args.model, params)
+    from perturb.solve import check_oscillator_output
+
+    check_oscillator_output(osc, args.output)
     swept = str(getattr(osc.forcing, "base_frequency", ""))
     if swept in params:
         raise ParameterError(
@@ -475,6 +482,70 @@ def _cmd_frc(args: argparse.Namespace) -> int:
         print(str(comparison), file=sys.stderr)
     if quiet_csv:
         # the picture was asked for, not 3 000 CSV rows on the terminal
+        sys.stdout.write(_frc_summary(resp, kind))
+        print(f"wrote {args.plot} (add --out FILE.csv for the data)", file=sys.stdout)
+    elif args.out is None:
+        sys.stdout.write(text)
+    return 0
+
+
+def _frc_system(args: argparse.Namespace) -> int:
+    """``perturb frc`` on a system of several coordinates: the exact response
+    (:func:`perturb.solve.frequency_response`), CSV with the SDOF columns of ``--output`` and
+    ``amplitude_<name>``, ``mean_<name>`` of every coordinate."""
+    from perturb.methods.registry import check_points, spec
+
+    method = spec("exact" if args.method is None else args.method, what="--method")
+    if method.name != "exact":
+        raise ParameterError(
+            f"--method {args.method}: {method.title} is a method for one coordinate; a system "
+            f"of several coordinates ({args.model!r}) takes --method exact (for now)"
+        )
+    given = {
+        "--harmonics": args.harmonics,
+        "--order": args.order,
+        "--one-branch": args.one_branch or None,
+        "--compare": args.compare,
+    }
+    for flag, value in given.items():
+        if value is not None:
+            raise ParameterError(
+                f"{flag}: an option of the approximations, which take one coordinate; a "
+                "system's exact response takes --omega, --output, --param, --out and --plot"
+            )
+    check_points(args.points, "--points")
+    kind, omegas = parse_omega(args.omega)
+    params = dict(parse_param(p) for p in args.param or ())
+    system = _model_from_arg(args.model, params)
+    if "Omega" in params:
+        raise ParameterError(
+            f"--param Omega={params['Omega']:g}: Omega is the forcing frequency that frc "
+            f"varies; give its values with --omega (e.g. --omega {params['Omega']:g})"
+        )
+    from perturb.solve import frequency_response, system_output
+
+    _, output = system_output(system, args.output)  # refused before any work
+    if kind == "range":
+        resp = frequency_response(system, "exact", omegas, output=args.output)
+    else:
+        resp = frequency_response(system, "exact", frequencies=omegas, output=args.output)
+    text = resp.to_csv(None)
+    if args.out is not None:
+        _write_text(args.out, text)
+    if args.plot:
+        from perturb.apps.scene import system_title
+        from perturb.report.figures import plot_frequency_response, save_figure
+
+        fig = plot_frequency_response([resp], None, title=system_title(system, ("Omega",)))
+        fig.axes[0].set_ylabel(f"amplitude max |{output}|")
+        with _atomic_figure(args.plot) as tmp:
+            save_figure(fig, tmp)
+    quiet_csv = args.out is None and args.plot
+    if not quiet_csv:
+        print(_describe(resp), file=sys.stderr)
+        for note in resp.notes:
+            print(f"note: {note}", file=sys.stderr)
+    if quiet_csv:
         sys.stdout.write(_frc_summary(resp, kind))
         print(f"wrote {args.plot} (add --out FILE.csv for the data)", file=sys.stdout)
     elif args.out is None:
@@ -833,8 +904,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--method",
-        default="hb1",
-        help=f"{', '.join(names())} (default: hb1); see the list below",
+        help=f"{', '.join(names())} (default: hb1; a system: exact, its only method for "
+        "now); see the list below",
     )
     p.add_argument(
         "--param",

@@ -1301,15 +1301,21 @@ def _subplots(rows: int):
     return plt.subplots(rows, 1, figsize=(8, 5.5), dpi=110, layout="constrained", sharex=True)
 
 
-def system_title(system) -> str:
-    """A figure title for a system: its name, its equations as given, its parameter values."""
+def system_title(system, skip: tuple[str, ...] = (), width: int = 110) -> str:
+    """A figure title for a system: its name, its description (a builtin) or its equations as
+    given, its parameter values (but ``skip``), wrapped to ``width`` characters."""
+    import textwrap
+
     from perturb.model.system_builtins import BUILTIN_SYSTEMS
 
-    params = ", ".join(f"{k}={v:g}" for k, v in system.params.items() if v is not None)
+    params = ", ".join(
+        f"{k}={v:g}" for k, v in system.params.items() if v is not None and k not in skip
+    )
     spec = BUILTIN_SYSTEMS.get(system.name)
+    what = system.source
     if spec is not None and system.source == "; ".join(spec.equations):
-        return f"{system.name}: {spec.description}   [{params}]"
-    return f"{system.name}: {system.source}   [{params}]"
+        what = spec.description
+    return "\n".join(textwrap.wrap(f"{system.name}: {what}   [{params}]", width))
 
 
 # ------------------------------------------------------------------------------------------
@@ -1725,19 +1731,21 @@ def _run_system_frequency_response(scene: Scene, system, out: Path, paths: dict,
     """A system's exact frequency response (:func:`perturb.solve.frequency_response`): the
     CSV (the SDOF columns of ``[model] output``, then ``amplitude_<name>`` and ``mean_<name>``
     of every coordinate) and the figure of the output's amplitude, stable solid."""
-    from perturb.solve import frequency_response, system_response_columns
+    from perturb.solve import frequency_response, system_output
 
+    _, output = system_output(system, scene.output)
     say(
         f"[perturb] tracing the exact frequency response of {system.name} over Omega in "
         f"{scene.omega} ..."
     )
     resp = frequency_response(system, "exact", scene.omega, output=scene.output)
     say(f"[perturb] {resp!r}".replace("\n", "\n[perturb] "))
-    extra = system_response_columns(resp)
-    resp.to_csv(paths["csv"], extra=extra)
-    from perturb.report.figures import frequency_response_figure
+    resp.to_csv(paths["csv"])  # the SDOF columns of the output, then every coordinate's
+    from perturb.report.figures import frequency_response_figure, save_figure
 
-    fig = frequency_response_figure([resp], paths["png"], title=system_title(system))
+    fig = frequency_response_figure([resp], None, title=system_title(system, ("Omega",)))
+    fig.axes[0].set_ylabel(f"amplitude max |{output}|")
+    save_figure(fig, paths["png"])
     _close(fig)
     notes = [f"{resp.method}: {n}" for n in resp.notes]
     if not resp.branches:
@@ -1748,9 +1756,9 @@ def _run_system_frequency_response(scene: Scene, system, out: Path, paths: dict,
     return {
         "omega": list(scene.omega),
         "method": "exact",
-        "output": scene.output or system.coordinates[0] if system.coordinates else None,
+        "output": output,
         "branches": len(resp.branches),
         "points": int(sum(len(b) for b in resp.branches)),
-        "columns": list(extra),
+        "columns": list(resp.extra_columns()),
         "notes": notes,
     }
