@@ -82,6 +82,10 @@ Limitations
   previous step; a friction level that depends on a normal force is not modelled (the systems
   declare the normal load in the element).
 * Penetration of order ``h`` times the impact velocity is inherent in the velocity-level scheme.
+* ``theta = 1/2`` is A-stable but not L-stable: a mode far faster than ``1/h`` (a near-singular
+  mass matrix, a very stiff spring) is not damped but rings with alternating sign from step to
+  step (the positions, averaged by the trapezoidal update, stay right; the velocities do not).
+  ``theta > 1/2`` damps it (``theta = 1``: backward Euler, first order).
 """
 
 from __future__ import annotations
