@@ -11,9 +11,10 @@ import math
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
+from scipy.optimize import brentq
 
 from perturb.errors import ParameterError, PerturbError
-from perturb.model.system import System, coulomb, stop
+from perturb.model.system import System, coulomb, step, stop
 from perturb.model.system_builtins import builtin_system
 from perturb.simulate.flows.system_events import EventFlowError, SystemEventFlow
 from perturb.simulate.orbits.shooting import periodic_orbit
@@ -298,3 +299,28 @@ def test_bad_input_is_a_clear_error():
     few = SystemEventFlow(_impact_system(), max_events=2)
     with pytest.raises(PerturbError, match="more than 2 transitions"):
         few([0.0, 0.0], 0.0, 50.0)
+
+
+# ------------------------------------------------- a crossing and return inside one step --
+def test_cross_and_return_inside_one_step_is_found():
+    # x'' + x + J H(x - d) = 0 from (0, 1): the orbit pokes 1e-7 beyond d = 1 - 1e-7 for about
+    # 9e-4 time units, far shorter than a DOP853 step; closed form on both sides
+    d, J = 1 - 1e-7, 1e-3
+    system = System.from_matrices([[1]], [[0]], [[1]], elements=[step("x1", d, J, name="bump")])
+    flow = SystemEventFlow(system, rtol=1e-12, atol=1e-12)
+    res = flow([0.0, 1.0], 0.0, 4.0)
+    t_in = math.asin(d)
+    vc = math.cos(t_in)
+    # inside: x = -J + (d + J) cos(tau) + vc sin(tau) until it is back at d
+    tau = brentq(lambda u: -J + (d + J) * math.cos(u) + vc * math.sin(u) - d, 1e-9, 1.0, xtol=1e-16)
+    t_out = t_in + tau
+    v_out = -(d + J) * math.sin(tau) + vc * math.cos(tau)
+    u = 4.0 - t_out
+    exact = np.array(
+        [d * math.cos(u) + v_out * math.sin(u), -d * math.sin(u) + v_out * math.cos(u)]
+    )
+    times = [e.t for e in flow.events]
+    assert [e.kind for e in flow.events] == ["cross", "cross"]
+    # the crossing times are ill-conditioned (x' = 4.5e-4 there): state error / x'
+    assert times == pytest.approx([t_in, t_out], abs=5e-8)
+    assert np.max(np.abs(res.y - exact)) < 1e-9

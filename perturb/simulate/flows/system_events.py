@@ -845,53 +845,85 @@ class SystemEventFlow(Flow):
             else:
                 vals = np.array([g[1](tt, Y[:, j]) for j, tt in enumerate(ts)])
             hit = np.flatnonzero(vals < thr)
-            lo, hi = t_old, None
+            grid = [t_old, *ts.tolist()]
+            gv = [gval(t_old), *vals.tolist()]
             if hit.size:
-                j = int(hit[0])
-                hi = float(ts[j])
-                lo = float(ts[j - 1]) if j > 0 else t_old
+                j = int(hit[0]) + 1
+                grid, gv = grid[: j + 1], gv[: j + 1]
             elif g[0] == "lin" and rate_prev[i] < 0:
                 if f_new is None:
                     f_new = self._field(t_new, y_new, mode)
-                if float(g[1] @ f_new) > 0:  # closest approach inside the step
+                if float(g[1] @ f_new) <= 0:
+                    continue
+                # closest approach inside the step: the rate's root, beyond the surface?
 
-                    def rate(tt, g=g):
-                        yy = np.asarray(dense(tt))[:n]
-                        return float(g[1] @ self._field(tt, yy, mode))
+                def rate(tt, g=g):
+                    yy = np.asarray(dense(tt))[:n]
+                    return float(g[1] @ self._field(tt, yy, mode))
 
-                    try:
-                        tm = brentq(
-                            rate, t_old, t_new, xtol=1e-15 * max(1.0, abs(t_new)), maxiter=200
-                        )
-                    except ValueError:
-                        tm = None
-                    if tm is not None and gval(tm) < thr:
-                        hi = tm
-            if hi is None:
-                continue
-            if best is not None and lo >= best[0]:
-                continue
-            # the crossing: root of g - thr in [lo, hi], lo where g >= thr
-            glo = gval(lo) - thr
-            if glo < 0:  # only possible at t_old for a disarmed guard: cross at once
-                tc = lo
+                try:
+                    tm = brentq(rate, t_old, t_new, xtol=1e-15 * max(1.0, abs(t_new)), maxiter=200)
+                except ValueError:
+                    continue
+                gm = gval(tm)
+                if gm >= thr:
+                    continue
+                keep = [q for q, tq in enumerate(grid) if tq < tm]
+                grid = [grid[q] for q in keep] + [tm]
+                gv = [gv[q] for q in keep] + [gm]
             else:
+                continue
+            if best is not None and grid[0] >= best[0]:
+                continue
+            # the crossing of g = 0 itself (the band thr only decides that one happened): the
+            # first sample below 0 and the one before it
+            # (a disarmed guard starts on its surface, maybe a rounding error beyond it: zero
+            # is then its starting value)
+            base = min(gv[0], 0.0) if not armed[i] and gv[0] >= thr else 0.0
+            q = next(q for q, v in enumerate(gv) if v < base)
+            if q == 0:  # already beyond by more than the band: the crossing is at once
+                tc = t_old
+            else:
+                lo, hi = grid[q - 1], grid[q]
+                if q == 1 and not armed[i]:
+                    # leaving the surface and coming back: bracket from the excursion's top
+                    lo = self._excursion_top(g, gval, dense, lo, hi, mode)
+                if gval(lo) - base <= 0.0:
+                    tc = t_old
+                    if best is None or tc < best[0]:
+                        best = (tc, i)
+                    continue
                 tc = brentq(
-                    lambda tt, thr=thr: gval(tt) - thr,
+                    lambda tt, base=base: gval(tt) - base,
                     lo,
                     hi,
                     xtol=1e-15 * max(1.0, abs(hi)),
                     maxiter=200,
                 )
-                # the last point still inside
-                if gval(tc) - thr < 0 and tc > lo:
-                    tc = max(lo, tc - 2e-16 * max(1.0, abs(tc)))
             if best is None or tc < best[0]:
                 best = (tc, i)
         if best is None:
             return None
         tc, i = best
         return tc, np.asarray(dense(tc)).copy(), i
+
+    def _excursion_top(self, g, gval, dense, lo, hi, mode) -> float:
+        """The time of the largest ``g`` in ``[lo, hi]`` for a guard that starts on its
+        surface and ends beyond it: the root of its rate for a linear guard, else the best of
+        32 samples."""
+        n = self.n_states
+        if g[0] == "lin":
+
+            def rate(tt):
+                yy = np.asarray(dense(tt))[:n]
+                return float(g[1] @ self._field(tt, yy, mode))
+
+            if rate(lo) > 0.0 > rate(hi):
+                return float(brentq(rate, lo, hi, xtol=1e-15 * max(1.0, abs(hi)), maxiter=200))
+            return lo
+        ts = np.linspace(lo, hi, 33)
+        vals = [gval(tt) for tt in ts]
+        return float(ts[int(np.argmax(vals))])
 
     # --------------------------------------------------------------- transitions --
     def _salt(self, Phi, R, f_minus, f_plus, normal):
