@@ -14,22 +14,25 @@ What this script checks (the seed's equations are partly lost; docs/references.m
 2. *Closed-form step responses* by partial fractions and SymPy's inverse Laplace transform,
    verified against their own ODE and initial values; peaks at n pi/omega_d, the decay
    envelope, the settling time.  Numerically: against ``scipy.signal.step`` of the transfer
-   functions and against ``solve_ivp`` of the lumped ODEs (not of the transfer functions).
+   functions and against perturb's closed-form linear step response of the lumped ODEs (an
+   eigen-decomposition of their matrix, not the transfer functions).
 3. *Nonlinear mount.*  Top-chamber vacuum (the compliance C_1 switches to a larger value below
    a pressure -p_v) and a free decoupler (a plate in a gap, with inertance I_d and resistance
    R_d while it floats and no flow while it rests on a stop).  The fixed-decoupler vacuum model
-   is one degree of freedom and runs on perturb's event-driven integrator
-   (:func:`perturb.simulate.flows.event_driven.simulate`); the free-decoupler model has four states
-   (two flows and two volumes), which that integrator (``x'' + g(x, x', t) = f(t)``, state
-   ``(x, x')``) does not take, so it runs on ``solve_ivp`` with terminal events and restarts
-   written here.  The two agree where both apply.
+   is piecewise linear and runs on perturb's exact closed-form propagation, and also, as one
+   oscillator, on perturb's SDOF event-driven integrator
+   (:func:`perturb.simulate.flows.event_driven.simulate`) and on its n-state event-driven flow;
+   the free-decoupler model has four states (two flows and two volumes) and a stop, and runs on
+   the n-state event-driven flow.  All through
+   :func:`perturb.simulate.step_response.step_response`, with the models of
+   :func:`perturb.model.system_builtins.mount_system`; they agree where several apply.
 
 4. *Quasi-linear model* (the paper's eqs. 14-16, lost from the seed and reconstructed): with
    the decoupler floating, the track and the plate are two inertance/resistance branches in
    parallel; SymPy shows the mount is K_1(s) with the track impedance replaced by
    Z_e = Z_i Z_d/(Z_i + Z_d), and the one-branch model with the large-s asymptote
-   I_e s + R_e of Z_e is compared with the full four-state model (``solve_ivp``,
-   ``scipy.signal``) and with the small-s asymptote.
+   I_e s + R_e of Z_e is compared with the full four-state model (perturb's closed-form step
+   response, ``scipy.signal``) and with the small-s asymptote.
 5. *The three step-response components* (static, decaying cosine, decaying sine): peak and
    energy shares of the sine term, the one the paper neglects, and what dropping it does to
    the extrema.
@@ -53,7 +56,6 @@ from pathlib import Path
 import numpy as np
 import sympy as sp
 from scipy import signal
-from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 HERE = Path(__file__).resolve().parent
@@ -63,9 +65,16 @@ if str(HERE) not in sys.path:  # imported by path (tests) rather than run as a s
 from _common import Study, study  # noqa: E402
 
 from perturb.model.oscillator import Oscillator  # noqa: E402
+from perturb.model.system import System  # noqa: E402
+from perturb.model.system_builtins import (  # noqa: E402
+    builtin_system,
+    mount_outputs,
+    mount_system,
+)
 from perturb.printing import latex  # noqa: E402
 from perturb.report.latex import escape  # noqa: E402
 from perturb.simulate.flows.event_driven import simulate as event_driven_simulate  # noqa: E402
+from perturb.simulate.step_response import step_response  # noqa: E402
 
 NAME = "hydraulic_mount"
 EPSILONS = (0.01, 0.02, 0.05)
@@ -397,37 +406,36 @@ class LumpedRun:
     extrema: np.ndarray  # times where q_i = 0, i.e. dF/dt = A_r dp_1/dt = 0
 
 
-def integrate_lumped(
-    m: Mount, times: np.ndarray, X: float = 1.0, *, rtol: float = 1e-12
-) -> LumpedRun:
-    """``solve_ivp`` of the lumped ODEs in (p_1, p_2, q_i) after an ideal step.
+def lumped_system(m: Mount) -> System:
+    """The fixed-decoupler lumped ODEs in (p_1, p_2, q_i) for t > 0 (x' = 0), as a perturb
+    system of three first-order states."""
+    return System.parse(
+        ["C1*p1' + q_i = 0", "C2*p2' - q_i = 0", "I_i*q_i' + R_i*q_i - p1 + p2 = 0"],
+        {"C1": m.C1, "C2": m.C2, "I_i": m.I_i, "R_i": m.R_i},
+        name="mount-lumped",
+    )
+
+
+def integrate_lumped(m: Mount, times: np.ndarray, X: float = 1.0) -> LumpedRun:
+    """The lumped ODEs in (p_1, p_2, q_i) after an ideal step, by perturb's closed-form linear
+    step response (:func:`perturb.simulate.step_response.step_response`, eigen-decomposition
+    of the balanced system matrix: no transfer function, no SymPy).
 
     Across t = 0 only the top-chamber continuity sees the impulse A_r x'(t): p_1 jumps by
-    A_r X / C_1 while p_2 and q_i stay 0.  For t > 0, x' = 0.
+    A_r X / C_1 while p_2 and q_i stay 0.  For t > 0, x' = 0.  The extrema of F_T are the
+    zeros of q_i, located on the closed form.
     """
-    scale = np.array([m.A_r / m.C1, m.A_r / m.C1, m.A_r / m.C1 * math.sqrt(m.C1 / m.I_i)])
-
-    def rhs(_t, y):
-        p1, p2, q = y
-        return [-q / m.C1, q / m.C2, (p1 - p2 - m.R_i * q) / m.I_i]
-
-    def flow_zero(_t, y):
-        return y[2]
-
-    y0 = [m.A_r * X / m.C1, 0.0, 0.0]
-    sol = solve_ivp(
-        rhs,
-        (0.0, float(times[-1])),
-        y0,
-        method="DOP853",
-        t_eval=times,
-        events=flow_zero,
-        rtol=rtol,
-        atol=1e-3 * rtol * abs(X) * scale,
+    r = step_response(
+        lumped_system(m),
+        times,
+        y0=[m.A_r * X / m.C1, 0.0, 0.0],
+        method="closed_form",
+        crossings=["q_i"],
     )
-    ext = sol.t_events[0]
+    ext = r.crossings["q_i"]
     ext = ext[ext > 1e-9 * times[-1]]  # q_i = 0 at the start is not an extremum
-    return LumpedRun(t=sol.t, F=m.k_r * X + m.A_r * sol.y[0], p1=sol.y[0], extrema=ext)
+    p1 = np.array(r.state("p1"))
+    return LumpedRun(t=np.array(r.times), F=m.k_r * X + m.A_r * p1, p1=p1, extrema=ext)
 
 
 def peak_times(m: Mount, n: int) -> np.ndarray:
@@ -569,32 +577,18 @@ def full_transfer(m: Mount) -> signal.TransferFunction:
     return signal.TransferFunction(num / den[0], den / den[0])
 
 
-def integrate_full(m: Mount, times: np.ndarray, X: float = 1.0, *, rtol: float = 1e-12):
-    """``solve_ivp`` (DOP853) of the floating-decoupler lumped ODEs in (p_1, p_2, q_i, q_d)
-    after an ideal step; returns F_T(t).  As for the fixed decoupler, p_1 jumps by
+def integrate_full(m: Mount, times: np.ndarray, X: float = 1.0) -> np.ndarray:
+    """The floating-decoupler lumped ODEs in (p_1, p_2, q_i, q_d) (the builtin
+    ``mount_linear`` without harmonic input) after an ideal step, by perturb's closed-form
+    linear step response; returns F_T(t).  As for the fixed decoupler, p_1 jumps by
     A_r X / C_1 at t = 0 and nothing else does."""
-    p0 = m.A_r * X / m.C1
-    scale = abs(p0) * np.array([1.0, 1.0, math.sqrt(m.C1 / m.I_i), math.sqrt(m.C1 / m.I_d)])
-
-    def rhs(_t, y):
-        p1, p2, qi, qd = y
-        return [
-            -(qi + qd) / m.C1,
-            (qi + qd) / m.C2,
-            (p1 - p2 - m.R_i * qi) / m.I_i,
-            (p1 - p2 - m.R_d * qd) / m.I_d,
-        ]
-
-    sol = solve_ivp(
-        rhs,
-        (0.0, float(times[-1])),
-        [p0, 0.0, 0.0, 0.0],
-        method="DOP853",
-        t_eval=times,
-        rtol=rtol,
-        atol=1e-3 * rtol * scale,
+    system = builtin_system(
+        "mount_linear",
+        Xa=0.0,
+        **{k: getattr(m, k) for k in ("A_r", "C1", "C2", "I_i", "R_i", "I_d", "R_d")},
     )
-    return m.k_r * X + m.A_r * sol.y[0]
+    r = step_response(system, times, y0=[m.A_r * X / m.C1, 0.0, 0.0, 0.0], method="closed_form")
+    return m.k_r * X + m.A_r * np.array(r.state("p1"))
 
 
 def quasi_study(m: Mount, n_time: int) -> dict:
@@ -751,6 +745,16 @@ def top_pressure(m: Mount, dV1, vacuum: bool):
     return -m.p_vac + (dV1 + m.p_vac * m.C1) / m.C1_vac
 
 
+def mount_model(m: Mount, X: float, *, free_decoupler: bool, vacuum: bool, rise: float):
+    """The nonlinear mount as a perturb system (:func:`perturb.model.system_builtins.
+    mount_system`) with the parameters of ``m`` and the step ``X``, and its named outputs."""
+    kw = {"decoupler": "free" if free_decoupler else "fixed", "vacuum": vacuum, "rise": rise}
+    base = mount_system(**kw)
+    # the Mount's own fields (not its step sizes or rise time: those are arguments here)
+    values = {k: getattr(m, k) for k in base.params if hasattr(m, k) and k not in ("X", "rise")}
+    return base.with_params(values, X=X), dict(mount_outputs(**kw))
+
+
 def simulate_mount(
     m: Mount,
     X: float,
@@ -762,140 +766,87 @@ def simulate_mount(
     rtol: float = 1e-10,
     max_events: int = 500,
 ) -> MountResponse:
-    """``solve_ivp`` with terminal events for the nonlinear mount (states V_i, q_i, V_d, q_d).
+    """The nonlinear mount's step response by perturb's own solvers
+    (:func:`perturb.simulate.step_response.step_response`).
 
-    The displacement ramps from 0 to ``X`` in ``rise`` seconds (an ideal step for 0).  V_d
-    is the volume passed through the decoupler since t = 0; the plate starts on the top stop
-    (position -V_gap), where the suction after the release holds it.  A smooth segment ends
-    at the first terminal event, and each event only fires on leaving the current mode
-    (vacuum knee, plate reaching a stop, pressure difference reversing on a stop), so a
-    restart on the surface just crossed cannot fire again.  Impacts are plastic (the
-    decoupler flow stops); a plate that reaches a stop while the pressure pulls it back keeps
-    floating.
+    The displacement ramps from 0 to ``X`` in ``rise`` seconds (an ideal step for 0; the ramp
+    is two more states of the model, a clock and the displacement).  V_d is the volume passed
+    through the decoupler since t = 0; the plate starts on the top stop (position -V_gap),
+    where the suction after the release holds it.  The fixed-decoupler model is piecewise
+    linear and runs on the exact closed-form propagation (closed form itself without vacuum
+    and ramp); the free decoupler is a stop (plastic impacts: the decoupler flow stops; a
+    plate that reaches a stop while the pressure pulls it back keeps floating) and runs on
+    the event-driven flow (DOP853, ``rtol``).  The extrema are the zeros of the total flow
+    q_i + q_d after the ramp.
     """
-    z0 = -m.V_gap if free_decoupler else 0.0
     knee = -m.p_vac * m.C1  # compression volume at which p_1 = -p_vac
-    T = float(times[-1])
+    system, outputs = mount_model(m, X, free_decoupler=free_decoupler, vacuum=vacuum, rise=rise)
     vref = abs(m.A_r * X)
-    qref = vref * math.sqrt((m.C1 + m.C2) / (m.I_i * m.C1 * m.C2))
-    atol = 1e-3 * rtol * np.array([vref, qref, vref, qref])
-
-    def x_of(tt):
-        return X if rise <= 0.0 else X * np.minimum(np.asarray(tt) / rise, 1.0)
-
-    def dv1(tt, y):
-        return m.A_r * x_of(tt) - y[0] - y[2]
-
-    def pressures(tt, y, vac):
-        return top_pressure(m, dv1(tt, y), vac), (y[0] + y[2]) / m.C2
-
-    def rhs_for(vac, dec):
-        def rhs(tt, y):
-            p1, p2 = pressures(tt, y, vac)
-            dq_i = (p1 - p2 - m.R_i * y[1]) / m.I_i
-            if dec == 0:
-                return [y[1], dq_i, y[3], (p1 - p2 - m.R_d * y[3]) / m.I_d]
-            return [y[1], dq_i, 0.0, 0.0]
-
-        return rhs
-
-    def terminal(fun, direction):
-        fun.terminal = True
-        fun.direction = direction
-        return fun
-
-    def extremum(_t, y):
-        return y[1] + y[3]
-
-    y = np.zeros(4)
-    vac = vacuum and dv1(0.0, y) < knee
-    dec = -1 if free_decoupler else 2
-    if free_decoupler and np.subtract(*pressures(0.0, y, vac)) > 0:
+    options = {"rtol": rtol, "atol": 1e-3 * rtol * vref} if free_decoupler else {}
+    if free_decoupler and m.A_r * X / m.C1 > 0:
         raise ValueError("the step must expand the top chamber (X < 0) to hold the plate up")
-    log: list[tuple[float, str]] = [(0.0, "vacuum-on")] if vac else []
-    cols: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "F", "p1", "p2", "plate", "vac")}
-    cols["dec"] = []
-    extrema: list[tuple[float, float]] = []
-    t0 = 0.0
-    while t0 < T:
-        events, kinds = [extremum], ["extremum"]
-        if t0 < rise:
-            events.append(terminal(lambda tt, _y: tt - rise, 1))
-            kinds.append("ramp-end")
-        if vacuum:
-            events.append(terminal(lambda tt, y: dv1(tt, y) - knee, 1 if vac else -1))
-            kinds.append("vacuum")
-        if dec == 0:
-            events.append(terminal(lambda _t, y: z0 + y[2] - m.V_gap, 1))
-            kinds.append("stop-bottom")
-            events.append(terminal(lambda _t, y: z0 + y[2] + m.V_gap, -1))
-            kinds.append("stop-top")
-        elif dec in (-1, 1):
-            events.append(terminal(lambda tt, y, v=vac: np.subtract(*pressures(tt, y, v)), -dec))
-            kinds.append("open")
-        sol = solve_ivp(
-            rhs_for(vac, dec),
-            (t0, T),
-            y,
-            method="DOP853",
-            events=events,
-            dense_output=True,
-            rtol=rtol,
-            atol=atol,
-        )
-        if sol.status < 0:
-            raise RuntimeError(f"solve_ivp failed after t = {t0}: {sol.message}")
-        t1 = float(sol.t[-1])
-        for te, ye in zip(sol.t_events[0], sol.y_events[0], strict=True):
-            if te > max(t0, rise) + 1e-12 * T:
-                extrema.append((float(te), float(m.k_r * X + m.A_r * pressures(te, ye, vac)[0])))
-        last = sol.status == 0 or t1 >= T  # else the samples at t1 belong to the next segment
-        sel = (times >= t0) & ((times <= t1) if last else (times < t1))
-        if np.any(sel):
-            ys = sol.sol(times[sel])
-            p1, p2 = pressures(times[sel], ys, vac)
-            cols["t"].append(times[sel])
-            cols["F"].append(m.k_r * x_of(times[sel]) + m.A_r * p1)
-            cols["p1"].append(p1)
-            cols["p2"].append(p2)
-            cols["plate"].append(z0 + ys[2])
-            cols["vac"].append(np.full(ys.shape[1], vac))
-            cols["dec"].append(np.full(ys.shape[1], dec))
-        if sol.status == 0:
-            break
-        te, i = min(
-            (float(sol.t_events[i][0]), i) for i in range(1, len(events)) if sol.t_events[i].size
-        )
-        y = np.array(sol.y_events[i][0], dtype=float)
-        kind = kinds[i]
-        if kind == "vacuum":
-            vac = not vac
-            log.append((te, "vacuum-on" if vac else "vacuum-off"))
-        elif kind in ("stop-bottom", "stop-top"):
-            side = 1 if kind == "stop-bottom" else -1
-            y[2], y[3] = side * m.V_gap - z0, 0.0
-            if side * np.subtract(*pressures(te, y, vac)) > 0:
-                dec = side
-                log.append((te, kind))
-        elif kind == "open":
-            dec, y[3] = 0, 0.0
-            log.append((te, "open"))
-        t0 = te
-        if len(log) > max_events:
-            raise RuntimeError(f"more than {max_events} mode changes before t = {te}")
-    arr = {k: np.concatenate(v) for k, v in cols.items()}
-    return MountResponse(
-        t=arr["t"],
-        F=arr["F"],
-        p1=arr["p1"],
-        p2=arr["p2"],
-        plate=arr["plate"],
-        vacuum=arr["vac"].astype(bool),
-        dec=arr["dec"].astype(int),
-        events=tuple(log),
-        extrema=np.array(extrema).reshape(-1, 2)[:, 0],
-        extrema_F=np.array(extrema).reshape(-1, 2)[:, 1],
+    r = step_response(
+        system,
+        times,
+        method="events" if free_decoupler else "auto",
+        outputs=outputs,
+        crossings=["flow"],
+        max_events=max_events,
+        **options,
     )
+    x = np.array(r.state("x")) if rise > 0 else np.full(len(times), X)
+    vol = np.array(r.state("V_i")) + (np.array(r.state("V_d")) if free_decoupler else 0.0)
+    dv1 = m.A_r * x - vol
+    in_vacuum = (dv1 < knee) if vacuum else np.zeros(len(times), dtype=bool)
+    log: list[tuple[float, str]] = [(0.0, "vacuum-on")] if vacuum and m.A_r * X < knee else []
+    if rise > 0:
+        log = []  # the ramp starts at x = 0, no vacuum
+    dec_changes: list[tuple[float, int]] = []
+    for e in r.events:
+        if e.kind in ("crossing", "cross") and "clock" not in e.label:
+            log.append((e.time, "vacuum-on" if e.direction > 0 else "vacuum-off"))
+        elif e.kind == "lift":
+            log.append((e.time, "open"))
+            dec_changes.append((e.time, 0))
+        elif e.kind == "rest" and e.time > 1e-9 * float(times[-1]):
+            # the plate comes to rest after an impact: which stop, from the plate position
+            side = 1 if float(r.trajectory(e.time)[1]) > m.V_gap else -1
+            log.append((e.time, "stop-bottom" if side > 0 else "stop-top"))
+            dec_changes.append((e.time, side))
+    dec = np.full(len(times), -1 if free_decoupler else 2)
+    for te, mode in dec_changes:
+        dec[np.asarray(times) >= te] = mode
+    ext = r.crossings["flow"]
+    ext = ext[ext > rise + 1e-12 * float(times[-1])]
+    p1 = np.array(r.outputs["p1"])
+    if len(ext):
+        ye = np.asarray(r.trajectory(ext)).T
+        xe = ye[:, system.state_names.index("x")] if rise > 0 else X
+        ve = ye[:, 0] + (ye[:, 1] if free_decoupler else 0.0)
+        ext_F = m.k_r * xe + m.A_r * top_pressure_pwl(m, m.A_r * xe - ve, vacuum)
+    else:
+        ext_F = np.empty(0)
+    return MountResponse(
+        t=np.array(r.times),
+        F=m.k_r * x + m.A_r * p1,
+        p1=p1,
+        p2=np.array(r.outputs["p2"]),
+        plate=np.array(r.outputs["plate"]) if free_decoupler else np.zeros(len(times)),
+        vacuum=in_vacuum,
+        dec=dec,
+        events=tuple(log),
+        extrema=np.asarray(ext, dtype=float),
+        extrema_F=np.asarray(ext_F, dtype=float),
+    )
+
+
+def top_pressure_pwl(m: Mount, dV1, vacuum: bool):
+    """p_1 of the compression volume dV1 on either side of the vacuum knee."""
+    knee = -m.p_vac * m.C1
+    dV1 = np.asarray(dV1, dtype=float)
+    if not vacuum:
+        return dV1 / m.C1
+    return np.where(dV1 < knee, top_pressure(m, dV1, True), top_pressure(m, dV1, False))
 
 
 def vacuum_oscillator(m: Mount, X: float) -> Oscillator:
@@ -1004,7 +955,8 @@ def _maxrel(a: np.ndarray, b: np.ndarray, scale: float) -> float:
 
 
 def linear_study(m: Mount, n_time: int) -> Results:
-    """Closed form vs scipy.signal vs solve_ivp, peak times, envelope, settling (unit step)."""
+    """Closed form vs scipy.signal vs perturb's step response, peak times, envelope, settling
+    (unit step)."""
     c = canonical(m)
     times = np.linspace(0.0, 7.0 / c["sigma"], n_time)
     closed = step_closed_form(m, times)
@@ -1033,22 +985,22 @@ def linear_study(m: Mount, n_time: int) -> Results:
             1e-8,
         ),
         Check(
-            "closed form vs solve_ivp, F",
-            r"$\max|F-F_{\mathrm{ivp}}|/\gamma$",
+            "closed form vs perturb step response, F",
+            r"$\max|F-F_{\mathrm{perturb}}|/\gamma$",
             _maxrel(closed[0], lumped.F, g),
             0.0,
             1e-8,
         ),
         Check(
-            "closed form vs solve_ivp, p",
-            r"$\max|p_1-p_{\mathrm{ivp}}|/\lambda$",
+            "closed form vs perturb step response, p",
+            r"$\max|p_1-p_{\mathrm{perturb}}|/\lambda$",
             _maxrel(closed[1], lumped.p1, lmb),
             0.0,
             1e-8,
         ),
         Check(
             "peak times",
-            r"$\max_n \omega_d\,|t_{\mathrm{ivp}}(n) - n\pi/\omega_d|$",
+            r"$\max_n \omega_d\,|t_{\mathrm{perturb}}(n) - n\pi/\omega_d|$",
             float(np.max(np.abs(ext - pred)) * c["omega_d"]),
             0.0,
             1e-8,
@@ -1108,15 +1060,16 @@ def quasi_checks(m: Mount, res: Results, n_time: int) -> None:
     cs = res.components = component_study(m)
     res.checks += [
         Check(
-            "floating decoupler: scipy.signal vs solve_ivp",
-            r"$\max|F_{\mathrm{signal}}-F_{\mathrm{ivp}}|/|F(0^+)-\gamma|$, floating decoupler",
+            "floating decoupler: scipy.signal vs perturb step response",
+            r"$\max|F_{\mathrm{signal}}-F_{\mathrm{perturb}}|/|F(0^+)-\gamma|$, floating "
+            "decoupler",
             q["signal_vs_ivp"],
             0.0,
             1e-8,
         ),
         Check(
             "quasi-linear (I_e, R_e) vs full floating-decoupler model",
-            r"$\max|F_{I_e,R_e}-F_{\mathrm{ivp}}|/|F(0^+)-\gamma|$ (quasi-linear model)",
+            r"$\max|F_{I_e,R_e}-F_{\mathrm{perturb}}|/|F(0^+)-\gamma|$ (quasi-linear model)",
             q["errors"]["high"],
             0.0,
             0.01,
@@ -1211,8 +1164,16 @@ def nonlinear_study(m: Mount, res: Results, n_time: int, rtol: float) -> None:
             0.5 * (hi - lo),
         )
     )
-    # the same fixed-decoupler vacuum model, ideal step, on perturb's event-driven integrator
+    # the same fixed-decoupler vacuum model, ideal step, on perturb's event-driven integrators
     ivp = simulate_mount(m, m.X_fixed, times, free_decoupler=False, rtol=rtol)
+    nd = step_response(
+        mount_model(m, m.X_fixed, free_decoupler=False, vacuum=True, rise=0.0)[0],
+        times,
+        method="events",
+        outputs={"p1": mount_outputs(decoupler="fixed")["p1"]},
+        rtol=rtol,
+        atol=1e-3 * rtol * abs(m.A_r * m.X_fixed),
+    )
     F_ed, p_ed, ev_ed = simulate_vacuum_event_driven(m, m.X_fixed, times)
     switch_ivp = [te for te, _ in ivp.events if te > 0]
     switch_ed = [e.time for e in ev_ed]
@@ -1220,8 +1181,8 @@ def nonlinear_study(m: Mount, res: Results, n_time: int, rtol: float) -> None:
     scale = (m.k_r + m.A_r**2 / m.C1) * abs(m.X_fixed)
     res.checks.append(
         Check(
-            "vacuum model: solve_ivp vs perturb event-driven, F",
-            r"vacuum, fixed decoupler: $\max|F_{\mathrm{ivp}}-F_{\mathrm{perturb}}|/F(0^+)$",
+            "vacuum model: exact PWL vs SDOF event-driven, F",
+            r"vacuum, fixed decoupler: $\max|F_{\mathrm{exact}}-F_{\mathrm{SDOF\,events}}|/F(0^+)$",
             _maxrel(ivp.F, F_ed, scale),
             0.0,
             1e-7,
@@ -1229,8 +1190,18 @@ def nonlinear_study(m: Mount, res: Results, n_time: int, rtol: float) -> None:
     )
     res.checks.append(
         Check(
+            "vacuum model: exact PWL vs n-state event-driven, F",
+            r"vacuum, fixed decoupler: $\max|F_{\mathrm{exact}}-F_{\mathrm{events}}|/F(0^+)$",
+            _maxrel(ivp.p1, nd.outputs["p1"], scale / m.A_r),
+            0.0,
+            1e-7,
+        )
+    )
+    res.checks.append(
+        Check(
             "vacuum model: switching times",
-            r"vacuum knee crossings: $\max|t_{\mathrm{ivp}}-t_{\mathrm{perturb}}|\,\omega_d$",
+            r"vacuum knee crossings: "
+            r"$\max|t_{\mathrm{exact}}-t_{\mathrm{SDOF\,events}}|\,\omega_d$",
             float(np.max(np.abs(np.subtract(switch_ivp, switch_ed)))) * c["omega_d"]
             if len(switch_ivp) == len(switch_ed)
             else math.inf,
@@ -1272,7 +1243,8 @@ def _pyplot():
 
 
 def figure_linear(res: Results, path: Path) -> None:
-    """Closed form vs scipy.signal vs solve_ivp, envelope and peak times; errors below."""
+    """Closed form vs scipy.signal vs perturb's step response, envelope and peak times;
+    errors below."""
     plt = _pyplot()
     m, c, tt = res.mount, res.canon, res.times
     X = m.X_fixed
@@ -1295,7 +1267,9 @@ def figure_linear(res: Results, path: Path) -> None:
         )
         half = slice(every // 2, None, every)  # between the circles, so both stay visible
         ivp = res.lumped.F if k == 0 else res.lumped.p1
-        ax.plot(tt[half], ivp[half] * X * scale, "x", ms=3, label="solve_ivp (lumped ODEs)")
+        ax.plot(
+            tt[half], ivp[half] * X * scale, "x", ms=3, label="perturb step response (lumped ODEs)"
+        )
         ax.plot(tt, final + env, "--", color="0.4", lw=0.8, label="decay envelope")
         ax.plot(tt, final - env, "--", color="0.4", lw=0.8)
         for tp in peak_times(m, int(tt[-1] * c["omega_d"] / math.pi)):
@@ -1305,8 +1279,8 @@ def figure_linear(res: Results, path: Path) -> None:
     axes[0].legend(fontsize=7, loc="lower right")
     err = [
         (np.abs(res.closed[0] - res.scipy_[0]) / c["gamma"], r"$|F-F_{\rm signal}|/\gamma$"),
-        (np.abs(res.closed[0] - res.lumped.F) / c["gamma"], r"$|F-F_{\rm ivp}|/\gamma$"),
-        (np.abs(res.closed[1] - res.lumped.p1) / c["lambda"], r"$|p_1-p_{\rm ivp}|/\lambda$"),
+        (np.abs(res.closed[0] - res.lumped.F) / c["gamma"], r"$|F-F_{\rm perturb}|/\gamma$"),
+        (np.abs(res.closed[1] - res.lumped.p1) / c["lambda"], r"$|p_1-p_{\rm perturb}|/\lambda$"),
     ]
     for e, label in err:
         axes[2].semilogy(tt[1:], np.maximum(e[1:], 1e-18), lw=0.7, label=label)
@@ -1329,7 +1303,7 @@ def figure_quasi(res: Results, path: Path) -> None:
     tt = q["times"]
     short = tt <= 8.0 / q["sigma_e"]
     g = q["gamma"]
-    ax.plot(tt[short] * 1e3, q["F_ivp"][short] / g, "k-", lw=1.6, label="full model (solve_ivp)")
+    ax.plot(tt[short] * 1e3, q["F_ivp"][short] / g, "k-", lw=1.6, label="full model (perturb)")
     styles = {
         "high": ("C0", "--", r"one branch $I_e s+R_e$ (large $s$)"),
         "low": ("C1", ":", r"one branch $I_0 s+R_0$ (small $s$)"),
@@ -1449,10 +1423,10 @@ def write_csv(st: Study, red: Reduction, res: Results) -> None:
             "t_s",
             "F_closed/gamma",
             "F_signal/gamma",
-            "F_ivp/gamma",
+            "F_perturb/gamma",
             "p_closed/lambda",
             "p_signal/lambda",
-            "p_ivp/lambda",
+            "p_perturb/lambda",
         ],
         zip(
             *(
@@ -1472,7 +1446,7 @@ def write_csv(st: Study, red: Reduction, res: Results) -> None:
     )
     st.write_csv(
         "peaks.csv",
-        ["n", "t_pred_n_pi_over_omega_d", "t_ivp_q_i_zero", "difference"],
+        ["n", "t_pred_n_pi_over_omega_d", "t_perturb_q_i_zero", "difference"],
         [(n, a, b, b - a) for n, a, b in res.peaks],
     )
     st.write_csv(
@@ -1491,7 +1465,8 @@ def write_csv(st: Study, red: Reduction, res: Results) -> None:
     q, cs = res.quasi, res.components
     st.write_csv(
         "quasi_linear.csv",
-        ["t_s", "F_full_ivp/gamma", "F_full_signal/gamma"] + [f"F_{k}/gamma" for k in q["reduced"]],
+        ["t_s", "F_full_perturb/gamma", "F_full_signal/gamma"]
+        + [f"F_{k}/gamma" for k in q["reduced"]],
         zip(
             *(
                 np.asarray(a, dtype=float).tolist()
@@ -1657,8 +1632,9 @@ has $-\sigma\pm i\omega_d = -{_num(q["sigma_e"])}\pm{_num(q["omega_d_e"])}i$
 $(R_i+R_d)/(I_i+I_d)={_num(q["slow_predicted"])}$\,s$^{{-1}}$ (the pole of $Z_e$: flow
 redistributing between track and plate) and carries a residue of
 ${_num(100 * q["slow_share"], 3)}$\,\% of the transient $|F(0^+)-\gamma|$.
-Against \texttt{{solve\_ivp}} (DOP853, rtol $10^{{-12}}$) of the four lumped ODEs
-(\texttt{{scipy.signal.step}} of $K(s)$ agrees with it to ${_num(q["signal_vs_ivp"], 2)}$), the
+Against perturb's closed-form step response of the four lumped ODEs
+(\texttt{{perturb.simulate.step\_response}}, the eigen-decomposition of their balanced matrix;
+\texttt{{scipy.signal.step}} of $K(s)$ agrees with it to ${_num(q["signal_vs_ivp"], 2)}$), the
 largest step-response error over $[0, 7/{_num(q["slow"])}\,\mathrm{{s}}^{{-1}}]$, relative to
 $|F(0^+)-\gamma|$, is {err["high"]}\,\% for $(I_e,R_e)$, {err["low"]}\,\% for
 $(I_0,R_0)$ and {err["track"]}\,\% with the decoupler ignored (Fig.~\ref{{fig:mount-quasi}}):
@@ -1722,7 +1698,8 @@ def section_tex(st: Study, red: Reduction, res: Results, seconds: float) -> str:
     by_name = {ch.name: ch.value for ch in res.checks}
     n_zero = sum(v == 0 for v in red.zero.values())
     r_general = latex(red.envelope_sq_general.subs(U, sp.Symbol("u", positive=True) ** 2))
-    agree_F = _num(by_name["vacuum model: solve_ivp vs perturb event-driven, F"], 2)
+    agree_F = _num(by_name["vacuum model: exact PWL vs SDOF event-driven, F"], 2)
+    agree_ev = _num(by_name["vacuum model: exact PWL vs n-state event-driven, F"], 2)
     agree_t = _num(by_name["vacuum model: switching times"], 2)
     agree_lin = _num(by_name["nonlinear code, linear limit"], 2)
     final_row = (
@@ -1822,11 +1799,12 @@ $\sqrt R={_num(c["sqrtR_F"])}$ for the force and ${_num(c["sqrtR_p"])}$ for the 
 ($\hat u^2={_num(c["u_hat"] ** 2)}$: the pressure transient is a hundred times its final value).
 
 Figure~\ref{{fig:mount-linear}} compares the closed form with \texttt{{scipy.signal.step}} of
-$K_1$ and $P_1/X$ (polynomials from the SymPy result) and with \texttt{{solve\_ivp}} (DOP853,
-$\mathrm{{rtol}}=10^{{-12}}$) of the lumped ODEs in $(p_1,p_2,q_i)$, started from the jump
-$p_1(0^+)=A_rX/C_1$ that the impulse $A_r\dot x$ produces. The integrated extrema are the
-zeros of $q_i$ (there $\dot F_T = -A_r q_i/C_1 = 0$), located by \texttt{{solve\_ivp}} events;
-in ms, predicted/integrated: {peaks}, \ldots ({len(res.peaks)} peaks in $7/\sigma$).
+$K_1$ and $P_1/X$ (polynomials from the SymPy result) and with perturb's closed-form linear
+step response (\texttt{{perturb.simulate.step\_response}}: the eigen-decomposition of the
+balanced matrix of the lumped ODEs in $(p_1,p_2,q_i)$, no transfer function), started from the
+jump $p_1(0^+)=A_rX/C_1$ that the impulse $A_r\dot x$ produces. Its extrema are the zeros of
+$q_i$ (there $\dot F_T = -A_r q_i/C_1 = 0$), located on that closed form by Brent's method;
+in ms, predicted/computed: {peaks}, \ldots ({len(res.peaks)} peaks in $7/\sigma$).
 
 \begin{{table}}[ht]
 \centering\small
@@ -1861,7 +1839,7 @@ error after shortcut \\
 \includegraphics[width=0.8\textwidth]{{{fig_lin}}}
 \caption{{Linear fixed-decoupler mount, step $X={_num(m.X_fixed * 1e3, 2)}$\,mm
 (representative parameters; step size reconstructed). Closed form (line),
-\texttt{{scipy.signal.step}} (circles), \texttt{{solve\_ivp}} of the lumped ODEs (crosses),
+\texttt{{scipy.signal.step}} (circles), perturb's step response of the lumped ODEs (crosses),
 decay envelope $\gamma X(1\pm\sqrt R e^{{-\sigma t}})$ (dashed) and $t_p=n\pi/\omega_d$ (red
 lines). Bottom: the differences, at rounding level.}}
 \label{{fig:mount-linear}}
@@ -1880,17 +1858,19 @@ the top stop, held by the suction after the release; the step is a ramp of
 $t_r={_num(m.rise * ms, 2)}$\,ms (the measured step is not ideal; its rise time is not
 given, so $t_r$ is representative too).
 
-\emph{{Integrators.}} perturb's event-driven solver integrates one oscillator
-$x''+g(x,x',t)=f(t)$ with state $(x,x')$. The fixed-decoupler vacuum model is exactly that,
-in the track volume $y=V_i/(A_r|X|)$:
-$y''+c\,y'+w_2y+w_1(y-e)-d\,(y-y_k)H(y-y_k)=0$, and runs there
-(\texttt{{perturb.simulate.event\_driven.simulate}}, ideal step). The free-decoupler model has
-four states $(V_i,q_i,V_d,q_d)$ and a constraint, which that API does not take, so it runs on
-\texttt{{solve\_ivp}} with terminal events that fire only on leaving the current mode, and
-restarts. On the fixed-decoupler vacuum model the two agree to
-${agree_F}$ of $F(0^+)$, with switching times equal to ${agree_t}/\omega_d$; with vacuum
-switched off the event code reproduces the closed form to ${agree_lin}$ (table above, last
-rows).
+\emph{{Solvers.}} Every run is perturb's own step response
+(\texttt{{perturb.simulate.step\_response}}) of a model of
+\texttt{{perturb.model.system\_builtins.mount\_system}}; the ramp is two more states (a clock
+and the displacement), so the ramped model is autonomous too. The fixed-decoupler models are
+piecewise linear and run on the exact closed-form propagation (switching times found on the
+closed form); the free decoupler is a plastic stop and runs on the event-driven flow of
+several states (DOP853 between events, impacts, resting and lift-off located as events). The
+fixed-decoupler vacuum model is also one oscillator in the track volume $y=V_i/(A_r|X|)$,
+$y''+c\,y'+w_2y+w_1(y-e)-d\,(y-y_k)H(y-y_k)=0$, for perturb's SDOF event-driven solver
+(\texttt{{perturb.simulate.event\_driven.simulate}}, ideal step): it agrees with the exact
+propagation to ${agree_F}$ of $F(0^+)$, with switching times equal to ${agree_t}/\omega_d$,
+and the event-driven flow of several states to ${agree_ev}$; with vacuum switched off the
+nonlinear code reproduces the closed form to ${agree_lin}$ (table above, last rows).
 
 \begin{{figure}}[ht]
 \centering

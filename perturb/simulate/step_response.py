@@ -7,14 +7,15 @@ given initial state (the state just after the step) by the solver that fits:
 
 ``"closed_form"``
     A linear time-invariant system (no switching surface, every stop held by ``active``):
-    with :math:`y_{eq} = -A^{-1}b` and :math:`A = V\Lambda V^{-1}`,
+    with :math:`y_{eq} = -A^{-1}b` (any equilibrium when ``A`` is singular and ``b`` in its
+    range) and :math:`A = V\Lambda V^{-1}` (after a diagonal balancing of ``A``),
 
     .. math::
 
         y(t) = y_{eq} + V e^{\Lambda (t - t_0)} V^{-1}\,(y_0 - y_{eq}),
 
-    exact to rounding. A singular ``A`` (a free body, a clock state) or ill-conditioned
-    eigenvectors take the augmented matrix exponential
+    exact to rounding. A drift (``b`` not in the range of a singular ``A``: a clock state) or
+    ill-conditioned eigenvectors take the augmented matrix exponential
     :math:`(y, 1)(t) = \exp\big(\begin{smallmatrix}A & b\\ 0 & 0\end{smallmatrix}(t - t_0)\big)
     (y_0, 1)` instead (:func:`scipy.linalg.expm`, one per sample time).
 ``"exact"``
@@ -47,7 +48,7 @@ from typing import Any
 import numpy as np
 import sympy as sp
 from numpy.typing import ArrayLike
-from scipy.linalg import expm
+from scipy.linalg import expm, matrix_balance
 from scipy.optimize import brentq
 
 from perturb.errors import ModelError, ParameterError, PerturbError
@@ -374,67 +375,242 @@ def _closed_form(A: np.ndarray, b: np.ndarray, y0: np.ndarray, t0: float):
     """The dense closed form ``t -> y(t)`` of ``y' = A y + b``, the equilibrium and the
     eigenvalues."""
     n = A.shape[0]
-    lam, V = np.linalg.eig(A)
+    # balance first (a diagonal similarity): the mount's pressures (1e5 Pa) next to its flows
+    # (1e-5 m^3/s) give eigenvectors with condition 1e8 unbalanced, about 1 balanced
+    Ab, T = matrix_balance(A, permute=False)
+    d = np.diag(T).copy()
+    bb, z0 = b / d, y0 / d
+    lam, V = np.linalg.eig(Ab)
     scale = max(float(np.abs(lam).max()), 1e-300)
     singular = float(np.abs(lam).min()) <= _SINGULAR * scale
     cond = np.linalg.cond(V) if np.all(np.isfinite(V)) else math.inf
-    if not singular and cond <= _COND_MAX:
-        y_eq = -np.linalg.solve(A, b)
-        coef = np.linalg.solve(V, (y0 - y_eq).astype(complex))
+    z_eq = None
+    if not singular:
+        z_eq = -np.linalg.solve(Ab, bb)
+    else:
+        # an equilibrium exists when b is in the range of A (a conserved volume, no drift);
+        # any one serves as the particular solution of the modal form
+        zp = np.linalg.lstsq(Ab, -bb, rcond=None)[0]
+        if np.abs(Ab @ zp + bb).max() <= 1e-13 * max(float(np.abs(bb).max()), 1e-300):
+            z_eq = zp
+    if z_eq is not None and cond <= _COND_MAX:
+        coef = np.linalg.solve(V, (z0 - z_eq).astype(complex))
+        y_eq = d * z_eq
 
         def traj(t: ArrayLike) -> np.ndarray:
             ta = np.asarray(t, dtype=float)
             tau = ta.reshape(-1) - t0
-            Y = (V @ (coef[:, None] * np.exp(np.outer(lam, tau)))).real + y_eq[:, None]
+            Z = (V @ (coef[:, None] * np.exp(np.outer(lam, tau)))).real + z_eq[:, None]
+            Y = d[:, None] * Z
             return Y[:, 0] if ta.ndim == 0 else Y
 
-        return traj, y_eq, lam
+        return traj, (None if singular else y_eq), lam
     # augmented exponential: exact for any spectrum (zero and repeated eigenvalues included)
     M = np.zeros((n + 1, n + 1))
-    M[:n, :n], M[:n, n] = A, b
-    z0 = np.append(y0, 1.0)
-    y_eq = None if singular else -np.linalg.solve(A, b)
+    M[:n, :n], M[:n, n] = Ab, bb
+    w0 = np.append(z0, 1.0)
+    y_eq = None if z_eq is None or singular else d * z_eq
 
     def traj_expm(t: ArrayLike) -> np.ndarray:
         ta = np.asarray(t, dtype=float)
         tau = ta.reshape(-1) - t0
         # one exponential per time, from t0 (no marching: no accumulated rounding)
-        out = np.array([(expm(M * h) @ z0)[:n] for h in tau]).T.reshape(n, tau.size)
+        out = d[:, None] * np.array([(expm(M * h) @ w0)[:n] for h in tau]).T.reshape(n, tau.size)
         return out[:, 0] if ta.ndim == 0 else out
 
     return traj_expm, y_eq, lam
 
 
-def _events_solver(system, times, y0, active, options):
-    """The event-driven step response (``perturb.simulate.flows.system_events``)."""
-    try:
-        from perturb.simulate.flows import system_events  # the n-D event-driven flow
-    except ImportError:  # pragma: no cover - present once the event-driven flow is merged
-        raise PerturbError(
-            "method 'events': the n-dimensional event-driven solver "
-            "(perturb.simulate.flows.system_events) is not available"
-        ) from None
-    return system_events, None
+class _HermiteTrajectory:
+    """Piecewise cubic Hermite interpolation of event-driven samples (states and fields),
+    one spline per smooth segment between two events: error ``O(h^4)`` inside a segment
+    (``h`` the sample spacing), and no interpolation across a jump (an impact) or a kink
+    (a switch)."""
+
+    def __init__(self, segments: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> None:
+        from scipy.interpolate import CubicHermiteSpline
+
+        self._starts = np.array([ts[0] for ts, _, _ in segments])
+        self._n = segments[0][1].shape[1]
+        self._splines: list[Any] = []
+        for ts, ys, fs in segments:
+            if ts.size >= 2:
+                self._splines.append(CubicHermiteSpline(ts, ys, fs, axis=0))
+            else:  # a zero-length segment (two events at one instant)
+                self._splines.append(lambda tt, y=ys[0]: np.tile(y, (np.size(tt), 1)))
+
+    def __call__(self, t: ArrayLike) -> np.ndarray:
+        ta = np.asarray(t, dtype=float)
+        flat = ta.reshape(-1)
+        idx = np.clip(np.searchsorted(self._starts, flat, side="right") - 1, 0, None)
+        out = np.empty((flat.size, self._n))
+        for k in np.unique(idx):
+            sel = idx == k
+            out[sel] = np.asarray(self._splines[int(k)](flat[sel])).reshape(-1, self._n)
+        return out[0] if ta.ndim == 0 else out.T
 
 
-def _zeros(traj, f, times: np.ndarray, refine: int) -> np.ndarray:
-    """Zeros of ``f(traj(t))`` in ``(times[0], times[-1]]``: sign changes on ``times``
-    refined ``refine`` times, each polished by Brent's method on the dense solution."""
-    fine = np.concatenate(
+def _event_flow(system: System, options: Mapping[str, Any], max_events: int, span, y0):
+    """The event-driven flow (``perturb.simulate.flows.system_events``) with the options of
+    a step response; ``atol`` defaults to ``1e-3 rtol`` times the scale of the motion, the
+    larger of ``|y0|`` and the initial rate times the span (its tolerances are absolute)."""
+    from perturb.simulate.flows.system_events import SystemEventFlow
+
+    known = ("rtol", "atol", "max_steps", "rest_velocity")
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        raise ParameterError(
+            f"unknown option(s) {unknown} for method 'events': expected some of {known}"
+        )
+    opts = dict(options)
+    rtol = opts.pop("rtol", 1e-10)
+    if "atol" not in opts:
+        if isinstance(rtol, bool) or not isinstance(rtol, int | float) or not 0 < rtol < 1:
+            raise ParameterError(f"rtol = {rtol!r}: expected a number in (0, 1)")
+        rate = np.abs(np.asarray(system.field(span[0], y0), dtype=float)).max()
+        scale = max(float(np.abs(y0).max()), float(rate) * (span[1] - span[0]), 1e-300)
+        opts["atol"] = min(1e-3 * rtol * scale, 0.5)
+    return SystemEventFlow(system, rtol=rtol, max_events=max(int(max_events), 1), **opts)
+
+
+def _hermite_segments(flow, log, t0: float, y0: np.ndarray, ts, ys, t1: float):
+    """Split samples ``(ts, ys)`` of one run from ``(t0, y0)`` to ``t1`` at its events
+    ``log`` into smooth segments ``(times, states, fields)``: a segment starts at an event's
+    state after it and ends at the sample just before the next event (the flow samples an
+    event time on the step that ends there)."""
+    segments = []
+    start_t, start_y = t0, np.asarray(y0, dtype=float)
+    k = 0
+    for e in [*log, None]:
+        end = t1 if e is None else float(e.t)
+        seg_t, seg_y = [start_t], [start_y]
+        while k < ts.size and ts[k] <= end:
+            if ts[k] > start_t:
+                seg_t.append(float(ts[k]))
+                seg_y.append(ys[k])
+            k += 1
+        seg_f = [flow.vector_field(tt, yy) for tt, yy in zip(seg_t, seg_y, strict=True)]
+        segments.append((np.array(seg_t), np.array(seg_y), np.array(seg_f)))
+        if e is not None:
+            start_t, start_y = float(e.t), np.asarray(e.y, dtype=float)
+    return segments
+
+
+class _EventTrajectory:
+    """The dense solution of an event-driven run, built on demand between two sample times:
+    the flow is restarted from the sample at ``times[k]`` over ``[times[k], times[k+1]]``,
+    sampled ``refine`` times (and at its events), and interpolated by cubic Hermite splines
+    of states and fields, one per smooth segment (error ``O(h^4)`` in the refined spacing
+    ``h``; no interpolation across an impact or a switch)."""
+
+    def __init__(self, flow, times: np.ndarray, states: np.ndarray, refine: int) -> None:
+        self._flow, self._times, self._states, self._refine = flow, times, states, refine
+        self._pieces: dict[int, _HermiteTrajectory] = {}
+
+    def piece(self, k: int) -> _HermiteTrajectory:
+        if k not in self._pieces:
+            a, b = float(self._times[k]), float(self._times[k + 1])
+            ya = self._states[k]
+            fine = np.linspace(a, b, self._refine + 1)
+            run = self._flow(ya, a, b, t_eval=fine)
+            log = self._flow.events
+            if log:  # again, sampling each event time too (same steps, same events)
+                grid = np.sort(np.concatenate([fine, [e.t for e in log]]), kind="stable")
+                run = self._flow(ya, a, b, t_eval=grid)
+            segs = _hermite_segments(self._flow, log, a, ya, np.asarray(run.t), run.ys, b)
+            self._pieces[k] = _HermiteTrajectory(segs)
+        return self._pieces[k]
+
+    def __call__(self, t: ArrayLike) -> np.ndarray:
+        ta = np.asarray(t, dtype=float)
+        flat = ta.reshape(-1)
+        last = len(self._times) - 2
+        idx = np.clip(np.searchsorted(self._times, flat, side="right") - 1, 0, last)
+        out = np.empty((flat.size, self._states.shape[1]))
+        for k in np.unique(idx):
+            sel = idx == k
+            out[sel] = self.piece(int(k))(flat[sel]).T.reshape(-1, self._states.shape[1])
+        return out[0] if ta.ndim == 0 else out.T
+
+
+def _events(system, t: np.ndarray, y0: np.ndarray, active, max_events, options, refine):
+    """The event-driven step response: the dense trajectory (built on demand), the events,
+    the states at ``t``."""
+    if not isinstance(system, System):
+        raise ParameterError(
+            "method 'events' needs a System (a PiecewiseAffineSystem has no stops or "
+            "friction contacts): use method='exact'"
+        )
+    if any(v is not None for v in dict(active or {}).values()):
+        raise ParameterError(
+            f"active = {dict(active)!r}: method 'events' finds the contact modes itself (a "
+            "state on a stop limit, pushed into it, rests); pass active= only to "
+            "'closed_form' or 'exact', which hold those stops"
+        )
+    flow = _event_flow(system, options, max_events, (float(t[0]), float(t[-1])), y0)
+    run = flow(y0, float(t[0]), float(t[-1]), t_eval=t)
+    log = flow.events
+    num = system.numeric_form()
+    events = []
+    for e in log:
+        c = num["comb"].get(e.element, (None, None))[0]
+        direction = 0
+        if e.kind == "cross" and c is not None:
+            rate = float(c @ flow.vector_field(e.t, e.y))
+            direction = 1 if rate > 0 else -1 if rate < 0 else 0
+        events.append(StepEvent(float(e.t), e.kind, e.element, direction))
+    Y = np.asarray(run.ys, dtype=float)
+    return _EventTrajectory(flow, t, Y, refine), tuple(events), Y
+
+
+def _refined(times: np.ndarray, refine: int) -> np.ndarray:
+    return np.concatenate(
         [np.linspace(a, b, refine + 1)[:-1] for a, b in zip(times[:-1], times[1:], strict=True)]
         + [times[-1:]]
     )
-    vals = f(traj(fine).T)
-    out = []
+
+
+def _zeros(traj, f, times: np.ndarray, refine: int, coarse=None, event_times=()) -> np.ndarray:
+    """Zeros of ``f(traj(t))`` in ``(times[0], times[-1]]``: sign changes on ``times``
+    refined ``refine`` times, each polished by Brent's method on the dense solution.
+
+    With ``coarse`` (the output at ``times``; event-driven runs, whose dense solution costs
+    an integration per interval) only the intervals of ``times`` with a sign change or an
+    event are refined.
+    """
+    if coarse is None:
+        fine = _refined(times, refine)
+        vals = f(traj(fine).T)
+    else:
+        cand = np.sign(coarse[:-1]) * np.sign(coarse[1:]) <= 0
+        for te in event_times:
+            k = int(np.searchsorted(times, te, side="right")) - 1
+            if 0 <= k < len(cand):
+                cand[k] = True
+        pieces = [np.linspace(times[k], times[k + 1], refine + 1) for k in np.nonzero(cand)[0]]
+        if not pieces:
+            return np.empty(0)
+        fine = np.concatenate(pieces)
+        # consecutive pieces repeat an end point (skipped below); between two pieces that are
+        # not consecutive no interval of times changes sign, so neither does the output
+        vals = f(traj(fine).T)
 
     def g(tt: float) -> float:
         return float(f(traj(np.array([tt])).T)[0])
 
+    size = max(float(np.abs(vals).max()), 1e-300)
+    out = []
     for i in np.nonzero(np.sign(vals[:-1]) * np.sign(vals[1:]) < 0)[0]:
         a, b = float(fine[i]), float(fine[i + 1])
-        out.append(brentq(g, a, b, xtol=1e-15 * max(1.0, abs(b)), rtol=1e-15))
+        if not a < b:
+            continue
+        root = brentq(g, a, b, xtol=1e-15 * max(1.0, abs(b)), rtol=1e-15)
+        # a sign change across a jump of the output (an impact stopping a flow) is no zero
+        if abs(g(root)) <= 1e-8 * size:
+            out.append(root)
     for i in np.nonzero(vals[1:] == 0)[0]:
-        out.append(float(fine[i + 1]))
+        if fine[i + 1] > times[0]:
+            out.append(float(fine[i + 1]))
     return np.unique(np.array(out, dtype=float))
 
 
@@ -539,14 +715,13 @@ def step_response(
             if not isinstance(c, str):
                 raise ParameterError(f"crossings: {c!r}: expected an output name")
             funcs[c] = _output_function(system, c, c)
-    if options and method not in ("events", "auto"):
-        raise ParameterError(
-            f"unknown option(s) {sorted(options)} for method {method!r}: only method='events' "
-            "takes solver options"
-        )
-
     if method == "auto":
         method = _choose(system, active)
+    if options and method != "events":
+        raise ParameterError(
+            f"unknown option(s) {sorted(options)} for method {method!r}: only method='events' "
+            "takes solver options (rtol, atol, max_steps, rest_velocity)"
+        )
 
     events: tuple[StepEvent, ...] = ()
     y_eq = lam = None
@@ -575,12 +750,15 @@ def step_response(
                 )
                 for e in run.events
             )
+        Y = np.asarray(traj(t), dtype=float).T
     else:
-        traj, events = _events(system, t, y, active, max_events, options)
-
-    Y = np.asarray(traj(t), dtype=float).T
+        traj, events, Y = _events(system, t, y, active, max_events, options, int(refine))
     out_values = {k: _frozen(funcs[k](Y)) for k in table}
-    zeros = {c: _frozen(_zeros(traj, funcs[c], t, int(refine))) for c in cross}
+    zeros = {}
+    for c in cross:
+        coarse = funcs[c](Y) if method == "events" else None
+        te = [e.time for e in events]
+        zeros[c] = _frozen(_zeros(traj, funcs[c], t, int(refine), coarse, te))
     return StepResponse(
         times=_frozen(t),
         states=_frozen(Y),
@@ -606,14 +784,3 @@ def _choose(system, active) -> str:
             return "events"
     pa = _affine(system, active, "auto")
     return "closed_form" if _is_linear(pa) else "exact"
-
-
-def _events(system, t, y, active, max_events, options):
-    """Run the event-driven flow; returns the dense solution and the events."""
-    if not isinstance(system, System):
-        raise ParameterError(
-            "method 'events' needs a System (a PiecewiseAffineSystem has no stops or "
-            "friction contacts): use method='exact'"
-        )
-    module, _ = _events_solver(system, t, y, active, options)
-    raise PerturbError(f"method 'events' is not wired yet ({module.__name__})")
