@@ -324,3 +324,31 @@ def test_cross_and_return_inside_one_step_is_found():
     # the crossing times are ill-conditioned (x' = 4.5e-4 there): state error / x'
     assert times == pytest.approx([t_in, t_out], abs=5e-8)
     assert np.max(np.abs(res.y - exact)) < 1e-9
+
+
+# ------------------------------------------------------------- starting on a stop --
+def test_start_on_a_stop_moving_into_it_or_away():
+    flow = SystemEventFlow(_impact_system(), rtol=1e-12, atol=1e-13)
+    T = flow.period
+    into = flow([HIGH, 0.3], 0.0, T)
+    assert flow.events[0].kind == "impact" and flow.events[0].t == 0.0
+    ref, _ = _impact_reference([HIGH, -E * 0.3], 0.0, T)
+    assert np.max(np.abs(into.y - ref)) < 1e-9
+    away = flow([HIGH, -0.3], 0.0, T)
+    assert all(e.t > 0.0 for e in flow.events)
+    ref, _ = _impact_reference([HIGH, -0.3], 0.0, T)
+    assert np.max(np.abs(away.y - ref)) < 1e-9
+
+
+def test_zero_push_at_the_start_rests_without_chattering():
+    # x'' = sin t against the plastic stop x <= 0 from rest: the push is zero at t = 0 and
+    # into the stop on (0, pi); after lift-off at pi, x = -sin t - (t - pi), x' = -cos t - 1
+    system = System.from_matrices(
+        [[1]], [[0]], [[0]], elements=[stop("x1", -100, 0, name="wall")], forcing=["sin(t)"]
+    )
+    flow = SystemEventFlow(system, rtol=1e-12, atol=1e-13, max_events=10)
+    res = flow([0.0, 0.0], 0.0, 2 * math.pi)
+    # (the initial rest is the starting mode, not a transition)
+    assert [e.kind for e in flow.events] == ["lift"]
+    assert flow.events[0].t == pytest.approx(math.pi, abs=1e-9)
+    assert res.y == pytest.approx([-math.pi, -2.0], abs=1e-9)

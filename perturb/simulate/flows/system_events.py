@@ -508,7 +508,8 @@ class SystemEventFlow(Flow):
     # -------------------------------------------------------------------- guards --
     def _build_guards(self, m: _Mode) -> list[tuple]:
         """Guards of mode ``m``: ``('lin', normal, offset, what)`` with ``g = normal . y -
-        offset`` and ``('fun', callable(t, y), what)``; ``what`` is the transition."""
+        offset`` and ``('fun', callable(t, y), (normal, mode), what)`` (the rate of ``normal``
+        in the hypothetical ``mode``, for its tolerance); ``what`` is the transition."""
         out: list[tuple] = []
         for k, (sw, s) in enumerate(zip(self._switches, m.seg, strict=True)):
             if s >= 0:
@@ -527,8 +528,8 @@ class SystemEventFlow(Flow):
                 def g_down(t, y, c=c, down=down):  # stay while a- >= 0
                     return float(c @ self._field(t, y, down))
 
-                out.append(("fun", g_up, ("slip", k, j + 1)))
-                out.append(("fun", g_down, ("slip", k, j)))
+                out.append(("fun", g_up, (c, up), ("slip", k, j + 1)))
+                out.append(("fun", g_down, (c, down), ("slip", k, j)))
         for i, (st, s) in enumerate(zip(self._stops, m.stops, strict=True)):
             if s == 0:
                 if math.isfinite(st.lower):
@@ -541,7 +542,7 @@ class SystemEventFlow(Flow):
                 def g_lift(t, y, cv=st.cv, free=free, s=s):  # stay while pushed into the stop
                     return s * float(cv @ self._field(t, y, free))
 
-                out.append(("fun", g_lift, ("lift", i)))
+                out.append(("fun", g_lift, (st.cv, free), ("lift", i)))
         return out
 
     def _guard_values(self, guards, t, y) -> np.ndarray:
@@ -554,8 +555,10 @@ class SystemEventFlow(Flow):
         for i, g in enumerate(guards):
             if g[0] == "lin":
                 out[i] = _ON_SURFACE * (float(np.abs(g[1]) @ np.abs(y)) + abs(g[2])) + 1e-300
-            else:
-                out[i] = 1e-8 * (float(np.abs(f) @ np.ones_like(f)) + 1e-300)
+            else:  # the size of the terms of the normal rate it compares
+                normal, hyp = g[2]
+                scale = float(np.abs(normal) @ np.abs(self._field(t, y, hyp)))
+                out[i] = 1e-9 * scale + 1e-300
         return out
 
     # ------------------------------------------------------------ classification --
@@ -596,12 +599,10 @@ class SystemEventFlow(Flow):
             stops.append(0)
             if side:
                 y = y + st.cq * ((st.lower if side < 0 else st.upper) - p) / float(st.cq @ st.cq)
-                if side * v > self.rest_velocity:
-                    continue  # leaving the stop
+                # (side * v > 0: moving into the stop)
                 if side * v < -self.rest_velocity:
-                    pending.append((i, side))
-                    continue
-                pending.append((i, side))  # at rest on the stop, or about to: decided below
+                    continue  # leaving the stop
+                pending.append((i, side))  # an impact, or at rest: decided by the caller
         mode = self._mode(tuple(seg), tuple(stops))
         for k, j in ties:
             sw = self._switches[k]
@@ -646,14 +647,21 @@ class SystemEventFlow(Flow):
         acceleration pushes into the stop, else stay free."""
         st = self._stops[i]
         free = self._with(mode, stop=i, side=0)
-        a = float(st.cv @ self._field(t, y, free))
         v = float(st.cv @ y)
-        if side * v > 0 and abs(v) > self.rest_velocity:
+        if side * v < -self.rest_velocity:
             return free, y
-        if side * a > 0:
+        if self._pushed(t, y, free, i, side):
             y = y - st.cv * v / float(st.cv @ st.cv)
             return self._with(mode, stop=i, side=side), y
         return free, y
+
+    def _pushed(self, t, y, free, i, side) -> bool:
+        """Whether the free acceleration of stop ``i``'s combination pushes into it (or
+        vanishes, to rounding: then the stop rests and its lift-off guard decides)."""
+        st = self._stops[i]
+        f = self._field(t, y, free)
+        a = float(st.cv @ f)
+        return side * a >= -1e-12 * float(np.abs(st.cv) @ np.abs(f))
 
     def __call__(
         self,
@@ -713,7 +721,7 @@ class SystemEventFlow(Flow):
         mode, y, pending = self._classify(t, y)
         for i, side in pending:
             v = float(self._stops[i].cv @ y)
-            if side * v < -self.rest_velocity:
+            if side * v > self.rest_velocity:
                 mode, y, Phi = self._impact(t, y, mode, i, side, Phi, log)
             else:
                 mode, y = self._settle_stop(t, y, mode, i, side)
@@ -997,9 +1005,8 @@ class SystemEventFlow(Flow):
         free = self._with(mode, stop=i, side=0)
         target, label = free, "impact"
         if st.e == 0.0 or abs(v) <= self.rest_velocity:
-            a = float(st.cv @ self._field(t, y_plus, free))
             y_plus = y_plus - st.cv * v / float(st.cv @ st.cv)
-            if side * a > 0:
+            if self._pushed(t, y_plus, free, i, side):
                 target, label = self._with(mode, stop=i, side=side), "rest"
         Phi = self._salt(Phi, R, f_minus, self._field(t, y_plus, target), st.cq)
         log.append(EventLog(t, label, st.name, y_plus.copy()))
