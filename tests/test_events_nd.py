@@ -16,6 +16,7 @@ from scipy.optimize import brentq
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.system import System, coulomb, step, stop
 from perturb.model.system_builtins import builtin_system
+from perturb.simulate.flows.factory import make_flow
 from perturb.simulate.flows.system_events import EventFlowError, SystemEventFlow
 from perturb.simulate.orbits.shooting import periodic_orbit
 
@@ -352,3 +353,40 @@ def test_zero_push_at_the_start_rests_without_chattering():
     assert [e.kind for e in flow.events] == ["lift"]
     assert flow.events[0].t == pytest.approx(math.pi, abs=1e-9)
     assert res.y == pytest.approx([-math.pi, -2.0], abs=1e-9)
+
+
+# ------------------------------------------- piecewise-linear builtins: the exact flow --
+@pytest.mark.parametrize("name", ["nsd2", "impact_pair"])
+def test_pwl_builtins_agree_with_exact_affine_flow(name):
+    # the closed-form n-dimensional propagator (matrix exponentials, exact saltation) is an
+    # independent reference for the switching of PWL elements (no stops, no friction)
+    system = builtin_system(name)
+    exact = make_flow(system)
+    flow = SystemEventFlow(system, rtol=1e-12, atol=1e-13)
+    y0 = np.array([0.5, -0.2, 0.1, 0.0])
+    T = exact.period
+    a = exact(y0, 0.0, 2 * T, sensitivity=True)
+    b = flow(y0, 0.0, 2 * T, sensitivity=True)
+    assert b.n_events >= 6
+    assert np.max(np.abs(a.y - b.y)) < 1e-9
+    scale = np.abs(a.sensitivity).max()
+    assert np.max(np.abs(a.sensitivity - b.sensitivity)) < 1e-9 * scale
+
+
+def test_bouncing_ball_accumulation_ends_at_rest():
+    # x'' = -1 above a floor x >= 0 with e = 0.5 from x = 1 at rest: infinitely many impacts
+    # accumulating at t = 3 sqrt(2); the flow stops them at rest_velocity and rests
+    system = System.from_matrices(
+        [[1]],
+        [[0]],
+        [[0]],
+        elements=[stop("x1", 0, 100, restitution=0.5, name="floor")],
+        forcing=["-1"],
+    )
+    flow = SystemEventFlow(system, rtol=1e-12, atol=1e-13)
+    res = flow([1.0, 0.0], 0.0, 10.0)
+    kinds = [e.kind for e in flow.events]
+    assert kinds[-1] == "rest" and set(kinds[:-1]) == {"impact"}
+    assert len(kinds) < 60
+    assert flow.events[-1].t == pytest.approx(3 * math.sqrt(2), abs=1e-9)
+    assert res.y == pytest.approx([0.0, 0.0], abs=1e-12)
