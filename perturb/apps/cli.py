@@ -12,6 +12,14 @@ Subcommands::
     perturb derive METHOD MODEL [--order N] [--param ...] [--latex F.tex] [--json F.json]
     perturb run [SCENE.toml] [--out DIR] [--rtol R] answer a scene (default: the embedded one)
 
+MODEL is a builtin oscillator, an equation string, a builtin system of several coordinates
+(``nsd2``, ``impact_pair``, ``mount``, ...) or one equation per coordinate separated by
+``;`` (parsed safely, :meth:`perturb.model.system.System.parse`). A system takes ``frc``
+(``--method exact``, its only method for now), ``simulate`` (``--y0`` its states in the order
+``perturb models`` lists) and ``periodic``; ``--output`` names what ``amplitude`` measures (a
+coordinate or a linear combination such as ``"x1 - x2"``), and every coordinate's ``max |.|``
+and mean follow in the columns ``amplitude_<name>``, ``mean_<name>``.
+
 Every error prints one line ``perturb: error: ...`` on standard error and exits with status
 2: bad input (also what argparse rejects), values beyond the limits
 (:data:`perturb.solve.MAX_HARMONICS`, :data:`~perturb.solve.MAX_ORDER`, :data:`MAX_SAMPLES`,
