@@ -132,7 +132,10 @@ class StepResponse:
         ``closed_form``: the eigenvalues of ``A`` (the response's modes).
     trajectory : callable or None
         The solver's dense solution: ``trajectory(t)`` is the state, shape ``(n,)`` for a
-        scalar ``t`` and ``(n, k)`` for ``k`` times in ``[times[0], times[-1]]``.
+        scalar ``t`` and ``(n, k)`` for ``k`` times in ``[times[0], times[-1]]``; exact for
+        ``closed_form`` and ``exact``; for ``events`` built on demand per interval of
+        ``times`` (the flow restarted from the sample, ``refine`` sub-samples, cubic Hermite
+        splines of states and fields split at the events).
 
     All arrays are read-only.
     """
