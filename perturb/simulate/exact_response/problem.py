@@ -224,6 +224,10 @@ class Engine:
             self._dw = None
             self.closed_form = False
             self.affine0 = getattr(probe, "affine_system", None)
+            # the exact parameter rate needs fixed regions and frequencies proportional to p
+            scaled = getattr(family, "_scaled", None)
+            self._nd_rates = None if scaled is None or self.affine0 is None else scaled[1]
+            self._modal: dict[tuple[int, ...], tuple[np.ndarray, ...] | None] = {}
             return
         # own sensitivities from the trajectory pieces where saltation is the identity
         self._continuous = self.exact and bool(np.all(self.system0.continuous_at()))
@@ -308,11 +312,16 @@ class Engine:
         Gz = np.zeros((n * N, n * N))
         own = self._continuous
         Gp = np.empty(2 * N) if (gp and self._dw is not None) else None
+        if gp and self.nd and self._nd_rates is not None:
+            Gp = np.empty(n * N)
+            dP = -P / p  # the period is inversely proportional to p
+            pas = flow.affine_system
         M = np.eye(n)
         blocks = []
         trajs: list[Any] | None = [] if self.exact else None
         switches = 0
-        dP = -P * self._dw[0] / flow.system.forcing[0][1] if Gp is not None else 0.0
+        if not self.nd:
+            dP = -P * self._dw[0] / flow.system.forcing[0][1] if Gp is not None else 0.0
         self.periods += self.m
         self.calls += N
         system = flow.system if own else None
@@ -333,6 +342,8 @@ class Engine:
                     trajs.append(flow.trajectory(Z[i], ta, tb))  # memoised: no propagation
                 yb, n_ev = res.y, res.n_events
                 Mi, zeta = np.asarray(res.sensitivity, dtype=float), None
+                if Gp is not None and self.nd:
+                    zeta = self._nd_rate(pas, trajs[-1], float(tb), p)
             blocks.append(Mi)
             j = (i + 1) % N
             r[n * i : n * i + n] = yb - Z[j]
@@ -344,6 +355,10 @@ class Engine:
             if Gp is not None:
                 if zeta is None:
                     Gp = None
+                elif self.nd:
+                    fb = pas.field(float(tb), yb)
+                    fa = pas.field(float(ta), Z[i])
+                    Gp[n * i : n * i + n] = zeta + fb * ((i + 1) / N) * dP - Mi @ fa * (i / N) * dP
                 else:
                     # the field at both ends (scalar: the same values as vector_field)
                     fb = np.array(system.field1(float(tb), float(yb[0]), float(yb[1])))
@@ -526,6 +541,82 @@ class Engine:
         return max(abs(best[0]), abs(best[1])), first, mean, sig
 
     # -- systems of n states ----------------------------------------------------------------------
+    def _region_modes(self, pas: Any, key: tuple[int, ...]) -> tuple[np.ndarray, ...] | None:
+        """``(A, lambda, V, V^-1)`` of a region (fixed over the family), None when its
+        eigenvectors are ill conditioned (the parameter rate then falls back to differences)."""
+        if key in self._modal:
+            return self._modal[key]
+        A = np.asarray(pas.region(key).A, dtype=float)
+        out = None
+        try:
+            lam, V = np.linalg.eig(A)
+            if np.linalg.cond(V) < 1e8:
+                out = (A, lam, V, np.linalg.inv(V))
+        except np.linalg.LinAlgError:
+            out = None
+        self._modal[key] = out
+        return out
+
+    def _nd_rate(self, pas: Any, traj: Any, tb: float, p: float) -> np.ndarray | None:
+        r"""``d phi / dp`` at fixed times over one node interval of the exact affine flow, the
+        parameter scaling the input frequencies (:math:`\omega_k = r_k p`): on each piece
+        (region :math:`A`, :math:`[a, b]`) the rate obeys :math:`\zeta' = A\zeta +
+        \operatorname{Re}\sum_k c_k t e^{i\omega_k t}`, :math:`c_k = i r_k (u_k - i v_k)`,
+        with the particular solution :math:`\operatorname{Re}[(R t - R^2) c_k e^{i\omega_k
+        t}]`, :math:`R = (i\omega_k I - A)^{-1}` (the oscillator's formula, module docstring),
+        so a piece adds :math:`\zeta_p(b) - e^{A(b-a)}\zeta_p(a)`; a crossing of a
+        discontinuous surface applies its saltation matrix.  None when a region is ill
+        conditioned or resonant (forward differences instead)."""
+        starts = traj.starts
+        keys = traj.patterns
+        cross = [e for e in traj.events if not e.tangency]
+        if len(cross) != len(keys) - 1:
+            return None
+        n = self.n
+        zeta = np.zeros(n)
+        rates = self._nd_rates
+        for k, key in enumerate(keys):
+            modes = self._region_modes(pas, key)
+            if modes is None:
+                return None
+            A, lam, V, Vinv = modes
+            a = float(starts[k])
+            b = float(starts[k + 1]) if k + 1 < len(keys) else tb
+            E = ((V * np.exp(lam * (b - a))) @ Vinv).real
+            inc = np.zeros(n)
+            for h, rk in zip(pas.inputs, rates, strict=True):
+                w = h.omega
+                den = 1j * w - lam
+                if np.min(np.abs(den)) <= 1e-12 * max(1.0, w, float(np.max(np.abs(lam)))):
+                    return None  # undamped resonance in a region: no particular solution
+                c = Vinv @ (1j * rk * (h.u - 1j * h.v))
+                w1 = V @ (c / den)
+                w2 = V @ (c / (den * den))
+                za = ((w1 * a - w2) * np.exp(1j * w * a)).real
+                zb = ((w1 * b - w2) * np.exp(1j * w * b)).real
+                inc += zb - E @ za
+            zeta = E @ zeta + inc
+            if k + 1 < len(keys):
+                ev = cross[k]
+                j = ev.surface
+                if not pas.continuous[j]:
+                    u = sum(
+                        (
+                            q.u * math.cos(q.omega * ev.time) + q.v * math.sin(q.omega * ev.time)
+                            for q in pas.inputs
+                        ),
+                        np.zeros(n),
+                    )
+                    rb, ra = pas.region(ev.pattern_before), pas.region(ev.pattern_after)
+                    fm = rb.A @ ev.y + rb.b + u
+                    fp = ra.A @ ev.y + ra.b + u
+                    cj = pas.surfaces[j].normal
+                    rate = float(cj @ fm)
+                    if rate == 0.0:
+                        return None
+                    zeta = zeta + (fp - fm) * float(cj @ zeta) / rate
+        return zeta if np.all(np.isfinite(zeta)) else None
+
     def _nd_setup(self, output: np.ndarray | None) -> None:
         """The functionals whose statistics a point carries: the output ``c . y`` (default:
         the first coordinate) and every coordinate (second-order coordinates and first-order
@@ -615,11 +706,10 @@ class Engine:
         Gd = self._funcs @ F
 
         def state_at(j: int, tt: float) -> np.ndarray:
-            # the orbit at tt in sample interval [t_j, t_j+1] (never over a node)
-            i = int(idx[j])
-            tt = min(max(tt, node_t[i]), node_t[i + 1])
+            # the orbit at tt in sample interval [t_j, t_j+1] (which may hold a node)
             if trajs is not None:
-                return np.asarray(trajs[i](tt), dtype=float)
+                i = min(max(int(np.searchsorted(node_t, tt, side="right")) - 1, 0), N - 1)
+                return np.asarray(trajs[i](min(max(tt, node_t[i]), node_t[i + 1])), dtype=float)
             if tt <= t[j]:
                 return X[:, j]
             self.calls += 1
@@ -641,7 +731,8 @@ class Engine:
             amps[0] = amps[self._out_is]
         c = np.fft.rfft(G[0, :ns]) / ns
         first = float(2.0 * abs(c[m])) if m < c.size else 0.0
-        mean = float(c[0].real)
+        # the same arithmetic as the coordinates' means (the output may be one of them)
+        mean = float(means[self._out_is if self._out_is is not None else 0])
         sig = X[:, : ns : STAT_SAMPLES // SIG_PHASES].T.ravel().copy()
         return (float(amps[0]), first, mean), (amps[1:].copy(), means[1:].copy()), sig
 

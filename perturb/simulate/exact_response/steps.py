@@ -19,7 +19,12 @@ from perturb.numeric.continuation import (
     StepControl,
     null_tangent,
 )
-from perturb.simulate.exact_response.base import JOIN_FRACTION, SIG_PHASES, STATS_TOL
+from perturb.simulate.exact_response.base import (
+    JOIN_FRACTION,
+    ND_STATS_TOL,
+    SIG_PHASES,
+    STATS_TOL,
+)
 from perturb.simulate.exact_response.closed_form import segment_distance
 from perturb.simulate.exact_response.options import Settings
 from perturb.simulate.exact_response.problem import Engine, Pt, node_growth
@@ -253,6 +258,8 @@ def correct_point(
     unevaluable iterate, and the first-step cap ``first_cap ds + 10 tol``."""
     Sp = eng.Sp
     max_iter = st.max_iter if max_iter is None else max_iter
+    # a system's statistics follow the tolerance (its default 1e-10 gives ND_STATS_TOL)
+    stats_tol = min(ND_STATS_TOL, 10.0 * st.tol) if eng.nd else STATS_TOL
 
     def evaluate(u: np.ndarray) -> Evaluation | None:
         p = float(u[-1])
@@ -282,7 +289,7 @@ def correct_point(
             est = n if ctl is None else max(n * n * ctl.quad, 1e-3 * n)
         else:
             est = n * min(1.0, n / prev)
-        return est <= st.tol and n * node_growth(e.payload.M, N) <= STATS_TOL
+        return est <= st.tol and n * node_growth(e.payload.M, N) <= stats_tol
 
     newton = Corrector(evaluate, scaled=False, fd_column=fd_column)
     c = newton.correct(
