@@ -40,6 +40,15 @@ Models
     ``0 <= V_d <= 2 V_gap`` (plastic, restitution 0): while it rests the flow is held (the
     script's modes ``dec = +-1``). A harmonic displacement would move the vacuum surface in
     time, which the piecewise-affine data cannot hold; the model is the step response.
+``mount_fixed``
+    The same mount with the decoupler fixed (``V_d = 0``): the track volume ``V_i`` alone,
+    ``I_i V_i'' + R_i V_i' + V_i/C_2 = p_1(A_r X - V_i)`` with the vacuum knee; step
+    ``X = -3.7e-3``. Piecewise linear (exact propagation).
+``mount_fixed_linear``
+    ``mount_fixed`` without vacuum (``p_1 = (A_r X - V_i)/C_1``): linear, its step response has
+    a closed form. :func:`mount_system` builds every member of the family (free or fixed
+    decoupler, with or without vacuum, ideal or ramped step) and :func:`mount_outputs` names
+    their outputs (``p1``, ``p2``, ``flow``, ``plate``).
 ``mount_linear``
     The floating-decoupler linear mount in first-order form (``integrate_full``), pressures and
     flows ``(p1, p2, q_i, q_d)``, with a harmonic displacement ``x = Xa cos(Omega t)``:
