@@ -424,3 +424,19 @@ def test_bad_input_is_a_clear_error():
     with pytest.raises(PerturbError, match="transitions"):
         step_response(builtin_system("mount"), np.linspace(0.0, 0.5, 11), atol=1e-17,
                       max_events=2)  # fmt: skip
+
+
+def test_event_driven_zeros_do_not_depend_on_the_sampling():
+    """The event-driven dense solution is rebuilt per sample interval: the zeros of the flow
+    found with 101 and 1001 samples agree, also when an event (the end of the ramp) falls
+    exactly on a sample time."""
+    for rise in (0.01, RISE):
+        system = mount_system(rise=rise)
+        flow = {"flow": mount_outputs(rise=rise)["flow"]}
+        a, b = (
+            step_response(system, np.linspace(0.0, 0.1, n), outputs=flow, crossings=["flow"])
+            for n in (101, 1001)
+        )
+        assert len(a.crossings["flow"]) == len(b.crossings["flow"]) == 3
+        assert np.abs(a.crossings["flow"] - b.crossings["flow"]).max() < 1e-10
+        assert any(abs(e.time - rise) < 1e-15 for e in a.events)

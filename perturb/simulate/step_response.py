@@ -488,7 +488,7 @@ def _hermite_segments(flow, log, t0: float, y0: np.ndarray, ts, ys, t1: float):
         end = t1 if e is None else float(e.t)
         seg_t, seg_y = [start_t], [start_y]
         while k < ts.size and ts[k] <= end:
-            if ts[k] > start_t:
+            if ts[k] > seg_t[-1]:  # an event on a sample time is sampled twice: keep one
                 seg_t.append(float(ts[k]))
                 seg_y.append(ys[k])
             k += 1
