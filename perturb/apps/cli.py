@@ -193,9 +193,26 @@ def _cmd_models(args: argparse.Namespace) -> int:
         for stop_name, on, lower, upper in sys_spec.stops:
             print(f"    stop {stop_name}: {lower} <= {on} <= {upper}")
         print(f"    {sys_spec.description}")
-        print(f"    states: {', '.join(sys_spec.build().state_names)}")
+        print(f"    states: {', '.join(_state_names(sys_spec.equations))}")
         print(f"    defaults: {defaults}")
     return 0
+
+
+_PRIMED = re.compile(r"(?<![A-Za-z0-9_.])([A-Za-z][A-Za-z0-9_]*)\s*('+)")
+
+
+def _state_names(equations: Sequence[str]) -> list[str]:
+    """The state order of :meth:`System.parse <perturb.model.system.System.parse>` read from
+    the equations' text (no SymPy, so ``perturb models`` stays fast): the second-order
+    coordinates (a name with ``''``) in the order their derivatives first appear, their
+    velocities, then the first-order states (a name with ``'`` only)."""
+    order: dict[str, int] = {}
+    for text in equations:
+        for match in _PRIMED.finditer(text):
+            name, primes = match.group(1), len(match.group(2))
+            order[name] = max(order.get(name, 0), primes)
+    second = [n for n, k in order.items() if k >= 2]
+    return [*second, *(n + "'" for n in second), *(n for n, k in order.items() if k == 1)]
 
 
 def _cmd_fourier(args: argparse.Namespace) -> int:
@@ -912,8 +929,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--method",
-        help=f"{', '.join(names())} (default: hb1; a system: exact, its only method for "
-        "now); see the list below",
+        help=f"{', '.join(names())} (default: hb1); a system of several coordinates takes "
+        "exact (its default and only method for now); see the list below",
     )
     p.add_argument(
         "--param",
