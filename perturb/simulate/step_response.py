@@ -256,7 +256,14 @@ def _affine(system: System | PiecewiseAffineSystem, active, method: str):
     if isinstance(system, PiecewiseAffineSystem):
         return system
     act = dict(active or {})
-    free = [s for s in _stops(system) if act.get(s) is None]
+    contacts = _stops(system)
+    for key in act:
+        if key not in contacts:
+            raise ParameterError(
+                f"active: {key!r} is not a stop or friction contact of system {system.name!r}: "
+                f"expected one of {contacts or 'none'}"
+            )
+    free = [s for s in contacts if act.get(s) is None]
     if free:
         raise PerturbError(
             f"method {method!r}: system {system.name!r} has the stop(s) / friction contact(s) "
