@@ -411,7 +411,7 @@ def test_bad_input_is_a_clear_error():
     _raises(ParameterError, r"unknown option\(s\) \['tol'\]", builtin_system("mount"), t,
             method="events", tol=1.0)  # fmt: skip
     _raises(ParameterError, "'plate' is not a stop", builtin_system("mount"), t,
-            active={"plate": -1})  # fmt: skip
+            method="exact", active={"plate": -1})  # fmt: skip
     # a forced system has no step response in this sense
     _raises(ModelError, "harmonic inputs", builtin_system("nsd2"), t, method="exact")
     # the mount family's arguments
