@@ -18,7 +18,7 @@ from perturb.model.system import System
 from perturb.model.system_builtins import builtin_system
 from perturb.simulate.flows.factory import make_flow
 from perturb.simulate.flows.system_events import SystemEventFlow
-from perturb.simulate.orbits.shooting import limit_cycle
+from perturb.simulate.orbits.shooting import limit_cycle, multiple_shooting
 
 TIGHT = {"method": "DOP853", "rtol": 1e-12, "atol": 1e-12}
 
@@ -191,3 +191,22 @@ def test_limit_cycle_bad_phase_state():
     flow = make_flow(_vdp_pair(), method="ode")
     with pytest.raises(ParameterError, match="phase_state"):
         limit_cycle(flow, [2.0, 0.3, 0.0, 0.0], 6.5, phase_state=4)
+
+
+def test_autonomous_multiple_shooting_takes_n_states():
+    # the belt cycle by 4-node multiple shooting on the event flow, and the 4-state smooth
+    # cycle: the same periods as the independent references
+    system = builtin_system("belt")
+    flow = SystemEventFlow(system, rtol=1e-12, atol=1e-12)
+    T = 6.5
+    nodes = [flow([0.6, 0.0], 0.0, T * i / 4).y if i else np.array([0.6, 0.0]) for i in range(4)]
+    orb = multiple_shooting(flow, nodes, period_guess=T)
+    period, amp, _ = _belt_reference({k: float(v) for k, v in system.params.items()}, 0.5)
+    assert orb.period == pytest.approx(period, abs=1e-8)
+    assert orb.amplitude == pytest.approx(amp, abs=1e-8)
+    ode = make_flow(_vdp_pair(), method="ode", rtol=1e-12, atol=1e-12)
+    y = np.array([2.0, 0.3, 0.0, 0.0])
+    nodes = [ode(y, 0.0, 6.5 * i / 3).y if i else y for i in range(3)]
+    orb = multiple_shooting(ode, nodes, period_guess=6.5)
+    assert orb.period == pytest.approx(_vdp_reference()[0], abs=1e-8)
+    assert abs(orb.y0[2]) < 1e-12

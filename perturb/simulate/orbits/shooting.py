@@ -66,9 +66,9 @@ States of any dimension
     path below; for ``n != 2`` the summary numbers describe the first state (``x1``), the
     multipliers are ``numpy.linalg.eigvals`` of the monodromy, and
     :meth:`PeriodicOrbit.max_abs` gives ``max |.|`` of every state or of any combination.
-    Limit cycles of autonomous systems (:func:`limit_cycle`) take ``n`` states too, the phase
-    condition on the velocity of the first coordinate (or ``phase_state``); autonomous multiple
-    shooting takes two states only (for now).
+    Limit cycles of autonomous systems (:func:`limit_cycle`, :func:`multiple_shooting`) take
+    ``n`` states too, the phase condition on the velocity of the first coordinate (or
+    ``phase_state``).
 
 Orbit data
     Multipliers are the eigenvalues of the monodromy.  Amplitude (max :math:`|x|`), mean and
@@ -941,15 +941,6 @@ def periodic_orbit(
     )
 
 
-def _two_states(flow: Any, who: str) -> None:
-    n = state_dimension(flow)
-    if n != 2:
-        raise ParameterError(
-            f"{who}: the flow {flow!r} has {n} states: autonomous multiple shooting (phase "
-            "condition v0 = 0) takes two-state (x, v) flows only so far; use limit_cycle"
-        )
-
-
 def _check_autonomous(flow: Any, who: str) -> None:
     if not is_autonomous(flow):
         raise ParameterError(
@@ -1178,6 +1169,7 @@ def multiple_shooting(
     period_guess: float | None = None,
     m: int = 1,
     t0: float = 0.0,
+    phase_state: int | None = None,
     tol: float = 1e-12,
     max_iter: int = 50,
     unit_tol: float = UNIT_TOL,
@@ -1197,6 +1189,10 @@ def multiple_shooting(
         Initial period for autonomous systems (required there, rejected for forced ones).
     m, t0, tol, max_iter, unit_tol
         As in :func:`periodic_orbit` (``m`` and ``t0`` are for forced systems).
+    phase_state
+        Autonomous systems: the state held at zero at the first node, as in
+        :func:`limit_cycle` (default ``v`` of ``(x, v)``, else the velocity of the first
+        coordinate of the flow's ``system_model``).
 
     Notes
     -----
@@ -1224,8 +1220,7 @@ def multiple_shooting(
     tol = check_positive(tol, "tol")
     max_iter = check_count(max_iter, "max_iter", 0)
     auto = is_autonomous(flow)
-    if auto:
-        _two_states(flow, "multiple_shooting")
+    k = _phase_index(flow, d, phase_state) if auto else 0
     if auto and period is not None:
         raise ParameterError(
             f"period = {period!r} given for an autonomous flow: its period is an unknown; "
@@ -1276,9 +1271,9 @@ def multiple_shooting(
         vals = [diag.data, -np.ones(n)]
         size = n
         if auto:
-            r[n] = nodes[0, 1]
+            r[n] = nodes[0, k]
             rows += [np.arange(n), np.array([n])]
-            cols += [np.full(n, n), np.array([1])]
+            cols += [np.full(n, n), np.array([k])]
             vals += [fcol, np.array([1.0])]
             size = n + 1
         J = sps.csc_matrix(
