@@ -382,6 +382,19 @@ def test_simulate_belt_uses_the_event_driven_flow():
     assert "events" in err
 
 
+def test_simulate_systems_with_stops_and_drift():
+    # the mount's decoupler stays between its stops 0 <= V_d <= 2 V_gap (volumes of 1e-6 m^3:
+    # the event tolerance is scaled to them)
+    code, rows, err = cli("simulate", "mount", "--t", "0:0.3", "--samples", "31")
+    assert code == 0, err
+    vd = np.array([float(r["V_d"]) for r in rows])
+    assert vd.min() >= -1e-15 and vd.max() <= 1.5e-6 + 1e-15 and vd.max() > 1e-7
+    # the drill string turns without bound (no equilibrium to size a tolerance by)
+    code, rows, err = cli("simulate", "drill_string", "--t", "0:10", "--samples", "3")
+    assert code == 0, err
+    assert float(rows[-1]["phi_r"]) > 1.0
+
+
 # ------------------------------------------------------------------------------------------
 # bad input, unchanged SDOF formats, models
 # ------------------------------------------------------------------------------------------
@@ -402,6 +415,7 @@ def test_simulate_belt_uses_the_event_driven_flow():
         (("periodic", "belt", "--omega", "1"), "Omega"),
         (("simulate", "x1'' + x1 = 0; x2'' + zz*x2 = 0", "--samples", "3"), "zz"),
         (("periodic", "nsd2", "--omega", "1", "--param", "kk=1"), "kk"),
+        (("simulate", ";".join(f"x{i}'' + x{i} = 0" for i in range(70))), "70 equations"),
     ],
 )
 def test_bad_input_is_one_line_naming_the_value(argv, match, capsys):

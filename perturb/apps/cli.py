@@ -58,6 +58,7 @@ __all__ = [
     "MAX_LCP_STEPS",
     "MAX_SUBHARMONIC",
     "MAX_FOURIER_N",
+    "MAX_EQUATIONS",
     "OMEGA_RANGE",
 ]
 
@@ -73,6 +74,8 @@ MAX_PERIODS = 20_000
 MAX_LCP_STEPS = 5_000_000
 #: Largest ``--m`` (forcing periods per orbit) of ``perturb periodic``.
 MAX_SUBHARMONIC = 16
+#: Most equations of a MODEL given as equations separated by ``;`` (bounded parsing work).
+MAX_EQUATIONS = 64
 #: Largest ``--n`` of ``perturb fourier``.
 MAX_FOURIER_N = 100_000  # = perturb.fourier.symbols.MAX_SERIES_ORDER (not imported: SymPy)
 #: Forcing frequencies the command accepts (``--omega`` of ``frc`` and ``periodic``): a period
@@ -338,6 +341,11 @@ def _model_from_arg(text: str, params: dict[str, float]):
         from perturb.model.system import System
 
         parts = [part.strip() for part in text.split(";") if part.strip()]
+        if len(parts) > MAX_EQUATIONS:
+            raise ParameterError(
+                f"model: {len(parts)} equations separated by ';', expected at most "
+                f"{MAX_EQUATIONS} (one per coordinate)"
+            )
         return System.parse(parts, params)
     if "''" in text:
         return Oscillator.parse(text, params)
