@@ -172,6 +172,8 @@ _TOL_ULPS = 64.0
 _STEPS_PER_SCALE = 8.0
 #: grid intervals per batch: first batch, largest batch
 _BATCH_FIRST, _BATCH_MAX = 32, 256
+#: 0, 1, ..., _BATCH_MAX as floats (the batch grids: tau + h * k)
+_ARANGE = np.arange(_BATCH_MAX + 1, dtype=float)
 #: halvings of an interval before it is treated as one convex/concave piece
 _MAX_DEPTH = 60
 #: iterations of the Newton-bisection root solver (it stops at full precision long before)
@@ -245,13 +247,29 @@ class AffineTrajectory:
     def __init__(self, system, pieces, events, t_span) -> None:
         self.system = system
         self._pieces = [p for _, _, p in pieces]
-        self.starts = np.array([t for t, _, _ in pieces], dtype=float)
+        self._starts = [float(t) for t, _, _ in pieces]
+        self.starts = np.array(self._starts, dtype=float)
         self.patterns = tuple(p.region.key for _, _, p in pieces)
         self.events = tuple(events)
         self.t_span = (float(t_span[0]), float(t_span[1]))
 
     def __len__(self) -> int:
         return len(self._pieces)
+
+    def _at(self, t: float) -> np.ndarray:
+        """The state at one time (the fast path of ``traj(t)`` for a Python number: root
+        solvers on the dense orbit call it once per iterate)."""
+        t0, t1 = self.t_span
+        slack = 1e-12 * max(t1 - t0, abs(t0), abs(t1))
+        if not (t0 - slack <= t <= t1 + slack):
+            raise ParameterError(
+                f"t outside t_span = {self.t_span!r}: expected finite t0 <= t <= t1"
+            )
+        k = min(max(bisect.bisect_right(self._starts, t) - 1, 0), len(self._pieces) - 1)
+        piece = self._pieces[k]
+        z = piece.state1(t - self._starts[k])
+        model = piece.region.model
+        return z * model.D if model.scaled else z
 
     def __call__(self, t: ArrayLike) -> np.ndarray:
         """The exact state: shape ``(n,)`` for a scalar ``t``, ``(n, len(t))`` otherwise.
@@ -261,6 +279,8 @@ class AffineTrajectory:
         ParameterError
             A time outside ``t_span`` or not finite.
         """
+        if isinstance(t, float | int) and not isinstance(t, bool):
+            return self._at(float(t))
         ta = np.asarray(t, dtype=float)
         scalar = ta.ndim == 0
         ta = ta.reshape(-1)
@@ -305,6 +325,7 @@ class AffinePropagation(NamedTuple):
 # --------------------------------------------------------------------------------------------
 # the zero-initial-data response E(lambda, sigma, tau) of a resonant pair
 # --------------------------------------------------------------------------------------------
+_ONE = np.ones(1, dtype=complex)
 _PHI1_TERMS = 20  # |z| < 1/2: the series error is below 0.5^20 / 21! ~ 1e-26
 
 
@@ -412,6 +433,19 @@ class _ModalRegion:
         self.res_sig = np.array([r[1] for r in res], dtype=complex)
         self.res_vec = np.array([r[2] for r in res], dtype=complex).reshape(len(res), n).T
         self.res_C = C @ self.res_vec  # (ns, nr)
+        # per-piece data are these columns times the piece's coefficients (alpha, 1, e^{i w t0})
+        K = om.size
+        self.Ybase = np.concatenate([V.astype(complex), self.yconst[:, None], Z.T], axis=1)
+        self.Wbase = np.concatenate(
+            [self.CV.astype(complex), self.Cconst[:, None].astype(complex), self.CZ.T], axis=1
+        ).reshape(C.shape[0], n + 1 + K)
+        self.YWbase = np.concatenate([self.Ybase, self.Wbase], axis=0)
+        self.n = n
+        self.sig = np.array(key, dtype=float)
+        self.absd = np.abs(model.d)
+        self.amu1 = self.amupow[1]
+        self.amu1_list = self.amu1.tolist()
+        self.mu_re = self.mu.real.copy()
 
     def particular(self, t: float) -> np.ndarray:
         """The regular particular solution ``y_p(t)`` (resonant pairs excluded)."""
@@ -447,53 +481,59 @@ class _ModalPiece:
         "has_res",
         "ns",
         "colnorm",
+        "Gp",
     )
 
     def __init__(self, region: _ModalRegion, t0: float, y0: np.ndarray) -> None:
+        # (called once per piece: few, whole-array operations; see _ModalRegion.Ybase)
         self.region = region
-        model = region.model
         self.t0 = t0
         self.y0 = y0
-        self.sig = np.array(region.key, dtype=float)
-        self.ns = model.C.shape[0]
-        om = model.omegas
-        ph = np.exp(1j * om * t0)
-        alpha = region.Vinv @ (y0 - region.particular(t0))
-        n = y0.size
+        self.sig = region.sig
+        self.ns = region.Wbase.shape[0]
+        om = region.model.omegas
         self.mu = region.mu
-        Y = np.empty((n, n + 1 + om.size), dtype=complex)
-        Y[:, :n] = region.V * alpha
-        Y[:, n] = region.yconst
-        Y[:, n + 1 :] = (region.Z * ph[:, None]).T
-        self.Y = Y
-        W = np.empty((self.ns, Y.shape[1]), dtype=complex)
-        W[:, :n] = region.CV * alpha
-        W[:, n] = region.Cconst
-        W[:, n + 1 :] = (region.CZ * ph[:, None]).T
-        self.W = W
+        if om.size:
+            ph = np.exp(1j * om * t0)
+            yp = region.yconst + (ph @ region.Z).real  # the particular solution at t0
+            coef = np.concatenate([region.Vinv @ (y0 - yp), _ONE, ph])
+        else:
+            coef = np.concatenate([region.Vinv @ (y0 - region.yconst), _ONE])
+        n = region.n
+        YW = region.YWbase * coef  # the state's terms (n rows), then the surfaces' (ns rows)
+        aYW = np.abs(YW)
+        self.Y = YW[:n]
+        W = self.W = YW[n:]
         self.Wp = W[None] * region.mupow[:, None, :]  # (4, ns, nt): W mu^p
-        aW = np.abs(W)
+        # the same for g = sigma s (the scan's function; a sign flip is exact)
+        self.Gp = self.Wp[:3] * region.sig[None, :, None]
+        aW = aYW[n:]
         self.aWp = aW[None] * region.amupow[:, None, :]
-        self.colnorm = np.abs(Y).sum(axis=0)
+        self.colnorm = aYW[:n].sum(axis=0)
         self.has_res = bool(region.res)
+        scale = aW.sum(axis=1) + region.absd
         if self.has_res:
             phr = np.exp(region.res_sig * t0)
             self.rv = region.res_vec * phr  # (n, nr)
             self.rc = region.res_C * phr  # (ns, nr)
+            scale = scale + np.abs(self.rc).sum(axis=1)
         else:
             self.rv = self.rc = None
-        scale = aW.sum(axis=1) + np.abs(model.d)
-        if self.has_res:
-            scale = scale + np.abs(self.rc).sum(axis=1)
         self.tol = _TOL_ULPS * _EPS * scale
 
     # -- rates --------------------------------------------------------------------------------
     def step(self, tau: float) -> float:
         """Grid step ``1/(8 rho)`` from the terms that still matter at ``tau``."""
-        mag = self.colnorm * np.exp(np.minimum(self.mu.real * tau, 700.0))
-        keep = mag > 1e-16 * float(mag.max())
-        rho = float(np.max(self.region.amupow[1][keep], initial=0.0))
-        rho = max(rho, self.region.res_rho)
+        reg = self.region
+        if tau == 0.0:
+            mag = self.colnorm.tolist()
+        else:
+            mag = (self.colnorm * np.exp(np.minimum(reg.mu_re * tau, 700.0))).tolist()
+        # the largest rate |mu_q| among the terms above 1e-16 of the largest (a handful of
+        # terms: Python lists are cheaper than numpy here)
+        thr = 1e-16 * max(mag)
+        rho = max([r for r, m in zip(reg.amu1_list, mag, strict=True) if m > thr], default=0.0)
+        rho = max(rho, reg.res_rho)
         return math.inf if rho == 0.0 else 1.0 / (_STEPS_PER_SCALE * rho)
 
     # -- evaluation ---------------------------------------------------------------------------
@@ -509,7 +549,9 @@ class _ModalPiece:
         return out
 
     def state1(self, tau: float) -> np.ndarray:
-        return self.state(np.array([tau]))[:, 0]
+        if self.has_res:
+            return self.state(np.array([tau]))[:, 0]
+        return (self.Y @ np.exp(self.mu * tau)).real
 
     def grid(self, taus: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(s, s', s'')`` of every surface at ``taus`` (shape ``(3, ns, m)``) and the bound
@@ -529,6 +571,33 @@ class _ModalPiece:
                 B[0] += np.outer(np.abs(self.rc[:, r]), bnd[2])
                 B[1] += np.outer(np.abs(self.rc[:, r]), bnd[3])
         return S, B
+
+    def gridg(self, taus: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`grid` for ``g = sigma s``: ``(g, g', g'')`` and the bounds."""
+        if self.has_res:
+            S, B = self.grid(taus)
+            return S * self.sig[None, :, None], B
+        E = np.exp(self.mu[:, None] * taus)  # (nt, m)
+        aE = np.abs(E)
+        return (self.Gp @ E).real, self.aWp[2:] @ np.maximum(aE[:, :-1], aE[:, 1:])
+
+    def g01(self, j: int, tau: float) -> tuple[float, float]:
+        """``(g_j, g_j')`` at ``tau`` as Python floats (``g_j = sigma_j s_j``; the root
+        solvers' function)."""
+        if self.has_res:
+            dd = self.derivs(j, tau)
+            sg = float(self.sig[j])
+            return sg * float(dd[0]), sg * float(dd[1])
+        v, d = (self.Wp[:2, j, :] @ np.exp(self.mu * tau)).real.tolist()
+        return (v, d) if self.sig[j] > 0.0 else (-v, -d)
+
+    def g012(self, j: int, tau: float) -> tuple[float, float, float]:
+        """``(g_j, g_j', g_j'')`` at ``tau`` as Python floats."""
+        if self.has_res:
+            dd = self.derivs(j, tau)
+            sg = float(self.sig[j])
+            return sg * float(dd[0]), sg * float(dd[1]), sg * float(dd[2])
+        return tuple((self.Gp[:, j, :] @ np.exp(self.mu * tau)).real.tolist())
 
     def derivs(self, j: int, tau: float) -> np.ndarray:
         """``(s_j, s_j', s_j'', s_j''')`` at ``tau``."""
@@ -688,6 +757,18 @@ class _ExpmPiece:
         B = reg.Cp_norm[2:, :, None] * zn[None, None, :]
         return S, B
 
+    def gridg(self, taus: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        S, B = self.grid(taus)
+        return S * self.sig[None, :, None], B
+
+    def g01(self, j: int, tau: float) -> tuple[float, float]:
+        v, d = (self.region.Cp[:2, j, :] @ self.z(float(tau))).tolist()
+        return (v, d) if self.sig[j] > 0.0 else (-v, -d)
+
+    def g012(self, j: int, tau: float) -> tuple[float, float, float]:
+        v, d, c = (self.region.Cp[:3, j, :] @ self.z(float(tau))).tolist()
+        return (v, d, c) if self.sig[j] > 0.0 else (-v, -d, -c)
+
     def derivs(self, j: int, tau: float) -> np.ndarray:
         return self.region.Cp[:, j, :] @ self.z(float(tau))
 
@@ -800,6 +881,8 @@ class _Model:
         self.continuous = tuple(system.continuous) or (False,) * len(system.surfaces)
         self._regions: dict[tuple[int, ...], _ModalRegion | _ExpmRegion] = {}
         self._Ab: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
+        self.eye = np.eye(n)  # (read-only: the start of every sensitivity product)
+        self.eye.setflags(write=False)
 
     def region_data(self, key: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
         """``(A, b)`` of the scaled system in region ``key`` (ModelError when missing)."""
@@ -896,17 +979,18 @@ def _model_of(system: PiecewiseAffineSystem, representation: str) -> _Model:
 # --------------------------------------------------------------------------------------------
 # root finding and the switch scan
 # --------------------------------------------------------------------------------------------
-def _solve(fd, a: float, b: float, fa: float, fb: float) -> float:
+def _solve(fd, a: float, b: float, fa: float, fb: float, start: float = math.nan) -> float:
     """Root of ``f`` in ``[a, b]`` (``fa``, ``fb`` of opposite signs or zero) by safeguarded
     Newton–bisection; ``fd(t) -> (f, f')`` exact.  Never leaves the bracket; stops at the
-    resolution of ``t`` (``4 eps |t|``)."""
+    resolution of ``t`` (``4 eps |t|``).  ``start``: a first iterate inside ``(a, b)`` (else
+    the secant point)."""
     if fb == 0.0:
         return b
     if fa == 0.0:
         return a
     pos_a = fa > 0.0
     lo, hi = a, b  # f(lo) has the sign of fa, f(hi) that of fb
-    t = a + (b - a) * fa / (fa - fb)
+    t = start if a < start < b else a + (b - a) * fa / (fa - fb)
     if not a < t < b:
         t = 0.5 * (a + b)
     dx_old = dx = b - a
@@ -982,7 +1066,7 @@ def _first_event(piece, j, u, w, gu, gw, touching, clamp, bounds=None, depth=0):
             return None
         if touching:
             return (u, "crossing")
-        return _crossing_or_graze(piece, j, u, w, g0u, g0w, tol)
+        return _crossing_or_graze(piece, j, u, w, g0u, g0w, tol, (g1u, g1w))
     simple = g2u * g2w > 0.0 and abs(g2u) + abs(g2w) > M3 * L
     if not simple and depth < _MAX_DEPTH and L > 8.0 * _EPS * max(abs(u), abs(w), 1e-300):
         m = 0.5 * (u + w)
@@ -994,8 +1078,7 @@ def _first_event(piece, j, u, w, gu, gw, touching, clamp, bounds=None, depth=0):
     convex = (g2u + g2w) > 0.0
 
     def g01(t: float) -> tuple[float, float]:
-        dd = piece.derivs(j, t)
-        return sig * dd[0], sig * dd[1]
+        return piece.g01(j, t)
 
     def g12(t: float) -> tuple[float, float]:
         dd = piece.derivs(j, t)
@@ -1036,21 +1119,85 @@ def _taylor_bound(g2u, g2w, M3, L):
     return 0.5 * (np.abs(g2u) + np.abs(g2w) + M3 * L)
 
 
-def _crossing_or_graze(piece, j, a, w, ga, gw, tol):
+def _hermite_start(a: float, w: float, ga: float, gw: float, da: float, dw: float) -> float:
+    """A first iterate for the root of ``g`` in ``(a, w)`` (``ga > 0 >= gw``): the root of the
+    cubic Hermite interpolant of the end values and slopes (error ``O(L^4)``, so Newton
+    needs one or two steps instead of four from the secant point), or NaN when it is not
+    strictly inside."""
+    L = w - a
+    ma, mw = da * L, dw * L
+    x = ga / (ga - gw)
+    for _ in range(8):
+        x2 = x * x
+        x3 = x2 * x
+        val = (2 * x3 - 3 * x2 + 1) * ga + (x3 - 2 * x2 + x) * ma + (3 * x2 - 2 * x3) * gw
+        val += (x3 - x2) * mw
+        der = (6 * x2 - 6 * x) * (ga - gw) + (3 * x2 - 4 * x + 1) * ma + (3 * x2 - 2 * x) * mw
+        if der == 0.0:
+            break
+        xn = x - val / der
+        if not 0.0 < xn < 1.0:
+            break
+        done = abs(xn - x) <= 1e-12
+        x = xn
+        if done:
+            break
+    t = a + L * x
+    return t if a < t < w else math.nan
+
+
+def _crossing_or_graze(piece, j, a, w, ga, gw, tol, slopes=None):
     """The root of ``g`` in ``(a, w]`` (``g(a) > 0 >= g(w)``): a crossing, or a tangency when
-    the penetration depth ``g'^2 / (2 g'')`` there is below the rounding level ``tol``."""
-    sig = piece.sig[j]
-
-    def g01(t: float) -> tuple[float, float]:
-        dd = piece.derivs(j, t)
-        return sig * dd[0], sig * dd[1]
-
-    root = w if gw == 0.0 else _solve(g01, a, w, ga, gw)
-    dd = sig * piece.derivs(j, root)
-    r1, r2 = float(dd[1]), float(dd[2])
+    the penetration depth ``g'^2 / (2 g'')`` there is below the rounding level ``tol``.
+    ``slopes``: ``(g'(a), g'(w))`` when known (a better first iterate)."""
+    start = math.nan if slopes is None or gw == 0.0 else _hermite_start(a, w, ga, gw, *slopes)
+    root, t_last, r1, r2 = _solve_halley(piece, j, a, w, ga, gw, start)
     if r1 < 0.0 and r2 > 0.0 and r1 * r1 <= 2.0 * r2 * tol:
-        return (root - r1 / r2, "tangency")
+        return (t_last - r1 / r2, "tangency")
     return (root, "crossing")
+
+
+def _solve_halley(piece, j, a, w, ga, gw, start):
+    """The root of ``g_j`` in ``[a, w]`` (``ga > 0 >= gw``) by safeguarded Halley–bisection on
+    the closed form (``g, g', g''`` from one evaluation: cubic convergence, so from the
+    Hermite start one step reaches full precision), never leaving the bracket; stops at the
+    resolution of ``t`` (``4 eps |t|``).  Returns ``(root, t, g'(t), g''(t))`` with ``t``
+    the last point evaluated (within rounding of the root)."""
+    if gw == 0.0:
+        _, d1, d2 = piece.g012(j, w)
+        return w, w, d1, d2
+    lo, hi = a, w  # g(lo) > 0 >= g(hi)
+    t = start if a < start < w else a + (w - a) * ga / (ga - gw)
+    if not a < t < w:
+        t = 0.5 * (a + w)
+    dx_old = dx = w - a
+    f = df = d2f = 0.0
+    for _ in range(_ROOT_ITER):
+        f, df, d2f = piece.g012(j, t)
+        if f == 0.0:
+            return t, t, df, d2f
+        if f > 0.0:
+            lo = t
+        else:
+            hi = t
+        tol = max(4.0 * _EPS * abs(t), 1e-300)
+        if abs(f) <= tol * abs(df):
+            tn = t - f / df
+            return (tn if lo <= tn <= hi else t), t, df, d2f
+        den = 2.0 * df * df - f * d2f
+        if den != 0.0:
+            tn = t - 2.0 * f * df / den
+        else:
+            tn = t - f / df if df != 0.0 else math.nan
+        if not (lo < tn < hi) or abs(2.0 * f) > abs(dx_old * df):
+            dx_old, dx = dx, 0.5 * (hi - lo)
+            tn = lo + dx
+        else:
+            dx_old, dx = dx, t - tn
+        if abs(dx) <= tol or hi - lo <= tol:
+            return tn, t, df, d2f
+        t = tn
+    return t, t, df, d2f
 
 
 def _scan(piece, tau_end: float, touching: set[int], budget: _Budget):
@@ -1072,26 +1219,28 @@ def _scan(piece, tau_end: float, touching: set[int], budget: _Budget):
             h = 8.0 * _EPS * max(abs(tau), 1.0)
         span = tau_end - tau
         if h * batch < span:
-            taus = tau + h * np.arange(batch + 1)
+            taus = tau + h * _ARANGE[: batch + 1]
         elif h < span:
             # the last batch: whole steps, then the remainder (a step of at least h / 2)
             k = max(1, math.ceil(span / h - 0.5))
-            taus = tau + h * np.arange(k + 1)
+            taus = tau + h * (_ARANGE[: k + 1] if k <= _BATCH_MAX else np.arange(k + 1.0))
             taus[-1] = tau_end
         else:
             taus = np.array([tau, tau_end])
         budget.take(taus.size - 1, piece.t0 + tau)
-        S, B = piece.grid(taus)
-        # (an overflow anywhere makes the sums inf or nan)
-        if not math.isfinite(float(S[0].sum()) + float(B.sum())):
+        G, B = piece.gridg(taus)
+        # (an overflow anywhere makes the bounds inf or nan: B sums |W_q mu_q^p| max|e^{mu_q t}|
+        # over every term, and 0 * inf is nan)
+        if not math.isfinite(float(B.sum())):
             raise PerturbError(
                 f"the orbit escapes to infinity in region {piece.region.key} near t = "
                 f"{piece.t0 + float(taus[-1])!r} (floating-point overflow); shorten the interval"
             )
-        G = S * sig[None, :, None]
-        L = np.diff(taus)
-        B2 = np.minimum(B[0], _taylor_bound(S[2, :, :-1], S[2, :, 1:], B[1], L))
-        starts = touch if not np.any(G[0, :, 0] < 0.0) else range(ns)
+        L = taus[1:] - taus[:-1]
+        a2 = np.abs(G[2])
+        # _taylor_bound inline (one call fewer per batch)
+        B2 = np.minimum(B[0], 0.5 * (a2[:, :-1] + a2[:, 1:] + B[1] * L))
+        starts = touch if min(G[0, :, 0].tolist()) >= 0.0 else range(ns)
         for j in starts:
             if j in touch:
                 G[0, j, 0] = 0.0
@@ -1101,7 +1250,7 @@ def _scan(piece, tau_end: float, touching: set[int], budget: _Budget):
                 if G[0, j, 0] < -tol[j]:
                     raise PerturbError(
                         f"the state at t = {piece.t0 + tau!r} is on the wrong side of surface "
-                        f"{j} (s = {S[0, j, 0]!r}) for region {piece.region.key}: the "
+                        f"{j} (s = {sig[j] * G[0, j, 0]!r}) for region {piece.region.key}: the "
                         "propagation lost track of the region (a non-finite or huge state?)"
                     )
                 if G[1, j, 0] < 0.0:
@@ -1116,18 +1265,16 @@ def _scan(piece, tau_end: float, touching: set[int], budget: _Budget):
                 low[j, 0] = math.inf
         flagged = low <= tol[:, None]
         best = None
-        for k in np.flatnonzero(flagged.any(axis=0)):
-            k = int(k)
-            for j in np.flatnonzero(flagged[:, k]):
-                j = int(j)
+        for k in flagged.any(axis=0).nonzero()[0].tolist():
+            for j in flagged[:, k].nonzero()[0].tolist():
                 first = k == 0 and j in touch
                 ev = _first_event(
                     piece,
                     j,
                     float(taus[k]),
                     float(taus[k + 1]),
-                    G[:, j, k],
-                    G[:, j, k + 1],
+                    G[:, j, k].tolist(),  # Python floats: scalar arithmetic from here on
+                    G[:, j, k + 1].tolist(),
                     first,
                     first and j in clamp,
                     (float(B2[j, k]), float(B[1, j, k])),
@@ -1218,7 +1365,7 @@ def _run(model: _Model, y0: np.ndarray, t0: float, t1: float, max_events: int, m
         tau, j = hit
         t_c = t + tau
         y_c = piece.state1(tau)
-        if not (np.all(np.isfinite(y_c)) and math.isfinite(t_c)):
+        if not (np.isfinite(y_c).all() and math.isfinite(t_c)):
             raise PerturbError(
                 f"a switch at t = {t_c!r} with a non-finite state in region {key}: overflow"
             )
@@ -1255,7 +1402,7 @@ def _run(model: _Model, y0: np.ndarray, t0: float, t1: float, max_events: int, m
         t, y, key, touching = t_c, y_c, new, {j}
     t_last, _, last = pieces[-1]
     y_end = last.state1(t1 - t_last) * D
-    if not np.all(np.isfinite(y_end)):
+    if not np.isfinite(y_end).all():
         raise PerturbError(
             f"the orbit escapes to infinity in region {last.region.key} before t = {t1!r} "
             "(floating-point overflow); shorten the interval"
@@ -1348,8 +1495,7 @@ def _result(model: _Model, run: _Run, t0: float, t1: float, dense: bool) -> Affi
 
 def _sensitivity(model: _Model, run: _Run) -> np.ndarray:
     """Product of the region exponentials and the saltation matrices at the crossings."""
-    n = model.n
-    M = np.eye(n)
+    M = model.eye
     for i, (ta, tb, piece) in enumerate(run.pieces):
         M = piece.region.transition(tb - ta) @ M
         if i < len(run.crossings):
@@ -1371,7 +1517,9 @@ def _sensitivity(model: _Model, run: _Run) -> np.ndarray:
             M = M + np.outer(fp - fm, c @ M) / rate
     if model.scaled:
         M = model.D[:, None] * M * model.Dinv[None, :]  # dy1/dy0 = D (dz1/dz0) D^-1
-    if not np.all(np.isfinite(M)):
+    if M is model.eye:
+        M = M.copy()
+    if not np.isfinite(M).all():
         raise PerturbError("the sensitivity overflows (non-finite): shorten the interval")
     return M
 
@@ -1426,8 +1574,13 @@ class AffineExactFlow(Flow):
         self.affine_system = system
         self.period = system.period
         self.max_events = int(max_events)
-        self._model = _Model(system, representation)
+        # the region data (eigen-decompositions, particular solutions) depend only on the
+        # immutable system: shared by every flow of the same system object, as the SDOF
+        # propagator keeps its segment data on its PWLSystem
+        self._model = _model_of(system, representation)
         self._memo: tuple[tuple, _Run] | None = None
+        C = np.array([sf.normal for sf in system.surfaces], dtype=float).reshape(-1, system.n)
+        self._C0, self._d0 = C, np.array([sf.offset for sf in system.surfaces], dtype=float)
 
     @property
     def autonomous(self) -> bool:
@@ -1441,8 +1594,21 @@ class AffineExactFlow(Flow):
         )
 
     def vector_field(self, t: float, y: ArrayLike) -> np.ndarray:
-        """``A y + b + inputs(t)`` of the region holding ``y`` (``s_j = 0`` counts as +1)."""
-        return self.affine_system.field(float(t), np.asarray(y, dtype=float))
+        """``A y + b + inputs(t)`` of the region holding ``y`` (``s_j = 0`` counts as +1).
+
+        The arithmetic of :meth:`PiecewiseAffineSystem.field` with the sign pattern from one
+        matrix-vector product (orbit statistics call this at every root iterate)."""
+        sys_ = self.affine_system
+        y = np.asarray(y, dtype=float)
+        t = float(t)
+        key = tuple([1 if s >= 0.0 else -1 for s in (self._C0 @ y - self._d0).tolist()])
+        reg = sys_.regions.get(key)
+        if reg is None:
+            reg = sys_.region(key)  # ModelError naming the pattern
+        out = reg.A @ y + reg.b
+        for h in sys_.inputs:
+            out = out + h.u * math.cos(h.omega * t) + h.v * math.sin(h.omega * t)
+        return out
 
     def _propagate(self, y0: ArrayLike, t0: float, t1: float) -> _Run:
         y, t0, t1 = _check_args(self.affine_system, y0, t0, t1, self.max_events, 50_000_000)
