@@ -749,8 +749,6 @@ def _system_periodic_orbits(
     """:func:`periodic_orbits` for a :class:`~perturb.model.system.System`."""
     import numpy as np
 
-    from perturb.simulate.orbits.shooting import periodic_orbit
-
     m = checks.whole(m, "m", 1, 64, "forcing periods per orbit")
     grid = checks.whole(grid, "grid", 0, 100, "random starting states")
     transient_periods = checks.whole(transient_periods, "transient_periods", 0, 100_000)
@@ -804,9 +802,8 @@ def _system_periodic_orbits(
     for y in candidates:  # bounded: one Newton solve per candidate
         if known(y, 1e-5):
             continue
-        try:
-            orbit = periodic_orbit(flow, y, m=m, max_iter=40)
-        except PerturbError:
+        orbit = _shoot(flow, y, m, T)
+        if orbit is None:
             continue
         _, S = orbit.sample_states(m)  # y(jT), j = 0..m-1
         if known(orbit.y0, 1e-7):
@@ -820,6 +817,45 @@ def _system_periodic_orbits(
         found.append(orbit)
         sections.append(S)
     return tuple(sorted(found, key=lambda o: float(o.max_abs(c))))
+
+
+#: Growth of a perturbation allowed over one shooting interval (as the exact response's
+#: NODE_GROWTH): a strongly unstable orbit is solved again on nodes that each grow it by at
+#: most this, so its statistics do not come from one propagation amplifying its rounding.
+_NODE_GROWTH = 100.0
+#: Most shooting nodes per forcing period.
+_MAX_NODES = 64
+
+
+def _shoot(flow: Any, y: Any, m: int, T: float) -> Any:
+    """The period-``m`` orbit from the guess ``y``: single shooting; multiple shooting on
+    nodes sampled from the guess's trajectory when that fails, and again on nodes of the
+    orbit when it is strongly unstable. None when neither converges."""
+    import numpy as np
+
+    from perturb.simulate.orbits.shooting import multiple_shooting, periodic_orbit
+
+    def nodes_for(mu: float) -> int:
+        k = math.ceil(math.log(min(max(mu, 1.0), 1e300)) / math.log(_NODE_GROWTH))
+        return int(min(max(k, 2 * m, 8), _MAX_NODES * m))
+
+    try:
+        orbit = periodic_orbit(flow, y, m=m, max_iter=40)
+    except PerturbError:
+        try:  # the guess's own trajectory as nodes: sub-intervals keep the growth bounded
+            n = nodes_for(1.0)
+            t = m * T * np.arange(n) / n
+            ys = flow(y, 0.0, m * T, t_eval=t).ys
+            return multiple_shooting(flow, np.asarray(ys, dtype=float), m=m, max_iter=40)
+        except PerturbError:
+            return None
+    if orbit.max_multiplier <= _NODE_GROWTH:
+        return orbit
+    try:
+        _, Y = orbit.sample_states(nodes_for(orbit.max_multiplier))
+        return multiple_shooting(flow, Y.T.copy(), m=m, max_iter=40)
+    except PerturbError:
+        return orbit  # the single-shooting orbit (converged; its rounding amplified)
 
 
 class SystemHistory:
