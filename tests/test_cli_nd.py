@@ -231,6 +231,15 @@ def test_periodic_nsd2_rows_are_orbits_of_the_reference_and_include_the_attracto
     ), (amp, mean, [(r["amplitude"], r["mean"]) for r in stable])
 
 
+def test_periodic_nsd2_strongly_unstable_orbits_are_right():
+    # k = -3: the in-well orbit's multiplier is ~1e4 (solved again on shooting nodes)
+    argv = ("periodic", "nsd2", "--param", "k=-3", "--omega", "1.0", "--output", "x1 - x2")
+    code, rows, err = cli(*argv)
+    assert code == 0, err
+    assert max(float(r["max_multiplier"]) for r in rows) > 1e3
+    check_orbit_rows(nsd2(k=-3.0, W=1.0), rows, 1.0, np.array([1.0, -1.0, 0, 0]))
+
+
 def test_periodic_nsd2_multipliers_match_finite_differences_of_the_reference_map():
     code, rows, err = cli("periodic", "nsd2", "--omega", "1.0")
     assert code == 0, err
