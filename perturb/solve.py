@@ -40,6 +40,17 @@ and the scenes:
 :data:`MAX_FREQUENCIES`
     Listed frequencies (``frequencies=``; each one is a solve).
 
+Systems of several coordinates
+------------------------------
+:func:`frequency_response` and :func:`periodic_orbits` also take a
+:class:`~perturb.model.system.System` (method ``"exact"`` only for now: the approximations
+take one coordinate and refuse a system by name). ``output=`` (a coordinate or a linear
+combination such as ``"x1 - x2"``, default the first coordinate) is what the ``amplitude``,
+``first_harmonic_amplitude`` and ``mean`` columns measure; every coordinate's ``max |.|`` and
+mean come as ``amplitude_<name>`` / ``mean_<name>`` (:class:`SystemResponse`,
+:func:`orbit_columns`). :func:`system_time_history` integrates a system (exact piecewise-affine
+flow, DOP853, or event-driven with stops and friction contacts).
+
 Importing this module loads neither SymPy nor SciPy: each route imports its solver when
 it runs.
 """
