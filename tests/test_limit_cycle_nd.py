@@ -179,12 +179,101 @@ def test_smooth_four_state_cycle_on_ode_flow_matches_long_run():
 
 
 def test_drill_string_is_a_clear_error_or_a_cycle():
-    # the rotary table and the bit turn on without bound (angles grow by about 37 rad per
-    # cycle): no periodic orbit of the states exists, so shooting must fail clearly and soon
+    # the rotary table and the bit turn on without bound (angles grow by about 20 rad per
+    # cycle): no periodic orbit of the states exists, so plain shooting fails clearly and soon
     flow = SystemEventFlow(builtin_system("drill_string"), rtol=1e-10, atol=1e-10)
     y = flow([0.0, 0.0, 1.0, 0.0], 0.0, 100.0).y
     with pytest.raises(PerturbError):
         limit_cycle(flow, y, 10.0, max_iter=4)
+
+
+def _drill_reference(p, y0, t_settle=150.0, cycles=3):
+    """Stick-slip of the drill string's bit by solve_ivp DOP853 (1e-12) with events: slip
+    phases (sign of phi_b' fixed) end where phi_b' = 0; the bit sticks while the torque it
+    needs, c_t phi_r' + k_t (phi_r - phi_b), is within W_ob R_b mu_s, the table runs on.
+    Returns the period between the last stick exits and max |phi_b'| over that cycle."""
+    Jr, Jb, kt, ct, cr, cb = (p[k] for k in ("J_r", "J_b", "k_t", "c_t", "c_r", "c_b"))
+    WR, mu_c, mu_s, gb, nu, Tm = (
+        p["W_ob"] * p["R_b"],
+        p["mu_c"],
+        p["mu_s"],
+        p["gamma_b"],
+        p["nu_f"],
+        p["T_m"],
+    )
+
+    def table(y):
+        return (Tm - ct * (y[2] - y[3]) - kt * (y[0] - y[1]) - cr * y[2]) / Jr
+
+    def bit_acc(y, sigma):
+        fric = WR * (mu_c + (mu_s - mu_c) * math.exp(-gb * abs(y[3]) / nu)) * sigma
+        return (ct * (y[2] - y[3]) + kt * (y[0] - y[1]) - cb * y[3] - fric) / Jb
+
+    def need(y):
+        return ct * y[2] + kt * (y[0] - y[1])
+
+    t, y, sigma = 0.0, np.array(y0, float), 1
+    exits, peaks = [], []
+    for _ in range(2000):
+
+        def slip(tt, z, sigma=sigma):
+            return [z[2], z[3], table(z), bit_acc(z, sigma)]
+
+        def stop(tt, z):
+            return z[3]
+
+        def top(tt, z, sigma=sigma):
+            return bit_acc(z, sigma)
+
+        stop.terminal, stop.direction = True, -sigma
+        sol = solve_ivp(slip, (t, t + 100.0), y, events=[stop, top], **TIGHT)
+        tops = zip(sol.t_events[1], sol.y_events[1], strict=True)
+        peaks += [(float(a), abs(float(b[3]))) for a, b in tops]
+        t, y = float(sol.t_events[0][0]), np.array(sol.y_events[0][0])
+        y[3] = 0.0
+        if abs(need(y)) > WR * mu_s:
+            sigma = 1 if need(y) > 0 else -1
+            continue
+
+        def stuck(tt, z):
+            return [z[2], 0.0, table(z), 0.0]
+
+        def over(tt, z):
+            return need(z) - WR * mu_s
+
+        def under(tt, z):
+            return need(z) + WR * mu_s
+
+        over.terminal = under.terminal = True
+        over.direction, under.direction = 1, -1
+        sol = solve_ivp(stuck, (t, t + 100.0), y, events=[over, under], **TIGHT)
+        which = 0 if sol.t_events[0].size else 1
+        t, y = float(sol.t_events[which][0]), np.array(sol.y_events[which][0])
+        sigma = 1 if which == 0 else -1
+        if t > t_settle:
+            exits.append(t)
+            if len(exits) == cycles + 1:
+                break
+    a, b = exits[-2], exits[-1]
+    return b - a, max(v for tt, v in peaks if a <= tt <= b)
+
+
+def test_drill_string_stick_slip_cycle_with_drift_matches_reference():
+    # periodic up to the rotation: drift d = (1, 1, 0, 0), the phase condition phi_b' = 1 (the
+    # bit's speed passes 1 once accelerating; phi_b' = 0 holds over the whole sticking phase)
+    system = builtin_system("drill_string")
+    flow = SystemEventFlow(system, rtol=1e-12, atol=1e-12)
+    y = flow([0.0, 0.0, 1.0, 0.0], 0.0, 100.0).y
+    orb = limit_cycle(flow, y, 5.6, phase_state=3, phase_value=1.0, drift=[1, 1, 0, 0])
+    period, peak = _drill_reference({k: float(v) for k, v in system.params.items()}, [0, 0, 1, 0])
+    assert orb.period == pytest.approx(period, abs=1e-8)
+    assert float(orb.max_abs([0, 0, 0, 1])) == pytest.approx(peak, abs=1e-8)
+    flow(orb.y0, 0.0, orb.period)
+    assert [e.kind for e in flow.events] == ["stick", "slip"]
+    # modulo the drift the multipliers are 1 (time shift), the slip phase's and two zeros
+    # (sticking fixes phi_b and phi_b'; the drift is projected out)
+    mu = np.sort(np.abs(orb.multipliers))
+    assert mu[3] == pytest.approx(1.0, abs=1e-7) and mu[1] < 1e-6 and orb.is_stable
 
 
 def test_limit_cycle_bad_phase_state():

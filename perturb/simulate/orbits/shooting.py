@@ -965,11 +965,13 @@ def reject_equilibrium(flow: Flow, y0: np.ndarray, P: float, what: str, rn: floa
 _RUNAWAY = 100.0
 
 
-def _settled_start(flow: Flow, y: np.ndarray, T0: float, k: int = 1) -> np.ndarray | None:
+def _settled_start(
+    flow: Flow, y: np.ndarray, T0: float, k: int = 1, value: float = 0.0
+) -> np.ndarray | None:
     """``(y*, P)`` of the attractor reached from ``y``: 50 guessed periods of transient, then
     two successive crossings of state ``k`` from + to - (for ``(x, v)``, ``k = 1``: maxima of
-    ``x``), located by linear interpolation on a 1/64-period grid, give the state (state ``k``
-    set to 0) and the period; ``None`` when the transient diverges, stops at an equilibrium, or
+    ``x``; through ``value`` when given), located by linear interpolation on a 1/64-period
+    grid, give the state (state ``k`` set to ``value``) and the period; ``None`` when the transient diverges, stops at an equilibrium, or
     shows no two crossings in 16 periods."""
     try:
         z = np.asarray(flow(y, 0.0, 50.0 * T0).y, dtype=float)
@@ -979,8 +981,8 @@ def _settled_start(flow: Flow, y: np.ndarray, T0: float, k: int = 1) -> np.ndarr
             z1 = np.asarray(flow(z, t, t + h).y, dtype=float)
             if not np.all(np.isfinite(z1)):
                 return None
-            if z[k] > 0.0 >= z1[k]:
-                f = z[k] / (z[k] - z1[k])
+            if z[k] - value > 0.0 >= z1[k] - value:
+                f = (z[k] - value) / ((z[k] - value) - (z1[k] - value))
                 crossings.append((t + f * h, z + f * (z1 - z)))
                 if len(crossings) == 2:
                     break
@@ -993,7 +995,7 @@ def _settled_start(flow: Flow, y: np.ndarray, T0: float, k: int = 1) -> np.ndarr
     if not (t2 - t1 > 0.0 and np.all(np.isfinite(y2))):
         return None
     y2 = np.array(y2, dtype=float)
-    y2[k] = 0.0
+    y2[k] = value
     return np.append(y2, t2 - t1)
 
 
@@ -1026,6 +1028,8 @@ def limit_cycle(
     *,
     phase: str = "velocity",
     phase_state: int | None = None,
+    phase_value: float = 0.0,
+    drift: ArrayLike | None = None,
     tol: float = 1e-12,
     max_iter: int = 50,
     unit_tol: float = UNIT_TOL,
@@ -1053,6 +1057,19 @@ def limit_cycle(
         With ``n != 2`` states, the index of the state held at zero by the velocity phase
         condition (default: the velocity of the first coordinate of the flow's
         ``system_model``, e.g. ``x1'``); for ``(x, v)`` it is ``v`` (index 1).
+    phase_value
+        The value that state is held at (default 0: an extremum of the coordinate). A state
+        that stays at 0 over an interval (a velocity while a contact sticks) needs another
+        value, one it passes through transversally.
+    drift
+        A direction ``d`` along which the vector field is invariant (``f(y + s d) = f(y)``:
+        the angles of a rotating machine, ``d = (1, 1, 0, 0)`` for the drill string), making
+        the orbit periodic up to a shift: :math:`\varphi_T(y_0) = y_0 + \delta d` with an
+        unknown :math:`\delta` (one more unknown, and the gauge :math:`d\cdot y_0 =
+        d\cdot y_{guess}`). The returned monodromy is then taken modulo the drift
+        (:math:`M (I - d d^T/d^T d)`: the drift's trivial multiplier 1 becomes 0), so that the
+        multipliers classify the orbit; the shift per period is the flow over one period
+        minus ``y0``, along ``d``.
     tol, max_iter, unit_tol
         As in :func:`periodic_orbit`.
 
@@ -1076,10 +1093,38 @@ def limit_cycle(
     max_iter = check_count(max_iter, "max_iter", 0)
     if phase not in ("velocity", "anchor"):
         raise ParameterError(f"phase = {phase!r}: expected 'velocity' or 'anchor'")
+    value = check_finite(phase_value, "phase_value")
+    d_vec = None
+    if drift is not None:
+        d_vec = _state(drift, "drift", n)
+        if not np.any(d_vec) or phase != "velocity":
+            raise ParameterError(
+                f"drift = {d_vec.tolist()!r}: expected a nonzero direction, with phase = 'velocity'"
+            )
     eye = np.eye(n)
     what = f"limit cycle shooting (phase = {phase!r})"
 
-    if phase == "velocity":
+    if d_vec is not None:
+        gauge = float(d_vec @ y)
+
+        def evaluate(z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            yy, T, delta = z[:n], z[n], z[n + 1]
+            res = flow(yy, 0.0, T, sensitivity=True)
+            M = np.asarray(res.sensitivity, dtype=float)
+            f = np.asarray(flow.vector_field(T, res.y), dtype=float)
+            J = np.zeros((n + 2, n + 2))
+            J[:n, :n] = M - eye
+            J[:n, n] = f
+            J[:n, n + 1] = -d_vec
+            J[n, k] = 1.0
+            J[n + 1, :n] = d_vec
+            r = np.concatenate(
+                [res.y - yy - delta * d_vec, [yy[k] - value, float(d_vec @ yy) - gauge]]
+            )
+            return r, J, M
+
+        z0 = np.concatenate([y, [T0, 0.0]])
+    elif phase == "velocity":
 
         def evaluate(z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             yy, T = z[:n], z[n]
@@ -1090,7 +1135,7 @@ def limit_cycle(
             J[:n, :n] = M - eye
             J[:n, n] = f
             J[n, k] = 1.0
-            return np.append(res.y - yy, yy[k]), J, M
+            return np.append(res.y - yy, yy[k] - value), J, M
 
         z0 = np.append(y, T0)
     else:
@@ -1102,6 +1147,8 @@ def limit_cycle(
             return res.y - y_fix, f[:, None], np.asarray(res.sensitivity, dtype=float)
 
         z0 = np.array([T0])
+
+    i_period = n if phase == "velocity" else 0
 
     def solve(z_start: np.ndarray) -> tuple[Any, np.ndarray, float]:
         out = shooting_newton(
@@ -1115,12 +1162,12 @@ def limit_cycle(
             # a positive period, and no run-away: from a poor guess on a relaxation cycle the
             # iterates can double |x| while the period shrinks, each step stiffer than the last
             admissible=lambda z: (
-                bool(z[-1] > 0.0)
+                bool(z[i_period] > 0.0)
                 and (phase != "velocity" or _state_scale(z[:n]) <= _RUNAWAY * _state_scale(y))
             ),
         )
         y0 = out.z[:n].copy() if phase == "velocity" else y.copy()
-        P = float(out.z[-1])
+        P = float(out.z[i_period])
         reject_equilibrium(flow, y0, P, what, out.rnorm, out.iterations)
         return out, y0, P
 
@@ -1134,14 +1181,20 @@ def limit_cycle(
         # the first error standing.
         if phase != "velocity":
             raise
-        start = _settled_start(flow, y, T0, k)
+        start = _settled_start(flow, y, T0, k, value)
         if start is None:
             raise first from None
+        if d_vec is not None:  # the settled state, shifted back to the gauge, no drift yet
+            start[:n] += d_vec * (gauge - float(d_vec @ start[:n])) / float(d_vec @ d_vec)
+            start = np.append(start, 0.0)
         try:
             out, y0, P = solve(start)
         except ShootingError:
             raise first from None
     dense = _FlowDense(flow, y0[None, :], np.array([0.0, P]))
+    monodromy = np.array(out.data, dtype=float)
+    if d_vec is not None:  # modulo the drift: its trivial multiplier 1 -> 0
+        monodromy = monodromy @ (eye - np.outer(d_vec, d_vec) / float(d_vec @ d_vec))
     return PeriodicOrbit.from_solution(
         dense=dense,
         y0=y0,
@@ -1149,7 +1202,7 @@ def limit_cycle(
         P=P,
         m=1,
         forcing_period=None,
-        monodromy=np.array(out.data, dtype=float),
+        monodromy=monodromy,
         residual=out.rnorm,
         iterations=out.iterations,
         method="single shooting",
