@@ -21,8 +21,19 @@ the inside out; a surface is *active* in a mode when a switch decision reads it.
 
 Integration
 -----------
-In a mode, :func:`scipy.integrate.solve_ivp` (DOP853) runs with two terminal events per
-active surface: :math:`h_j` with direction :math:`-\sigma_j` (only exits count), and
+In a mode the frozen field is integrated by Chebyshev collocation steps
+(:mod:`perturb.simulate.flows.spectral`, ``integrator="chebyshev"``, the default): each step is
+one polynomial of degree 24 found by Newton's method, accepted on the decay of its Chebyshev
+coefficients (the error estimate, at ``rtol``/``atol``), with the sensitivity from the same
+factorised Jacobian.  Every active surface is sampled on ``2N + 1`` points of each step with
+its rate :math:`\dot h_j`: a sample beyond the surface is a crossing (root refined on the
+polynomial), a turn of :math:`\dot h_j` from approaching to receding a closest approach,
+refined on the polynomial when it could reach the surface (beyond it: a crossing at the zero
+before it; within the graze depth below: a graze; inside: nothing).  A field that does not
+evaluate on arrays, a step length that collapses, sliding segments and
+``integrator="dop853"`` use :func:`scipy.integrate.solve_ivp` (DOP853) instead, with two
+terminal events per active surface: :math:`h_j` with direction :math:`-\sigma_j` (only exits
+count), and
 :math:`\dot h_j = n^T f_\sigma` at a *closest approach* (:math:`\dot h_j` turning from
 approaching to receding).  ``solve_ivp`` only compares event signs at step ends, so an orbit
 that crosses and comes back inside one step is invisible to the first event; at its closest
@@ -116,6 +127,13 @@ from sympy.logic.boolalg import BooleanFalse, BooleanTrue
 from perturb.errors import ModelError, ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator, validate_parameter_value
 from perturb.simulate.flows.base import Flow, FlowResult
+from perturb.simulate.flows.spectral import (
+    ChebyshevStep,
+    Chunk,
+    chebyshev_rule,
+    interpolation_matrix,
+    interpolation_row,
+)
 from perturb.simulate.flows.system import first_order_rhs, forcing_period_expr, parameter_values
 
 __all__ = [
@@ -469,6 +487,8 @@ class _Mode:
     acc: Callable[[float, float, float], float]
     derivs: Callable[[float, float, float], tuple[float, float, float, float]]
     active: frozenset[int]
+    #: the collocation stepper of the frozen field (None: not vectorisable, DOP853 is used)
+    stepper: ChebyshevStep | None = None
 
 
 @dataclass
@@ -479,6 +499,9 @@ class _State:
     sigma: list[int]
     slide: int | None
     guard: dict[int, float]
+    #: the next collocation step length (carried from segment to segment within one call,
+    #: never between calls: a flow's result depends on its arguments only)
+    h: float | None = None
 
 
 def _check_tol(name: str, value: object) -> float:
@@ -502,6 +525,14 @@ class EventFlow(Flow):
         Tolerances of DOP853 in every smooth segment (state and variational equations).
     max_events
         Largest number of events per call before giving up.
+    parameter
+        A parameter kept as an argument of the compiled fields (flows at other values by
+        :meth:`at` share them).
+    integrator
+        ``"chebyshev"`` (default): collocation steps between the events (module docstring),
+        several times faster than DOP853 in Python for the same accuracy, with the
+        sensitivity almost free; ``"dop853"``: :func:`scipy.integrate.solve_ivp` in every
+        segment (the reference of earlier versions).
 
     Attributes
     ----------
@@ -529,9 +560,13 @@ class EventFlow(Flow):
         atol: float = 1e-12,
         max_events: int = 100_000,
         parameter: str | None = None,
+        integrator: Literal["chebyshev", "dop853"] = "chebyshev",
     ) -> None:
         if not isinstance(oscillator, Oscillator):
             raise ParameterError(f"oscillator = {oscillator!r}: expected an Oscillator")
+        if integrator not in ("chebyshev", "dop853"):
+            raise ParameterError(f"integrator = {integrator!r}: expected 'chebyshev' or 'dop853'")
+        self.integrator = integrator
         self.oscillator = oscillator
         self.rtol = _check_tol("rtol", rtol)
         self.atol = _check_tol("atol", atol)
@@ -584,6 +619,9 @@ class EventFlow(Flow):
         # shared with the flows of at(): frozen fields per mode, compiled fields per field
         self._frozen: dict[tuple[int, ...], tuple[sp.Expr, frozenset[int]]] = {}
         self._compiled: dict[sp.Expr, tuple[Callable, Callable]] = {}
+        self._vectorised: dict[sp.Expr, Callable | None] = {}
+        #: the last run made of collocation steps only: ((y0, t0, t1), y1, events, chunks)
+        self._memo: tuple | None = None
         self._slide_max_step = (
             self.period / _SLIDE_STEPS_PER_PERIOD if self.period is not None else np.inf
         )
@@ -609,6 +647,7 @@ class EventFlow(Flow):
         new._p_value = float(value)
         new.period = self._period_at(new._p_value)
         new._modes = {}
+        new._memo = None
         new._slide_max_step = (
             new.period / _SLIDE_STEPS_PER_PERIOD if new.period is not None else np.inf
         )
@@ -640,8 +679,9 @@ class EventFlow(Flow):
                     sp.lambdify(args, derivs, modules=mods),
                 )
                 self._compiled[frozen] = fns
+            stepper = self._stepper(frozen)
             if self._p is None:
-                mode = _Mode(acc=fns[0], derivs=fns[1], active=active)
+                mode = _Mode(acc=fns[0], derivs=fns[1], active=active, stepper=stepper)
             else:
                 acc_p, derivs_p, pv = fns[0], fns[1], self._p_value
 
@@ -651,9 +691,40 @@ class EventFlow(Flow):
                 def derivs_fn(t: float, x: float, v: float):
                     return derivs_p(t, x, v, pv)
 
-                mode = _Mode(acc=acc, derivs=derivs_fn, active=active)
+                mode = _Mode(acc=acc, derivs=derivs_fn, active=active, stepper=stepper)
             self._modes[key] = mode
         return mode
+
+    def _stepper(self, frozen: sp.Expr) -> ChebyshevStep | None:
+        """The collocation stepper of a frozen field, or None (DOP853 then) when the flow
+        uses DOP853 or the field does not evaluate on arrays."""
+        if self.integrator != "chebyshev":
+            return None
+        if frozen not in self._vectorised:
+            x, v, t = self._x, self._v, self._t
+            args = (t, x, v) if self._p is None else (t, x, v, self._p)
+            try:
+                fn = sp.lambdify(args, [frozen, sp.diff(frozen, x), sp.diff(frozen, v)], "numpy")
+                # a trial on arrays: every output must broadcast to the nodes' shape
+                probe = np.linspace(0.1, 0.3, 3)
+                extra = () if self._p is None else (self._p_value,)
+                with np.errstate(all="ignore"):
+                    out = fn(probe, probe, probe, *extra)
+                for q in out:
+                    np.broadcast_to(np.asarray(q, dtype=float), probe.shape)
+            except Exception:  # noqa: BLE001 - any failure means: not vectorisable
+                fn = None
+            self._vectorised[frozen] = fn
+        fn = self._vectorised[frozen]
+        if fn is None:
+            return None
+        if self._p is not None:
+            pv, fn_p = self._p_value, fn
+
+            def fn(t, x, v):  # noqa: F811 - the parameter bound
+                return fn_p(t, x, v, pv)
+
+        return ChebyshevStep(fn, self.rtol, self.atol)
 
     def _field(self, sigma: Sequence[int], t: float, y: np.ndarray) -> np.ndarray:
         return np.array([y[1], float(self._mode(sigma).acc(t, y[0], y[1]))])
@@ -800,7 +871,31 @@ class EventFlow(Flow):
         y = _state("y0", y0)
         t0, t1 = _span(t0, t1)
         te = _times(t_eval, t0, t1)
+        memo = self._memo
+        if (
+            te is not None
+            and not sensitivity
+            and memo is not None
+            and memo[0] == (y.tobytes(), t0, t1)
+        ):
+            # samples of the run just made from the same state over the same span (e.g. an
+            # orbit's statistics after its last shooting iteration): the collocation steps'
+            # polynomials, the same numbers a new run would produce (its steps do not depend
+            # on the sensitivity), without integrating again
+            return FlowResult(
+                t0=t0,
+                t1=t1,
+                y=memo[1].copy(),
+                t=te.copy(),
+                ys=_memo_samples(memo[3], te),
+                n_events=memo[2],
+            )
         run = self._run(y, t0, t1, bool(sensitivity), te, dense=te is not None)
+        self._memo = (
+            None
+            if run.chunks is None
+            else ((y.tobytes(), t0, t1), run.y.copy(), len(run.events), run.chunks)
+        )
         return FlowResult(
             t0=t0,
             t1=t1,
@@ -1061,7 +1156,19 @@ class EventFlow(Flow):
                 return np.array([z[1], a, z[4], z[5], ax * z[2] + av * z[4], ax * z[3] + av * z[5]])
 
             z0 = np.concatenate([st.y, st.phi.ravel()])
-        hit, kind, t_e, z_e = self._segment(fun, st.t, t1, z0, monitors, out, _xv_state)
+        t_start = st.t
+        res = None
+        if mode.stepper is not None:
+            res = self._segment_chebyshev(mode.stepper, st, t1, active, out)
+            if res[1] == "fallback":
+                # the collocation steps could not proceed (step length collapsed): DOP853
+                # from where they stopped
+                t_start, z0 = res[2], res[3]
+                res = None
+        if res is None:
+            out.chunks = None
+            res = self._segment(fun, t_start, t1, z0, monitors, out, _xv_state)
+        hit, kind, t_e, z_e = res
         y_e = z_e[:2].copy()
         phi = None if st.phi is None else z_e[2:].reshape(2, 2).copy()
         if hit is None:
@@ -1075,6 +1182,244 @@ class EventFlow(Flow):
             return False
         self._classify(st, j, t_e, y_e, phi, out)
         return False
+
+    # ------------------------------------------------------- collocation segments --
+    def _segment_chebyshev(
+        self, stepper: ChebyshevStep, st: _State, t1: float, active: list[int], out: _Run
+    ) -> tuple[int | None, str, float, np.ndarray]:
+        """:meth:`_segment` by Chebyshev collocation steps (:mod:`.spectral`): the same
+        events, found on each step's polynomial instead of DOP853's dense output.
+
+        Every monitored surface ``h_j`` is sampled on ``2 N + 1`` points of each step,
+        together with its rate ``h_j'``; a sign change of ``h_j`` out of its side is a
+        crossing (root refined on the polynomial), a change of ``h_j'`` from approaching to
+        receding a closest approach, refined when it could reach the surface: beyond it
+        (more than the graze depth) it is a crossing at the last zero before it, within the
+        graze depth a graze, inside nothing.  Returns what :meth:`_segment` returns, or
+        ``(None, 'fallback', t, z)`` when the step length collapses (``z`` the augmented state
+        reached, from which DOP853 goes on)."""
+        t = float(st.t)
+        x0, v0 = float(st.y[0]), float(st.y[1])
+        phi = st.phi
+        want = phi is not None
+        span_total = t1 - t
+        h_cap = self.period if self.period is not None else 2.0 * math.pi
+        H = st.h if st.h is not None else _FIRST_CHUNK * h_cap
+        surf = [(self.surfaces[j], float(st.sigma[j]), st.guard.get(j, -np.inf)) for j in active]
+        n = stepper.rule.n
+        for _ in range(_MAX_CHUNKS):
+            span = t1 - t
+            H = min(H, h_cap)
+            last = H >= span * (1.0 - 1e-9)
+            H_try = span if last else H
+            chunk, ratio = stepper.attempt(t, x0, v0, H_try, want)
+            if chunk is None:
+                factor = 0.5 if not math.isfinite(ratio) else min(0.8, (0.05 / ratio) ** (1 / n))
+                H = H_try * max(0.2, factor)
+                if H < _MIN_CHUNK * max(1.0, abs(t), span_total):
+                    return None, "fallback", t, _augmented(x0, v0, phi)
+                continue
+            if not last:
+                # geometric convergence: the error scales like H**n
+                H = H_try * min(2.0, (0.05 / max(ratio, 1e-300)) ** (1 / n))
+            st.h = H
+            hit = self._chunk_event(chunk, surf)
+            t_end = t1 if last else chunk.t[-1]
+            if hit is not None:
+                k, kind, t_e = hit
+                x_e, v_e, S = chunk.state(t_e)
+                self._chunk_samples(chunk, out, t_e)
+                if out.chunks is not None:
+                    out.chunks.append((chunk, t_e))
+                return k, kind, t_e, _augmented(x_e, v_e, None if phi is None else S @ phi)
+            self._chunk_samples(chunk, out, t_end)
+            if out.chunks is not None:
+                out.chunks.append((chunk, t_end))
+            x0, v0 = float(chunk.x[-1]), float(chunk.v[-1])
+            if want:
+                xx, xv, vx, vv = chunk.sens
+                phi = np.array([[xx[-1], xv[-1]], [vx[-1], vv[-1]]]) @ phi
+            t = t_end
+            if last:
+                return None, "end", t1, _augmented(x0, v0, phi)
+        raise PerturbError(
+            f"more than {_MAX_CHUNKS} collocation steps in one smooth segment of "
+            f"{self.oscillator.name!r} after t = {st.t!r} (reached t = {t!r})"
+        )
+
+    @staticmethod
+    def _chunk_samples(chunk: Chunk, out: _Run, upto: float) -> None:
+        """Record the requested output times (or, for a dense run, the nodes) up to ``upto``."""
+        if out.t_eval is not None:
+            te = out.t_eval
+            lo = int(np.searchsorted(te, chunk.ta, side="left"))
+            hi = int(np.searchsorted(te, upto, side="right"))
+            if hi > lo:
+                sel = te[lo:hi]
+                out.add(sel, chunk.states(sel), _xv_state, upto)
+        elif out.dense:
+            keep = chunk.t < upto
+            times = np.append(chunk.t[keep], upto)
+            out.add(times, chunk.states(times), _xv_state, upto)
+
+    def _chunk_event(
+        self, chunk: Chunk, surf: list[tuple[Surface, float, float]]
+    ) -> tuple[int, str, float] | None:
+        """The first event of a collocation step: ``(monitor index, 'cross' | 'graze', t)``,
+        or None."""
+        rule = chunk.rule
+        L, s_f = _fine_samples(rule.n)
+        tf = chunk.ta + (s_f + 1.0) * (0.5 * chunk.H)
+        xf, vf, uf = L @ chunk.x, L @ chunk.v, L @ chunk.u
+        # half a sample spacing times the largest |x'| and |x''|: how far below the lower of
+        # two neighbouring samples h can dip between them (per unit of |a| and |b|)
+        half = 0.25 * chunk.H / (len(tf) - 1)
+        dip_v = half * float(np.max(np.abs(vf)))
+        dip_u = half * float(np.max(np.abs(uf)))
+        scale = _GRAZE_LOCAL_ERRORS * (self.atol + self.rtol * float(np.max(np.abs(xf))))
+        best: tuple[int, str, float] | None = None
+        for k, (s, side, guard) in enumerate(surf):
+            a, b, c = s.a, s.b, s.c
+            g = side * (a * xf + b * vf + c)
+            if guard < tf[0]:
+                valid = None
+                low = float(g.min())
+            else:
+                valid = tf > guard
+                g = np.where(valid, g, np.inf)
+                low = float(g.min())
+            reach = abs(a) * dip_v + abs(b) * dip_u
+            if low > reach + scale * (abs(a) + abs(b) + abs(c)):
+                continue  # no sample outside, and no dip between samples can get there
+            if valid is None:
+                valid = np.ones(len(tf), dtype=bool)
+            dg = side * (a * vf + b * uf)
+            # exact zeros count as inside (as the DOP853 path's events do)
+            out_idx = np.flatnonzero(g < 0.0)
+            stop = int(out_idx[0]) if out_idx.size else len(g)
+            found: tuple[str, float] | None = None
+            # closest approaches before the first sample outside: h' from approaching (< 0)
+            # to receding (>= 0) between two valid samples
+            turns = np.flatnonzero(
+                (dg[:-1] < 0.0) & (dg[1:] >= 0.0) & valid[:-1] & (np.arange(len(g) - 1) < stop - 1)
+            )
+            for i in turns:
+                lo_t, hi_t = float(tf[i]), float(tf[i + 1])
+                # lowest the polynomial can dip between the samples (a bound, to skip the
+                # refinement for approaches that stay clearly inside)
+                reach = min(g[i], g[i + 1]) - 0.5 * (hi_t - lo_t) * max(-dg[i], dg[i + 1])
+                tol, depth = self._chunk_tols(s, chunk, lo_t)
+                if reach > tol:
+                    continue
+                t_min = self._chunk_zero(chunk, a, b, 0.0, side, lo_t, hi_t, derivative=True)
+                g_min = side * self._chunk_h(chunk, a, b, c, t_min)
+                if g_min > tol:
+                    continue
+                if g_min >= -depth:
+                    found = ("graze", t_min)
+                else:
+                    t_c = self._chunk_zero(chunk, a, b, c, side, lo_t, t_min, derivative=False)
+                    found = ("cross", t_c)
+                break
+            if found is None and out_idx.size:
+                i = int(out_idx[0])
+                lo_t = float(tf[i - 1]) if i > 0 else float(chunk.ta)
+                hi_t = float(tf[i])
+                if i == 0 or not valid[i - 1]:
+                    # the bracket starts at the restart on the surface (h = 0 there): the
+                    # orbit went out to this side and came back before the sample; the
+                    # return crossing lies after the turn
+                    lo_t = max(lo_t, float(guard)) if math.isfinite(guard) else lo_t
+                    row = interpolation_row(rule, float(chunk.s_of(lo_t)))
+                    if side * (a * float(row @ chunk.v) + b * float(row @ chunk.u)) > 0.0:
+                        t_max = self._chunk_zero(chunk, a, b, 0.0, -side, lo_t, hi_t, True)
+                        if side * self._chunk_h(chunk, a, b, c, t_max) > 0.0:
+                            lo_t = t_max
+                found = ("cross", self._chunk_zero(chunk, a, b, c, side, lo_t, hi_t))
+            if found is not None and (best is None or found[1] < best[2]):
+                best = (k, found[0], found[1])
+        return best
+
+    def _chunk_tols(self, s: Surface, chunk: Chunk, t: float) -> tuple[float, float]:
+        """Rounding tolerance of ``h`` and the graze depth at a time of a step."""
+        x, v, _ = chunk.state(t)
+        y = np.array([x, v])
+        tol = _ZERO_ULPS * _EPS * (abs(s.a * x) + abs(s.b * v) + abs(s.c))
+        return tol, max(tol, self._graze_depth(s, y))
+
+    @staticmethod
+    def _chunk_h(chunk: Chunk, a: float, b: float, c: float, t: float) -> float:
+        x, v, _ = chunk.state(t)
+        return a * x + b * v + c
+
+    @staticmethod
+    def _chunk_zero(
+        chunk: Chunk,
+        a: float,
+        b: float,
+        c: float,
+        side: float,
+        lo: float,
+        hi: float,
+        derivative: bool = False,
+    ) -> float:
+        """The first zero in ``[lo, hi]`` of ``side * h`` (``derivative``: of ``side * h'``)
+        on the step's polynomial, where the function is >= 0 at ``lo`` and < 0 at ``hi``
+        (``derivative``: < 0 at ``lo``, >= 0 at ``hi``); Illinois regula falsi, to rounding
+        of the time."""
+        rule = chunk.rule
+        if derivative:
+            p, q, c, sign = chunk.v, chunk.u, 0.0, -side
+        else:
+            p, q, sign = chunk.x, chunk.v, side
+        # the rate of the function (crossings only: Newton steps; the rate of h' would need
+        # the jerk, so closest approaches use regula falsi alone)
+        r_p, r_q = (chunk.v, chunk.u) if not derivative else (None, None)
+
+        def f(t: float) -> tuple[float, float]:
+            row = interpolation_row(rule, float(chunk.s_of(t)))
+            val = sign * (a * float(row @ p) + b * float(row @ q) + c)
+            if r_p is None:
+                return val, math.nan
+            return val, sign * (a * float(row @ r_p) + b * float(row @ r_q))
+
+        f_lo, _ = f(lo)
+        f_hi, d_hi = f(hi)
+        if f_lo <= 0.0:
+            return lo
+        if f_hi >= 0.0:
+            return hi
+        kept = 0
+        t, ft, dt_ = hi, f_hi, d_hi
+        for _ in range(_MAX_ROOT_ITER):
+            # Newton from the last point when it stays inside the bracket, else Illinois
+            step = -ft / dt_ if (math.isfinite(dt_) and dt_ != 0.0) else math.nan
+            t_new = t + step
+            if math.isfinite(step) and abs(step) <= 4.0 * _EPS * max(1.0, abs(t)):
+                return t_new  # converged to rounding of the time
+            if not (lo < t_new < hi):
+                t_new = hi - f_hi * (hi - lo) / (f_hi - f_lo)
+                if not (lo < t_new < hi):
+                    t_new = 0.5 * (lo + hi)
+            t = t_new
+            ft, dt_ = f(t)
+            if ft == 0.0:
+                return t
+            if ft > 0.0:
+                lo, f_lo = t, ft
+                if kept == 1:
+                    f_hi *= 0.5  # Illinois: the end kept twice is halved
+                kept = 1
+            else:
+                hi, f_hi = t, ft
+                if kept == -1:
+                    f_lo *= 0.5
+                kept = -1
+            if hi - lo <= 4.0 * _EPS * max(1.0, abs(hi)):
+                break
+        # a crossing: the first time known beyond the surface (the state is then projected
+        # onto it, as after DOP853's event location); a closest approach: either end
+        return hi
 
     def _classify(
         self, st: _State, j: int, t_e: float, y_e: np.ndarray, phi: np.ndarray | None, out: _Run
@@ -1159,6 +1504,7 @@ class EventFlow(Flow):
         return np.eye(2) + np.outer(jump, n) / den
 
     def _slide_segment(self, st: _State, t1: float, out: _Run) -> bool:
+        out.chunks = None
         j = st.slide
         assert j is not None
         s = self.surfaces[j]
@@ -1269,6 +1615,41 @@ class EventFlow(Flow):
         return False
 
 
+#: the first collocation step of a call, as a fraction of the forcing period (2 pi when
+#: autonomous); later steps follow the error estimate
+_FIRST_CHUNK = 0.25
+#: collocation steps allowed in one smooth segment (a period takes a handful)
+_MAX_CHUNKS = 100_000
+#: the collocation step length may shrink to this fraction of max(1, |t|, span) before the
+#: segment falls back to DOP853
+_MIN_CHUNK = 1e-9
+#: regula falsi iterations locating one event on a step's polynomial
+_MAX_ROOT_ITER = 100
+
+
+def _augmented(x: float, v: float, phi: np.ndarray | None) -> np.ndarray:
+    """The state ``(x, v)``, followed by the sensitivity's entries when there is one."""
+    if phi is None:
+        return np.array([x, v])
+    return np.concatenate([[x, v], phi.ravel()])
+
+
+_FINE: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _fine_samples(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Interpolation matrix and points of the ``2 n + 1`` equally spaced samples of a step
+    (events are looked for between them)."""
+    hit = _FINE.get(n)
+    if hit is None:
+        s = np.linspace(-1.0, 1.0, 2 * n + 1)
+        L = interpolation_matrix(chebyshev_rule(n), s)
+        L.setflags(write=False)
+        s.setflags(write=False)
+        hit = _FINE[n] = (L, s)
+    return hit
+
+
 @dataclass(frozen=True)
 class _Monitor:
     """A function ``g(t, z)`` that must keep the sign ``side`` during a segment, its time
@@ -1321,6 +1702,18 @@ def _xv_state(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return y[0], y[1]
 
 
+def _memo_samples(chunks: list[tuple[Chunk, float]], te: np.ndarray) -> np.ndarray:
+    """States ``(len(te), 2)`` at times ``te`` from the steps of a run (each time from the
+    first step whose piece ends at or after it)."""
+    out = np.empty((len(te), 2))
+    ends = np.array([t_end for _, t_end in chunks])
+    which = np.minimum(np.searchsorted(ends, te, side="left"), len(chunks) - 1)
+    for k in np.unique(which):
+        sel = which == k
+        out[sel] = chunks[int(k)][0].states(te[sel]).T
+    return out
+
+
 class _Run:
     """Accumulates the output of one :meth:`EventFlow._run`: samples at ``t_eval`` (or at
     every step when ``dense``), events, restarts, final state and sensitivity."""
@@ -1332,6 +1725,9 @@ class _Run:
         self.phi: np.ndarray | None = None
         self.events: list[EventRecord] = []
         self.n_restarts = 0
+        #: (chunk, t_end) of every collocation step taken, in time order; None once a
+        #: segment was integrated otherwise (DOP853, sliding)
+        self.chunks: list[tuple[Chunk, float]] | None = []
         self._t: list[np.ndarray] = []
         self._x: list[np.ndarray] = []
         self._v: list[np.ndarray] = []
