@@ -660,8 +660,9 @@ def _forcing_period(flow: Any, system: Any) -> float:
     if flow.period is None:
         raise ModelError(
             f"system {system.name!r} is autonomous (no harmonic forcing): its periodic orbits "
-            "are limit cycles of unknown period, which perturb computes for one coordinate "
-            "only so far; expected a forced system (e.g. F*cos(Omega*t) on the right-hand side)"
+            "are limit cycles of unknown period (perturb.simulate.orbits.shooting."
+            "limit_cycle), not orbits at a forcing frequency; expected a forced system (e.g. "
+            "F*cos(Omega*t) on the right-hand side)"
         )
     return float(flow.period)
 
