@@ -57,20 +57,50 @@ def nsd2_field(W, k, mu1, mu2, k2, m2, F):
             ]
         )
 
-    return f, jac
+    return f, jac, (lambda y: y[0] - 1.0, lambda y: y[0] + 1.0)
 
 
-def period_map(f, jac, y0, T, extrema=False):
-    """``y(T)``, the monodromy and (on request) max |x1|, |x2|, |x1 - x2| over ``[0, T]``."""
+IMPACT = {"mu": 0.05, "mu2": 0.01, "r": 20.0, "d": 0.5, "m2": 0.2, "F": 0.5}
+
+
+def impact_field(W, mu, mu2, r, d, m2, F):
+    """x1'' + mu x1' + x1 + r b(x1 - x2) = F cos W t, m2 x2'' + mu2 (x2' - x1') - r b = 0,
+    b(s) = (s - d)^+ - (-s - d)^+ (contact springs outside the clearance |s| <= d)."""
+
+    def f(t, y):
+        x1, x2, v1, v2 = y[:4]
+        s = x1 - x2
+        b = (s - d) if s > d else ((s + d) if s < -d else 0.0)
+        a1 = F * math.cos(W * t) - mu * v1 - x1 - r * b
+        a2 = (-mu2 * (v2 - v1) + r * b) / m2
+        return np.array([v1, v2, a1, a2])
+
+    def jac(y):
+        g = r if abs(y[0] - y[1]) > d else 0.0
+        return np.array(
+            [
+                [0.0, 0.0, 1.0, 0.0],
+                [0.0, 0.0, 0.0, 1.0],
+                [-1.0 - g, g, -mu, 0.0],
+                [g / m2, -g / m2, mu2 / m2, -mu2 / m2],
+            ]
+        )
+
+    return f, jac, (lambda y: y[0] - y[1] - d, lambda y: y[0] - y[1] + d)
+
+
+def period_map(f, jac, kinks, y0, T, extrema=False):
+    """``y(T)``, the monodromy and (on request) max |x1|, |x2|, |x1 - x2| over ``[0, T]``;
+    the integration restarts at every root of a function in ``kinks`` (the switches)."""
 
     def aug(t, z):
         return np.concatenate([f(t, z[:4]), (jac(z[:4]) @ z[4:].reshape(4, 4)).ravel()])
 
     def kink_up(t, z):
-        return z[0] - 1.0
+        return kinks[0](z)
 
     def kink_down(t, z):
-        return z[0] + 1.0
+        return kinks[1](z)
 
     kink_up.terminal = kink_down.terminal = True
     rates = [lambda t, z: z[2], lambda t, z: z[3], lambda t, z: z[2] - z[3]]
@@ -104,20 +134,22 @@ def period_map(f, jac, y0, T, extrema=False):
     return z[:4], z[4:].reshape(4, 4), np.array(amps)
 
 
-def reference_orbit(W, y0, **params):
-    """The periodic orbit near ``y0`` at frequency ``W``: (y0, [max|x1|, max|x2|,
+def reference_orbit(W, y0, model="nsd2", m=1, **params):
+    """The period-``m`` orbit near ``y0`` at frequency ``W``: (y0, [max|x1|, max|x2|,
     max|x1-x2|], multipliers)."""
-    p = dict(NSD2, **params)
-    f, jac = nsd2_field(W, **p)
-    T = 2 * math.pi / W
+    if model == "nsd2":
+        f, jac, kinks = nsd2_field(W, **dict(NSD2, **params))
+    else:
+        f, jac, kinks = impact_field(W, **dict(IMPACT, **params))
+    T = 2 * math.pi * m / W
     y = np.array(y0, dtype=float)
     for _ in range(30):
-        yT, M, _ = period_map(f, jac, y, T)
+        yT, M, _ = period_map(f, jac, kinks, y, T)
         dy = np.linalg.solve(M - np.eye(4), y - yT)
         y = y + dy
         if np.max(np.abs(dy)) < 1e-13 * max(1.0, float(np.max(np.abs(y)))):
             break
-    _, M, amps = period_map(f, jac, y, T, extrema=True)
+    _, M, amps = period_map(f, jac, kinks, y, T, extrema=True)
     return y, amps, np.linalg.eigvals(M)
 
 
@@ -135,12 +167,14 @@ def assert_multipliers(got, ref, tol):
 # ------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def response():
-    return exact_branches(builtin_system("nsd2"), (0.9, 1.3), workers=1, progress=False)
+    return exact_branches(
+        builtin_system("nsd2"), (0.9, 1.3), workers=1, progress=False, period_doubling=True
+    )
 
 
 def _sample_points(res, stable, count):
-    """``count`` points of the given stability spread over all branches and frequencies."""
-    pts = [(b, j) for b, br in enumerate(res.branches) for j, q in enumerate(br.points)]
+    """``count`` points of the given stability spread over the period-1 branches."""
+    pts = [(b, j) for b, br in enumerate(res.branches) if br.m == 1 for j in range(len(br.points))]
     pts = [(b, j) for b, j in pts if res.branches[b].points[j].stable == stable]
     assert len(pts) >= count
     pick = np.linspace(0, len(pts) - 1, count).round().astype(int)
@@ -154,17 +188,33 @@ def test_branch_points_match_the_reference(response, stable):
     for b, j in _sample_points(res, stable, 4):
         q = res.branches[b].points[j]
         y, amps, mult = reference_orbit(q.parameter, q.y0)
-        np.testing.assert_allclose(q.y0, y, rtol=0, atol=1e-9)
-        # max |.| of each coordinate to 1e-9, the output (x1 by default) too
-        np.testing.assert_allclose(q.coordinate_amplitudes, amps[:2], rtol=0, atol=1e-9)
-        assert q.amplitude == pytest.approx(amps[0], rel=0, abs=1e-9)
+        np.testing.assert_allclose(q.y0, y, rtol=1e-9, atol=1e-9)
+        # max |.| of each coordinate to 1e-9 (relative to max(1, |.|)), the output (x1) too
+        np.testing.assert_allclose(q.coordinate_amplitudes, amps[:2], rtol=1e-9, atol=1e-9)
+        assert q.amplitude == pytest.approx(amps[0], rel=1e-9, abs=1e-9)
         assert_multipliers(q.multipliers, mult, 1e-7)
         assert q.stable == (np.max(np.abs(mult)) < 1.0)
 
 
+def test_period_doubled_branches_match_the_reference(response):
+    res = response
+    pds = [s for br in res.branches if br.m == 1 for s in br.period_doublings]
+    doubled = [br for br in res.branches if br.m == 2]
+    assert pds and doubled
+    for br in doubled:
+        for q in (br.points[len(br) // 3], br.points[(2 * len(br)) // 3]):
+            y, amps, mult = reference_orbit(q.parameter, q.y0, m=2)
+            np.testing.assert_allclose(q.y0, y, rtol=1e-9, atol=1e-9)
+            np.testing.assert_allclose(q.coordinate_amplitudes, amps[:2], rtol=1e-9, atol=1e-9)
+            assert_multipliers(q.multipliers, mult, 1e-7)
+            # a genuine period-2 orbit: not its own shift by one forcing period
+            y1, _, _ = reference_orbit(q.parameter, q.y0, m=1)
+            assert np.max(np.abs(y1 - y)) > 1e-3
+
+
 def test_folds_and_unstable_branches_are_detected(response):
     res = response
-    folds = [(b, s) for b, br in enumerate(res.branches) for s in br.folds]
+    folds = [(b, s) for b, br in enumerate(res.branches) if br.m == 1 for s in br.folds]
     assert len(folds) >= 2
     assert any(not q.stable for br in res.branches for q in br.points)
     # a refined fold is a point of its branch: there the reference has a multiplier at +1
@@ -173,7 +223,7 @@ def test_folds_and_unstable_branches_are_detected(response):
         q = res.branches[b].points[s.index]
         if q.parameter != s.parameter:
             continue  # interpolated (not refined): no orbit to check
-        _, _, mult = reference_orbit(q.parameter, q.y0)
+        _, _, mult = reference_orbit(q.parameter, q.y0, m=res.branches[b].m)
         assert np.min(np.abs(mult - 1.0)) < 1e-4
         # and the parameter is extreme there: both neighbours on the same side
         pa = res.branches[b].points[s.index - 1].parameter
@@ -203,8 +253,22 @@ def test_output_combination_measures_the_relative_displacement():
     for j in (0, len(br) // 2, len(br) - 1):
         q = br.points[j]
         _, amps, _ = reference_orbit(q.parameter, q.y0)
-        assert q.amplitude == pytest.approx(amps[2], rel=0, abs=1e-9)
-        np.testing.assert_allclose(q.coordinate_amplitudes, amps[:2], rtol=0, atol=1e-9)
+        assert q.amplitude == pytest.approx(amps[2], rel=1e-9, abs=1e-9)
+        np.testing.assert_allclose(q.coordinate_amplitudes, amps[:2], rtol=1e-9, atol=1e-9)
+
+
+def test_impact_pair_branches_match_the_reference():
+    res = exact_branches(
+        builtin_system("impact_pair"), (1.2, 1.3), workers=1, progress=False, sweep_points=10
+    )
+    assert res.coordinates == ("x1", "x2")
+    pts = [q for br in res.branches for q in br.points]
+    assert any(q.switches > 0 for q in pts)  # orbits with contacts
+    for q in [pts[i] for i in np.linspace(0, len(pts) - 1, 5).round().astype(int)]:
+        y, amps, mult = reference_orbit(q.parameter, q.y0, model="impact_pair")
+        np.testing.assert_allclose(q.y0, y, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(q.coordinate_amplitudes, amps[:2], rtol=1e-9, atol=1e-9)
+        assert_multipliers(q.multipliers, mult, 1e-7)
 
 
 # ------------------------------------------------------------------------------------------

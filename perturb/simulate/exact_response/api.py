@@ -17,6 +17,7 @@ from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
 from perturb.model.system import System
 from perturb.response import Branch, Response
+from perturb.simulate.exact_response.base import STAT_SAMPLES
 from perturb.simulate.exact_response.branches import exact_branches, output_of, undamped_note
 from perturb.simulate.exact_response.march import Tracer
 from perturb.simulate.exact_response.options import (
@@ -154,8 +155,31 @@ def _same_orbit(a: PeriodicOrbit, b: PeriodicOrbit) -> bool:
     return float(np.max(np.abs(np.asarray(a.y0) - np.asarray(b.y0)))) <= 1e-6 * scale
 
 
+def _output_row(o: PeriodicOrbit, c: np.ndarray | None) -> tuple[float, float, float]:
+    """(amplitude, first harmonic, mean) of an orbit: of ``x`` (``c`` None), else of the
+    output ``c . y`` of a system (max by :meth:`PeriodicOrbit.max_abs`, the rest from
+    ``STAT_SAMPLES`` samples per forcing period)."""
+    if c is None:
+        return o.amplitude, o.first_harmonic_amplitude, o.mean
+    ns = STAT_SAMPLES * o.m
+    _, Y = o.sample_states(ns)
+    g = np.fft.rfft(c @ Y) / ns
+    first = float(2.0 * abs(g[o.m])) if o.m < g.size else 0.0
+    return float(o.max_abs(c)), first, float(g[0].real)
+
+
+def _search(model: Oscillator | System, w: float, nodes: Any) -> list[PeriodicOrbit]:
+    """The brute-force orbit search at ``w`` (oscillators; a system has none yet: its
+    tracing is seeded by its region steady states and sweeps)."""
+    if isinstance(model, System):
+        return []
+    from perturb.simulate.orbits.search import periodic_orbits
+
+    return list(periodic_orbits(model, w, node_guesses=nodes))
+
+
 def _solutions_at_one(
-    oscillator: Oscillator,
+    oscillator: Oscillator | System,
     w: float,
     options: dict[str, Any],
     orbit_guesses: Callable[[float], Sequence[np.ndarray]] | None = None,
@@ -165,12 +189,11 @@ def _solutions_at_one(
     ``orbit_guesses(w)``), and every crossing of ``w`` by the branches that
     :func:`exact_branches` traces over ``[w / 1.25, w * 1.25]`` (seeded with the orbits
     found), polished by shooting at exactly ``w``; duplicates removed."""
-    from perturb.simulate.orbits.search import periodic_orbits
-
     family = FlowFamily(oscillator)
     notes: list[str] = []
     nodes = orbit_guesses(w) if orbit_guesses is not None else ()
-    orbits: list[PeriodicOrbit] = list(periodic_orbits(oscillator, w, node_guesses=nodes))
+    orbits: list[PeriodicOrbit] = _search(oscillator, w, nodes)
+    c = _output_vector(oscillator, options)
     n_search = len(orbits)
     undamped = undamped_note(family, (w, w))
     if undamped is not None:
@@ -207,28 +230,37 @@ def _solutions_at_one(
             f"{n_search} orbits from periodic_orbits, {added} more where the branches traced "
             f"over [{lo:.6g}, {hi:.6g}] cross Omega = {w!r}"
         )
-    orbits.sort(key=lambda o: (o.amplitude, o.mean))
+    stats = [_output_row(o, c) for o in orbits]
+    order = sorted(range(len(orbits)), key=lambda i: (stats[i][0], stats[i][2]))
     params = {k: v for k, v in oscillator.params.items() if k != family.parameter}
     branches = tuple(
         Branch(
             omega=[w],
-            amplitude=[o.amplitude],
-            first_harmonic_amplitude=[o.first_harmonic_amplitude],
-            mean=[o.mean],
+            amplitude=[stats[i][0]],
+            first_harmonic_amplitude=[stats[i][1]],
+            mean=[stats[i][2]],
             # max |mu| < 1, as on traced branches: is_stable is False within unit_tol of
             # the unit circle, which every lightly damped orbit is (mu -> 0)
-            stable=[o.max_multiplier < 1.0],
-            max_multiplier=[o.max_multiplier],
+            stable=[orbits[i].max_multiplier < 1.0],
+            max_multiplier=[orbits[i].max_multiplier],
         )
-        for o in orbits
+        for i in order
     )
     method = "exact" if family.exact else "shooting"
     notes.insert(0, f"{len(orbits)} orbits at Omega = {w!r} (one per branch)")
     return Response(branches, method, oscillator.name, params, notes=tuple(notes))
 
 
+def _output_vector(model: Oscillator | System, options: dict[str, Any]) -> np.ndarray | None:
+    """The output combination of a system (``options['output']``, default its first
+    coordinate); None for an oscillator."""
+    if not isinstance(model, System):
+        return None
+    return output_of(model, options.get("output"))[0]
+
+
 def exact_solutions_at(
-    oscillator: Oscillator,
+    oscillator: Oscillator | System,
     frequencies: Sequence[float],
     *,
     orbit_guesses: Callable[[float], Sequence[np.ndarray]] | None = None,
@@ -267,8 +299,6 @@ def exact_solutions_at(
         raise ParameterError(
             f"frequencies = {w_all.tolist()!r}: expected positive finite forcing frequencies"
         )
-    from perturb.simulate.orbits.search import periodic_orbits
-
     targets = np.unique(w_all)
     if targets.size == 1:
         return _solutions_at_one(oscillator, float(targets[0]), options, orbit_guesses)
@@ -279,9 +309,8 @@ def exact_solutions_at(
     w_mid = float(targets[targets.size // 2])
     seeds = list(options.pop("seeds", ()))
     nodes = orbit_guesses(w_mid) if orbit_guesses is not None else ()
-    seeds += [
-        (w_mid, o.y0) for o in periodic_orbits(oscillator, w_mid, node_guesses=nodes) if o.m == 1
-    ]
+    seeds += [(w_mid, o.y0) for o in _search(oscillator, w_mid, nodes) if o.m == 1]
+    c = _output_vector(oscillator, options)
     found = exact_branches(
         oscillator, (float(targets[0]), float(targets[-1])), seeds=seeds, **options
     )
@@ -303,12 +332,13 @@ def exact_solutions_at(
                     continue
                 rows.append((float(w), orbit))
         if rows:
+            st = [_output_row(o, c) for _, o in rows]
             branches.append(
                 Branch(
                     omega=[w for w, _ in rows],
-                    amplitude=[o.amplitude for _, o in rows],
-                    first_harmonic_amplitude=[o.first_harmonic_amplitude for _, o in rows],
-                    mean=[o.mean for _, o in rows],
+                    amplitude=[a for a, _, _ in st],
+                    first_harmonic_amplitude=[f for _, f, _ in st],
+                    mean=[m for _, _, m in st],
                     stable=[o.max_multiplier < 1.0 for _, o in rows],
                     max_multiplier=[o.max_multiplier for _, o in rows],
                 )
