@@ -324,3 +324,16 @@ def test_bad_output_and_seeds_are_named():
         exact_branches(system, (1.0, 1.1), seeds=[(1.05, (0.0, 0.0))], progress=False)
     with pytest.raises(ParameterError, match="output is for systems"):
         exact_branches(builtin_model("nsd"), (1.0, 1.1), output="x", progress=False)
+
+
+def test_parallel_tracing_gives_the_serial_branches():
+    system = builtin_system("nsd2")
+    a = exact_branches(system, (1.05, 1.2), workers=1, progress=False, sweep_points=10)
+    b = exact_branches(system, (1.05, 1.2), workers=2, progress=False, sweep_points=10)
+    assert len(a.branches) == len(b.branches) and a.mirror_of == b.mirror_of
+    for x, y in zip(a.branches, b.branches, strict=True):
+        assert len(x) == len(y) and x.stop_reason == y.stop_reason
+        for p, q in zip(x.points, y.points, strict=True):
+            assert p.parameter == q.parameter
+            np.testing.assert_array_equal(p.y0, q.y0)
+            np.testing.assert_array_equal(p.coordinate_amplitudes, q.coordinate_amplitudes)
