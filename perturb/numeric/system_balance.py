@@ -1,0 +1,1230 @@
+r"""Numeric multi-harmonic balance for systems of several coordinates.
+
+The system (:class:`~perturb.model.system.System`, ``n2`` second-order coordinates ``q`` and
+``n1`` first-order states ``p``, one equation each)
+
+.. math::
+
+    M q'' + D p' + C q' + K q + E p + \sum_e w_e f_e(c_e\cdot y) = F(t),
+    \qquad y = (q, q', p),
+
+forced at frequencies that are multiples of the parameter :math:`\Omega` (``"Omega"``), with a
+period of ``m`` forcing periods and :math:`\theta = \Omega t/m`, :math:`\omega = \Omega/m`.
+
+Unknowns
+--------
+Every coordinate and first-order state ``z_j`` (``j = 0..n2+n1-1``, ``q`` first) is a truncated
+series in the :class:`~perturb.fourier.projection.HarmonicBasis` ``1, cos k theta, sin k theta``
+(``k = 1..H``): coefficients ``U[j] = [a0, a_1, b_1, ...]``; the unknown vector is ``U``
+flattened coordinate by coordinate (``u[j*size:(j+1)*size] = U[j]``).
+
+Residual
+--------
+The Galerkin projection of each equation on the basis,
+
+.. math::
+
+    R = \omega^2 M U_q D_\theta^{2T} + \omega (C U_q + D U_p) D_\theta^T + K U_q + E U_p
+        + \sum_e w_e \otimes P_e(S_e) - \hat F,
+
+with :math:`D_\theta` the derivative matrix of the basis (``2x2`` blocks), :math:`\hat F` the
+coefficients of the forcing and :math:`S_e = \sum_j (\alpha_{ej} I + \omega\beta_{ej}
+D_\theta) U_j` the coefficients of the element's scalar signal :math:`s_e = c_e\cdot y`
+(``alpha`` the position / state part of ``c_e``, ``beta`` its velocity part). ``P_e`` is
+
+* for a piecewise-linear element (any ``"nonsmooth"`` element whose function has a PWL form):
+  the **exact** Galerkin projection of :class:`~perturb.fourier.projection.ExactProjector`
+  (switching angles of ``s_e`` by certified isolation, closed-form spectra, exact Jacobian
+  including the moving switches of a discontinuous force);
+* for any other element on a combination: AFT (``samples`` points, default ``4H + 1``, which
+  projects cubic terms exactly) with the sampled derivative ``f'(s)``;
+* for a smooth term that is no function of one combination: AFT in the states, with the
+  sampled gradient.
+
+Rigid stops are refused (their impacts are no force: use the exact solvers).
+
+Jacobian (block structure)
+--------------------------
+The linear part is :math:`A_0\otimes I + \omega A_1\otimes D_\theta + \omega^2 A_2\otimes
+D_\theta^2` over (coordinates x harmonics): a ``2x2`` block per harmonic and nonzero matrix
+entry, assembled once per system as a sparse pattern and rescaled per :math:`\Omega`. An
+element adds, for each equation ``i`` with ``w_ei != 0`` and each coordinate ``j`` with
+``alpha_ej`` or ``beta_ej != 0``, the block :math:`w_{ei}\,J_e(\alpha_{ej} I + \omega
+\beta_{ej} D_\theta)` with :math:`J_e = \partial P_e/\partial S_e` (``size x size``, ``size =
+2H + 1``; the product with :math:`D_\theta` is a column swap and scale): the cost per element
+is ``nnz(w) nnz(c)`` blocks of ``O(H^2)``, growing like ``n H^2`` for an element touching all
+``n`` coordinates and like ``H^2`` for a local one (a gap between two masses), never like
+``(n H)^2``. :meth:`SystemBalance.evaluate` returns the Jacobian dense (what the continuation
+core takes) or as a ``scipy.sparse`` CSC matrix (``sparse=True``; :meth:`SystemBalance.solve`
+then factors it with SuperLU, so the solve too stays far below ``(nH)^3`` for a chain).
+
+Stability
+---------
+Floquet multipliers of the HB orbit from the monodromy of the linearisation about it: for
+piecewise-linear elements the Jacobian of the vector field is piecewise constant in
+:math:`\theta`, switching at the crossings of each ``s_e`` (the same certified crossings as
+the projection), so the monodromy is a product of matrix exponentials (with the saltation
+matrix of a force that jumps); smooth elements are handled by a midpoint rule on
+``8 H`` sub-intervals per period (second order). Stable when every multiplier has modulus at
+most ``1 + 1e-6``. Near a fold of the truncated branch the multiplier that crosses +1 does
+so within the truncation error of the fold (the HB fold and the orbit's differ by that much).
+
+Frequency continuation uses THE continuation core (:func:`perturb.numeric.continuation.
+continue_curve`, Hermite predictor, early acceptance, folds located), as the SDOF
+:mod:`perturb.numeric.harmonic_balance` does.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sps
+import scipy.sparse.linalg as spla
+import sympy as sp
+from numpy.typing import ArrayLike
+
+from perturb.errors import ModelError, NonsmoothError, ParameterError, PerturbError
+from perturb.fourier.projection import (
+    ExactProjector,
+    HarmonicBasis,
+    TruncatedSeries,
+    crossing_intervals,
+)
+from perturb.model.pwl import NumericPWL, to_pwl
+from perturb.model.system import S as _S_SYMBOL
+from perturb.model.system import System
+from perturb.numeric.continuation import (
+    ContinuationCurve,
+    ContinuationError,
+    continue_curve,
+)
+
+__all__ = [
+    "SystemBalance",
+    "SystemBalanceSolution",
+    "SystemBalanceBranch",
+    "system_balance_orbit",
+    "system_balance_branch",
+    "SystemBalanceError",
+]
+
+_TWO_PI = 2.0 * math.pi
+#: Modulus above which a Floquet multiplier makes the orbit unstable.
+_UNIT_TOL = 1e-6
+#: Sub-intervals per highest harmonic for the midpoint monodromy of smooth elements.
+_SMOOTH_STEPS_PER_HARMONIC = 8
+
+
+class SystemBalanceError(PerturbError):
+    """Harmonic balance of a system failed (no convergence, no start)."""
+
+
+# =============================================================================================
+# forcing in the continuation parameter
+# =============================================================================================
+@dataclass(frozen=True)
+class _ForcingTerm:
+    """``coef(Omega) * cos/sin(rate * Omega * t)`` in equation ``row``."""
+
+    row: int
+    rate: float
+    is_sin: bool
+    coef: Any  # callable Omega -> float
+    dcoef: Any  # callable Omega -> float
+
+
+def _forcing_terms(system: System, parameter: str) -> list[_ForcingTerm]:
+    """The forcing ``F(t)`` as terms whose frequencies are fixed multiples of the parameter
+    (every other parameter value substituted); the amplitudes may depend on it (a
+    displacement input ``Omega * Xa``)."""
+    W = sp.Symbol(parameter, real=True)
+    vals = {
+        k: v
+        for k, v in system.numeric_form()["vals"].items()
+        if getattr(k, "name", "") != parameter
+    }
+    t = system.t
+    terms: list[_ForcingTerm] = []
+    for r in range(system.F.shape[0]):
+        expr = sp.expand(sp.sympify(system.F[r]).xreplace(vals))
+        expr = expr.xreplace({s: W for s in expr.free_symbols if s.name == parameter})
+        for term in sp.Add.make_args(expr):
+            if term == 0:
+                continue
+            if not term.has(t):
+                f = sp.lambdify([W], term, "math")
+                df = sp.lambdify([W], sp.diff(term, W), "math")
+                terms.append(_ForcingTerm(r, 0.0, False, f, df))
+                continue
+            trig = [a for a in term.atoms(sp.cos, sp.sin) if a.has(t)]
+            ok = len(trig) == 1
+            rate = None
+            if ok:
+                arg = sp.expand(trig[0].args[0])
+                om = sp.diff(arg, t)
+                coeff = sp.simplify(term / trig[0])
+                rate_expr = sp.simplify(om / W)
+                ok = (
+                    not coeff.has(t)
+                    and sp.simplify(arg - om * t) == 0
+                    and not rate_expr.free_symbols
+                    and float(rate_expr) != 0.0
+                )
+                if ok:
+                    rate = float(rate_expr)
+            if not ok or rate is None:
+                raise ModelError(
+                    f"forcing term {term} of {system.name!r}: expected constants and terms "
+                    f"a*cos(r*{parameter}*t), a*sin(r*{parameter}*t) with a fixed number r"
+                )
+            sign = 1.0
+            if rate < 0:  # cos(-x) = cos x, sin(-x) = -sin x
+                rate = -rate
+                sign = -1.0 if isinstance(trig[0], sp.sin) else 1.0
+            c = sign * coeff
+            terms.append(
+                _ForcingTerm(
+                    r,
+                    rate,
+                    isinstance(trig[0], sp.sin),
+                    sp.lambdify([W], c, "math"),
+                    sp.lambdify([W], sp.diff(c, W), "math"),
+                )
+            )
+    return terms
+
+
+# =============================================================================================
+# elements
+# =============================================================================================
+@dataclass(eq=False)
+class _Element:
+    name: str
+    kind: str  # "exact" | "aft_s" | "aft_y"
+    alpha: np.ndarray  # (neq,) position / first-order part of c per coordinate
+    beta: np.ndarray  # (neq,) velocity part of c per coordinate (0 for first-order states)
+    w: np.ndarray  # (neq,)
+    c: np.ndarray | None  # over the states y
+    pwl: NumericPWL | None = None
+    projector: ExactProjector | None = None
+    f: Any = None  # f(s) or f(*y), vectorised
+    df: Any = None  # f'(s), or the gradient list in y
+
+
+def _vectorised(fn, n_args: int):
+    """A lambdified function returning arrays shaped like its first argument (constants
+    broadcast)."""
+
+    def call(*args):
+        out = fn(*args)
+        return np.broadcast_to(np.asarray(out, dtype=float), np.shape(args[0])).astype(float)
+
+    del n_args
+    return call
+
+
+# =============================================================================================
+# the balance system
+# =============================================================================================
+class SystemBalance:
+    """Residual, Jacobian, solutions and Floquet multipliers of the harmonic balance of a
+    :class:`~perturb.model.system.System` (module docstring).
+
+    Parameters
+    ----------
+    system : System
+        Every parameter but ``parameter`` needs a value (``parameter`` may have one); the
+        parameter may enter the forcing only (frequencies proportional to it).
+    harmonics : int
+        ``H >= 1``: harmonics ``1..H`` of the response frequency ``Omega/m``, plus the bias.
+    m : int
+        Forcing periods per response period (``m > 1``: subharmonic responses); the forcing's
+        harmonics ``m r`` must be in the basis.
+    parameter : str
+        The continuation parameter, default ``"Omega"``.
+    samples : int, optional
+        AFT samples per period for non-PWL elements (default ``4 H + 1``).
+
+    Attributes
+    ----------
+    basis : HarmonicBasis
+    coordinates : tuple of str
+        The series' names, ``(*system.coordinates, *system.first_order)``.
+    size : int
+        Coefficients per coordinate (``2 H + 1``).
+    n_unknowns : int
+
+    Raises
+    ------
+    ParameterError
+        ``H < 1``, ``m < 1``, a parameter that is not in the system, bad ``samples``.
+    ModelError
+        A stop, an element whose combination is identically zero, a parameter that enters
+        more than the forcing, forcing harmonics the basis cannot represent.
+    """
+
+    def __init__(
+        self,
+        system: System,
+        harmonics: int = 7,
+        *,
+        m: int = 1,
+        parameter: str = "Omega",
+        samples: int | None = None,
+    ) -> None:
+        if not isinstance(system, System):
+            raise ParameterError(f"system = {system!r}: expected a perturb System")
+        if isinstance(m, bool) or not isinstance(m, int | np.integer) or m < 1:
+            raise ParameterError(f"m = {m!r}: expected an integer >= 1 (forcing periods)")
+        self.basis = HarmonicBasis.make(harmonics)  # ParameterError for H < 1
+        self.H, self.m = int(harmonics), int(m)
+        if parameter not in system.params:
+            raise ParameterError(
+                f"parameter {parameter!r} is not in system {system.name!r}: expected one of "
+                + (", ".join(system.params) or "none")
+            )
+        missing = [k for k, v in system.params.items() if v is None and k != parameter]
+        if missing:
+            raise ParameterError(f"system {system.name!r} needs values for {', '.join(missing)}")
+        if system.params.get(parameter) is None:
+            system = system.with_params({parameter: 1.0})
+        self.system, self.parameter = system, parameter
+        self._check_parameter_in_forcing_only()
+        num = system.numeric_form()  # ModelError for a zero combination or a singular [M D]
+        self.n2 = n2 = int(num["n2"])
+        self.n1 = n1 = len(system.first_order)
+        self.neq = neq = n2 + n1
+        self.coordinates = (*system.coordinates, *system.first_order)
+        self.size = self.basis.size
+        self.n_unknowns = neq * self.size
+        self.samples = self._samples(samples)
+        B, L = num["B"], num["L"]
+        self._Binv = num["Binv"]
+        self._L = L
+        # coordinate-level matrices of the residual, columns (q, p)
+        M, Dm = B[:, :n2], B[:, n2:]
+        K, C, E = L[:, :n2], L[:, n2 : 2 * n2], L[:, 2 * n2 :]
+        self._A0 = np.hstack([K, E])
+        self._A1 = np.hstack([C, Dm])
+        self._A2 = np.hstack([M, np.zeros((neq, n1))])
+        self._build_linear_pattern()
+        self.elements = [self._element(e, num) for e in system.elements]
+        self._forcing = _forcing_terms(system, parameter)
+        for ft in self._forcing:
+            k = ft.rate * self.m
+            if ft.rate == 0.0:
+                continue
+            if abs(k - round(k)) > 1e-9 * max(1.0, k) or self.basis.index_of(round(k)) is None:
+                raise ModelError(
+                    f"forcing at {ft.rate:g} x {parameter} is harmonic {k:g} of the response "
+                    f"frequency {parameter}/{self.m}: expected an integer harmonic within "
+                    f"1..{self.H} (raise harmonics= or choose m so that m*rate is an integer)"
+                )
+        self._cache: tuple | None = None
+        self._eig_cache: dict = {}
+        self.evaluations = 0
+
+    # ---------------------------------------------------------------- set-up ----------
+    def _check_parameter_in_forcing_only(self) -> None:
+        s, p = self.system, self.parameter
+        mats = (s.M, s.D, s.C, s.K, s.E)
+        syms = set()
+        for mat in mats:
+            syms |= {x.name for x in mat.free_symbols}
+        for e in s.elements:
+            syms |= {x.name for x in sp.sympify(e.function).free_symbols}
+            for v in (*(e.combination or ()), *e.distribution):
+                syms |= {x.name for x in sp.sympify(v).free_symbols}
+        if p in syms:
+            raise ModelError(
+                f"parameter {p!r} of {s.name!r} enters the matrices or elements: the harmonic "
+                "balance of a system continues a forcing frequency only"
+            )
+
+    def _samples(self, samples: int | None) -> int:
+        if samples is None:
+            return max(16, 4 * self.basis.kmax + 1)
+        if isinstance(samples, bool) or not isinstance(samples, int | np.integer):
+            raise ParameterError(f"samples = {samples!r}: expected an integer")
+        if samples < 2 * self.basis.kmax + 1:
+            raise ParameterError(
+                f"samples = {samples}: expected at least 2H + 1 = {2 * self.basis.kmax + 1}"
+            )
+        return int(samples)
+
+    def _build_linear_pattern(self) -> None:
+        I_ = sps.identity(self.size, format="csr")
+        Dt = sps.csr_matrix(self.basis.derivative_matrix())
+        self._Dtheta = self.basis.derivative_matrix()
+        S0 = sps.kron(sps.csr_matrix(self._A0), I_, format="csr")
+        S1 = sps.kron(sps.csr_matrix(self._A1), Dt, format="csr")
+        S2 = sps.kron(sps.csr_matrix(self._A2), Dt @ Dt, format="csr")
+        pattern = (abs(S0) + abs(S1) + abs(S2) + sps.identity(self.n_unknowns)).tocoo()
+        r, c = pattern.row, pattern.col
+        self._lin_rows, self._lin_cols = r, c
+        self._lin_vals = [np.asarray(S[r, c]).reshape(-1) for S in (S0, S1, S2)]
+        self._S = (S0, S1, S2)
+
+    def _element(self, e, num) -> _Element:
+        if e.kind == "stop":
+            raise ModelError(
+                f"element {e.name!r} of {self.system.name!r} is a rigid stop: harmonic balance "
+                "needs a force (a contact spring); use the exact solvers for impacts"
+            )
+        n2, neq = self.n2, self.neq
+        c, w = num["comb"][e.name]
+        vals = num["vals"]
+        if c is None:
+            fexpr = e.function.xreplace(vals)
+            states = list(self.system.states)
+            f = sp.lambdify(states, fexpr, "numpy")
+            grad = [sp.lambdify(states, sp.diff(fexpr, s), "numpy") for s in states]
+            return _Element(
+                e.name,
+                "aft_y",
+                np.zeros(neq),
+                np.zeros(neq),
+                w,
+                None,
+                f=_vectorised(f, len(states)),
+                df=[_vectorised(g, len(states)) for g in grad],
+            )
+        alpha = np.concatenate([c[:n2], c[2 * n2 :]])
+        beta = np.concatenate([c[n2 : 2 * n2], np.zeros(self.n1)])
+        if not (np.any(alpha) or np.any(beta)) or not np.any(w):
+            raise ModelError(
+                f"element {e.name!r}: combination {c.tolist()} / distribution {w.tolist()} is "
+                "identically zero: expected a nonzero combination of the states"
+            )
+        fexpr = e.function.xreplace(vals)
+        pwl = None
+        if e.kind != "smooth":
+            try:
+                pwl = to_pwl(fexpr, _S_SYMBOL).numeric()
+            except (NonsmoothError, ModelError, ParameterError, TypeError, ValueError):
+                pwl = None
+        if pwl is not None:
+            return _Element(
+                e.name,
+                "exact",
+                alpha,
+                beta,
+                w,
+                c,
+                pwl=pwl,
+                projector=ExactProjector(pwl, self.basis),
+            )
+        f = sp.lambdify([_S_SYMBOL], fexpr, "numpy")
+        df = sp.lambdify([_S_SYMBOL], sp.diff(fexpr, _S_SYMBOL), "numpy")
+        return _Element(
+            e.name, "aft_s", alpha, beta, w, c, f=_vectorised(f, 1), df=_vectorised(df, 1)
+        )
+
+    # ---------------------------------------------------------------- helpers ---------
+    def _omega(self, Omega: float) -> float:
+        W = float(Omega)
+        if not math.isfinite(W) or W <= 0:
+            raise ParameterError(f"{self.parameter} = {Omega!r}: expected a positive number")
+        return W / self.m
+
+    def unpack(self, u: ArrayLike) -> np.ndarray:
+        """``U`` of shape ``(n2 + n1, size)`` from the flat unknowns."""
+        arr = np.asarray(u, dtype=float).reshape(-1)
+        if arr.size != self.n_unknowns:
+            raise ParameterError(
+                f"u of size {arr.size}: expected {self.n_unknowns} "
+                f"({self.neq} coordinates x {self.size} coefficients)"
+            )
+        return arr.reshape(self.neq, self.size)
+
+    def forcing(self, Omega: float) -> tuple[np.ndarray, np.ndarray]:
+        """Coefficients of ``F`` and their derivative in the parameter, ``(neq, size)``."""
+        W = float(Omega)
+        F = np.zeros((self.neq, self.size))
+        dF = np.zeros((self.neq, self.size))
+        for ft in self._forcing:
+            if ft.rate == 0.0:
+                col = 0
+            else:
+                ia = self.basis.index_of(round(ft.rate * self.m))
+                col = ia + 1 if ft.is_sin else ia
+            F[ft.row, col] += float(ft.coef(W))
+            dF[ft.row, col] += float(ft.dcoef(W))
+        return F, dF
+
+    def _DT(self, U: np.ndarray) -> np.ndarray:
+        """Rows of ``U`` differentiated in theta."""
+        return U @ self._Dtheta.T
+
+    def _jd(self, J: np.ndarray, k: np.ndarray) -> np.ndarray:
+        """``J @ D_theta`` by a column swap and scale (``O(size^2)``)."""
+        b = self.basis
+        out = np.zeros_like(J)
+        out[:, b.b_index] = J[:, b.a_index] * k
+        out[:, b.a_index] = -J[:, b.b_index] * k
+        return out
+
+    def signal(self, U: np.ndarray, Omega: float, vector: np.ndarray) -> np.ndarray:
+        """Coefficients of the combination ``vector . y`` (``vector`` over the system's
+        ``state_names``: positions, velocities, first-order states)."""
+        w = self._omega(Omega)
+        n2 = self.n2
+        alpha = np.concatenate([vector[:n2], vector[2 * n2 :]])
+        beta = np.concatenate([vector[n2 : 2 * n2], np.zeros(self.n1)])
+        return alpha @ U + w * (beta @ self._DT(U))
+
+    # ---------------------------------------------------------------- evaluation ------
+    def evaluate(
+        self, u: ArrayLike, Omega: float, jacobian: bool = True, *, sparse: bool = False
+    ) -> tuple[np.ndarray, Any, np.ndarray | None]:
+        """Residual, ``dR/du`` (dense, or CSC with ``sparse``) and ``dR/dOmega``.
+
+        Parameters
+        ----------
+        u : array_like
+            Flat unknowns (``n_unknowns``).
+        Omega : float
+        jacobian : bool
+            Also the derivatives (else ``None, None``).
+        sparse : bool
+            Return ``dR/du`` as a ``scipy.sparse.csc_matrix``.
+        """
+        U = self.unpack(u)
+        W = float(Omega)
+        w = self._omega(W)
+        self.evaluations += 1
+        size, neq = self.size, self.neq
+        F, dF = self.forcing(W)
+        UD = self._DT(U)
+        UDD = self._DT(UD)
+        R = self._A0 @ U + w * (self._A1 @ UD) + w * w * (self._A2 @ UDD) - F
+        dRdW = None
+        if jacobian:
+            dRdW = ((self._A1 @ UD) + 2.0 * w * (self._A2 @ UDD)) / self.m - dF
+        blocks: list[tuple[int, int, np.ndarray]] = []
+        k = self.basis.k.astype(float)
+        for el in self.elements:
+            if el.kind == "aft_y":
+                P, JB, dW = self._aft_states(el, U, UD, w, jacobian)
+                R += np.outer(el.w, P)
+                if jacobian:
+                    dRdW += np.outer(el.w, dW)
+                    for j, Jj in JB:
+                        for i in np.flatnonzero(el.w):
+                            blocks.append((i, j, el.w[i] * Jj))
+                continue
+            s = el.alpha @ U + w * (el.beta @ UD)
+            if el.kind == "exact":
+                P, Js, _ = el.projector.project(s, jacobian)
+            else:
+                P, Js = self._aft_s(el, s, jacobian)
+            R += np.outer(el.w, P)
+            if not jacobian:
+                continue
+            JsD = self._jd(Js, k) if np.any(el.beta) else None
+            dRdW += np.outer(el.w, Js @ (el.beta @ UD)) / self.m
+            for j in range(neq):
+                a, b = el.alpha[j], el.beta[j]
+                if a == 0.0 and b == 0.0:
+                    continue
+                Jj = a * Js if b == 0.0 else (a * Js + (w * b) * JsD)
+                for i in np.flatnonzero(el.w):
+                    blocks.append((i, j, el.w[i] * Jj))
+        r = R.reshape(-1)
+        if not jacobian:
+            return r, None, None
+        lin = self._lin_vals[0] + w * self._lin_vals[1] + (w * w) * self._lin_vals[2]
+        if sparse:
+            rows = [self._lin_rows]
+            cols = [self._lin_cols]
+            vals = [lin]
+            ii, jj = np.meshgrid(np.arange(size), np.arange(size), indexing="ij")
+            ii, jj = ii.reshape(-1), jj.reshape(-1)
+            for i, j, blk in blocks:
+                rows.append(i * size + ii)
+                cols.append(j * size + jj)
+                vals.append(blk.reshape(-1))
+            J = sps.csc_matrix(
+                (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                shape=(self.n_unknowns, self.n_unknowns),
+            )
+        else:
+            J = np.zeros((self.n_unknowns, self.n_unknowns))
+            J[self._lin_rows, self._lin_cols] = lin
+            for i, j, blk in blocks:
+                J[i * size : (i + 1) * size, j * size : (j + 1) * size] += blk
+        return r, J, dRdW.reshape(-1)
+
+    def _aft_grid(self):
+        key = ("grid", self.samples)
+        if self._cache is not None and self._cache[0] == key:
+            return self._cache[1]
+        N = self.samples
+        th = _TWO_PI * np.arange(N) / N
+        Phi = self.basis.design(th)
+        wts = np.full(self.size, 2.0 / N)
+        wts[0] = 1.0 / N
+        Pi = Phi.T * wts[:, None]
+        self._cache = (key, (Phi, Pi))
+        return Phi, Pi
+
+    def _aft_s(self, el: _Element, s: np.ndarray, jacobian: bool):
+        Phi, Pi = self._aft_grid()
+        sv = Phi @ s
+        P = Pi @ el.f(sv)
+        if not jacobian:
+            return P, None
+        return P, Pi @ (el.df(sv)[:, None] * Phi)
+
+    def _aft_states(self, el: _Element, U, UD, w, jacobian):
+        Phi, Pi = self._aft_grid()
+        n2 = self.n2
+        q = Phi @ U[:n2].T
+        v = w * (Phi @ UD[:n2].T)
+        p = Phi @ U[n2:].T
+        args = [*q.T, *v.T, *p.T]
+        P = Pi @ el.f(*args)
+        if not jacobian:
+            return P, [], None
+        k = self.basis.k.astype(float)
+        blocks = []
+        dW = np.zeros(self.size)
+        for j in range(self.neq):
+            if j < n2:
+                gq = el.df[j](*args)
+                gv = el.df[n2 + j](*args)
+                Jq = Pi @ (gq[:, None] * Phi)
+                Jv = Pi @ (gv[:, None] * Phi)
+                blocks.append((j, Jq + w * self._jd(Jv, k)))
+                dW += Jv @ UD[j] / self.m
+            else:
+                gp = el.df[n2 + (j - n2) + n2](*args)
+                blocks.append((j, Pi @ (gp[:, None] * Phi)))
+        return P, blocks, dW
+
+    # continuation callables (the Jacobian right after the residual at the same point)
+    def residual(self, u: ArrayLike, Omega: float) -> np.ndarray:
+        """``R(u, Omega)`` (flat); caches the derivatives for :meth:`jacobian`."""
+        r, J, dW = self.evaluate(u, Omega, True)
+        self._last = (np.array(u, dtype=float), float(Omega), J, dW)
+        return r
+
+    def jacobian(self, u: ArrayLike, Omega: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(dR/du, dR/dOmega)``, dense."""
+        last = getattr(self, "_last", None)
+        if (
+            last is not None
+            and last[1] == float(Omega)
+            and np.array_equal(last[0], np.asarray(u, dtype=float))
+        ):
+            return last[2], last[3]
+        _, J, dW = self.evaluate(u, Omega, True)
+        return J, dW
+
+    # ---------------------------------------------------------------- solutions -------
+    def linear_guess(self, Omega: float) -> np.ndarray:
+        """One Newton step from the zero series: the steady state of the system linearised
+        about ``y = 0`` (each PWL element on the segment of ``s = 0``)."""
+        u0 = np.zeros(self.n_unknowns)
+        r, J, _ = self.evaluate(u0, Omega, True, sparse=True)
+        try:
+            return u0 - spla.spsolve(J.tocsc(), r)
+        except (RuntimeError, ValueError):
+            return u0
+
+    def segment_guesses(self, Omega: float, limit: int = 64) -> list[tuple[np.ndarray, bool]]:
+        """Steady states of the linear systems obtained by freezing every PWL element on one
+        of its segments (at most ``limit`` combinations), each with a flag telling whether
+        every element's signal stays inside its frozen segment (then it is an exact orbit
+        and an exact HB solution for any ``H``). Non-PWL elements are linearised at 0."""
+        w = self._omega(Omega)
+        F, _ = self.forcing(Omega)
+        k = self.basis.k.astype(float)
+        exact = [i for i, el in enumerate(self.elements) if el.kind == "exact"]
+        counts = [self.elements[i].pwl.slopes.size for i in exact]
+        total = int(np.prod(counts)) if counts else 1
+        lin = self._lin_vals[0] + w * self._lin_vals[1] + (w * w) * self._lin_vals[2]
+        size = self.size
+        ii, jj = np.meshgrid(np.arange(size), np.arange(size), indexing="ij")
+        ii, jj = ii.reshape(-1), jj.reshape(-1)
+        eye = np.eye(size)
+        out = []
+        for combo in range(min(total, int(limit))):
+            segs, rest = {}, combo
+            for i, cnt in zip(exact, counts, strict=True):
+                segs[i], rest = rest % cnt, rest // cnt
+            rows, cols, vals = [self._lin_rows], [self._lin_cols], [lin]
+            rhs = F.copy()
+            zero = np.zeros(self.n_unknowns)
+            for idx, el in enumerate(self.elements):
+                if idx in segs:
+                    slope = float(el.pwl.slopes[segs[idx]])
+                    rhs[:, 0] -= el.w * float(el.pwl.offsets[segs[idx]])
+                    Js = slope * eye
+                elif el.kind == "aft_s":
+                    P, Js = self._aft_s(el, np.zeros(size), True)
+                    rhs -= np.outer(el.w, P)
+                else:
+                    continue  # a term in the states: left out of the guess
+                JsD = self._jd(Js, k)
+                for j in range(self.neq):
+                    a, b = el.alpha[j], el.beta[j]
+                    if a == 0.0 and b == 0.0:
+                        continue
+                    Jj = a * Js + (w * b) * JsD
+                    for i in np.flatnonzero(el.w):
+                        rows.append(i * size + ii)
+                        cols.append(j * size + jj)
+                        vals.append(el.w[i] * Jj.reshape(-1))
+            A = sps.csc_matrix(
+                (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                shape=(self.n_unknowns, self.n_unknowns),
+            )
+            try:
+                u = spla.spsolve(A, rhs.reshape(-1))
+            except (RuntimeError, ValueError):
+                continue
+            if not np.all(np.isfinite(u)):
+                continue
+            del zero
+            U = u.reshape(self.neq, size)
+            UD = self._DT(U)
+            inside = True
+            for idx, seg in segs.items():
+                el = self.elements[idx]
+                s = el.alpha @ U + w * (el.beta @ UD)
+                pc = crossing_intervals(el.pwl, self.basis, TruncatedSeries(self.basis, s))
+                if pc.d1.size or int(pc.segment[0]) != seg:
+                    inside = False
+                    break
+            out.append((u, inside))
+        out.sort(key=lambda p: not p[1])
+        return out
+
+    def solve(
+        self,
+        Omega: float,
+        guess: ArrayLike | None = None,
+        *,
+        tol: float = 1e-10,
+        max_iterations: int = 60,
+    ) -> np.ndarray:
+        """Damped Newton at fixed ``Omega`` (sparse LU), from ``guess`` or the linear guess.
+
+        Returns
+        -------
+        numpy.ndarray
+            Flat coefficients.
+
+        Raises
+        ------
+        SystemBalanceError
+            No convergence within ``max_iterations`` (the message has the residual reached).
+        """
+        if guess is None:
+            starts = [u for u, _ in self.segment_guesses(Omega)] or [self.linear_guess(Omega)]
+            last: SystemBalanceError | None = None
+            for u0 in starts:
+                try:
+                    return self.solve(Omega, u0, tol=tol, max_iterations=max_iterations)
+                except SystemBalanceError as exc:
+                    last = exc
+            assert last is not None
+            raise last
+        u = self.unpack(guess).reshape(-1).copy()
+        scale = max(1e-12, float(np.abs(u).max()))
+        best = np.inf
+        for it in range(int(max_iterations)):
+            r, J, _ = self.evaluate(u, Omega, True, sparse=True)
+            nr = float(np.linalg.norm(r))
+            try:
+                du = spla.splu(J.tocsc()).solve(-r)
+            except RuntimeError:
+                du = np.linalg.lstsq(J.toarray(), -r, rcond=None)[0]
+            # Armijo halving: a poor guess may overshoot across a switching angle
+            lam = 1.0
+            for _ in range(20):
+                un = u + lam * du
+                rn = self.evaluate(un, Omega, False)[0]
+                if np.linalg.norm(rn) < (1 - 1e-4 * lam) * nr or nr == 0.0:
+                    break
+                lam *= 0.5
+            u = un
+            best = min(best, float(np.linalg.norm(rn)))
+            scale = max(scale, float(np.abs(u).max()))
+            if float(np.abs(lam * du).max()) <= tol * scale:
+                return u
+            del it
+        raise SystemBalanceError(
+            f"harmonic balance of {self.system.name!r} at {self.parameter} = {Omega:g} did not "
+            f"converge in {max_iterations} Newton steps (|R| = {best:.3g}): give a guess or "
+            "more iterations"
+        )
+
+    # ---------------------------------------------------------------- stability -------
+    def _field_jacobian(self, slopes: dict[int, float], y: np.ndarray | None = None, w=None):
+        """``A = d y'/d y`` with each element's slope (or sampled gradient)."""
+        n2, n = self.n2, self.system.n
+        Lt = self._L.copy()
+        for idx, el in enumerate(self.elements):
+            if el.kind == "aft_y":
+                g = np.array([float(d(*y)) for d in el.df])
+                Lt += np.outer(el.w, g)
+            else:
+                Lt += np.outer(el.w, slopes[idx] * el.c)
+        A = np.zeros((n, n))
+        A[:n2, n2 : 2 * n2] = np.eye(n2)
+        A[n2:, :] = -self._Binv @ Lt
+        return A
+
+    def monodromy(self, u: ArrayLike, Omega: float) -> np.ndarray:
+        """Monodromy (``n x n``, over one response period ``2 pi m / Omega``) of the
+        linearisation about the HB orbit (module docstring)."""
+        U = self.unpack(u)
+        w = self._omega(Omega)
+        UD = self._DT(U)
+        n2 = self.n2
+        cuts = [np.zeros(1), np.array([_TWO_PI])]
+        pieces = {}
+        smooth = False
+        for idx, el in enumerate(self.elements):
+            if el.kind == "exact":
+                s = el.alpha @ U + w * (el.beta @ UD)
+                pc = crossing_intervals(el.pwl, self.basis, TruncatedSeries(self.basis, s))
+                pieces[idx] = pc
+                if pc.d1.size:
+                    cuts.append(pc.start)
+            else:
+                smooth = True
+        th = np.unique(np.concatenate(cuts))
+        if smooth:
+            nsub = _SMOOTH_STEPS_PER_HARMONIC * self.basis.kmax
+            fine = np.linspace(0.0, _TWO_PI, nsub + 1)
+            th = np.unique(np.concatenate([th, fine]))
+        th = th[(th >= 0.0) & (th <= _TWO_PI)]
+        n = self.system.n
+        Mono = np.eye(n)
+        for a, b in zip(th[:-1], th[1:], strict=True):
+            if b - a <= 0.0:
+                continue
+            mid = 0.5 * (a + b)
+            slopes = {}
+            for idx, el in enumerate(self.elements):
+                if el.kind == "exact":
+                    pc = pieces[idx]
+                    if pc.d1.size == 0:
+                        seg = int(pc.segment[0])
+                    else:
+                        j = int(np.searchsorted(pc.start, mid, side="right")) - 1
+                        seg = int(pc.segment[j % pc.segment.size])
+                    slopes[idx] = float(el.pwl.slopes[seg])
+                elif el.kind == "aft_s":
+                    s = el.alpha @ U + w * (el.beta @ UD)
+                    sv = float(self.basis.evaluate(s, np.array([mid]))[0])
+                    slopes[idx] = float(el.df(np.array([sv]))[0])
+            y = None
+            if any(el.kind == "aft_y" for el in self.elements):
+                ph = self.basis.design(np.array([mid]))[0]
+                y = np.concatenate([U[:n2] @ ph, w * (UD[:n2] @ ph), U[n2:] @ ph])
+            Mono = self._expm(slopes, y, w, (b - a) / w) @ Mono
+            Mono = self._saltation(pieces, b, U, UD, w) @ Mono
+        return Mono
+
+    def _expm(self, slopes: dict[int, float], y, w, dt: float) -> np.ndarray:
+        """``expm(A dt)``; for piecewise-linear elements only ``A`` is one of finitely many
+        matrices (one per combination of segments, independent of ``Omega``), so its
+        eigen-decomposition is computed once and cached (a Pade ``expm`` per interval cost
+        ~1 ms, more than the whole Newton step); defective or ill-conditioned ones use
+        ``expm``."""
+        if y is not None or any(el.kind == "aft_s" for el in self.elements):
+            return sla.expm(self._field_jacobian(slopes, y, w) * dt)
+        key = tuple(sorted(slopes.items()))
+        ent = self._eig_cache.get(key)
+        if ent is None:
+            A = self._field_jacobian(slopes, None, w)
+            lam, V = np.linalg.eig(A)
+            ok = np.linalg.cond(V) < 1e8
+            ent = (A, lam, V, np.linalg.inv(V) if ok else None)
+            if len(self._eig_cache) < 4096:
+                self._eig_cache[key] = ent
+        A, lam, V, Vinv = ent
+        if Vinv is None:
+            return sla.expm(A * dt)
+        E = (V * np.exp(lam * dt)[None, :]) @ Vinv
+        return E.real if np.isrealobj(A) else E
+
+    def _saltation(self, pieces, theta, U, UD, w) -> np.ndarray:
+        """Saltation at ``theta`` of the discontinuous PWL elements crossing there."""
+        n = self.system.n
+        S = np.eye(n)
+        for idx, pc in pieces.items():
+            el = self.elements[idx]
+            if el.projector.continuous or pc.d1.size == 0:
+                continue
+            hit = np.flatnonzero(np.abs(pc.start - theta) <= 1e-13 * _TWO_PI)
+            for c in hit:
+                before, after = int(pc.segment[c - 1]), int(pc.segment[c])
+                if before == after:
+                    continue
+                xb = float(el.pwl.breakpoints[min(before, after)])
+                jump = (el.pwl.slopes[after] - el.pwl.slopes[before]) * xb + (
+                    el.pwl.offsets[after] - el.pwl.offsets[before]
+                )
+                dfield = np.zeros(n)
+                dfield[self.n2 :] = -self._Binv @ el.w * jump
+                sdot = w * float(pc.d1[c])
+                if sdot != 0.0:
+                    S = (np.eye(n) + np.outer(dfield, el.c) / sdot) @ S
+        return S
+
+    def multipliers(self, u: ArrayLike, Omega: float) -> np.ndarray:
+        """Floquet multipliers (eigenvalues of :meth:`monodromy`), by decreasing modulus."""
+        mu = np.linalg.eigvals(self.monodromy(u, Omega))
+        return mu[np.argsort(-np.abs(mu), kind="stable")]
+
+    # ---------------------------------------------------------------- measures --------
+    def max_abs(self, u: ArrayLike, Omega: float, output: str | ArrayLike) -> float:
+        """``max_t |o(t)|`` of an output (coordinate name, combination text or vector over
+        ``system.state_names``), refined by Newton on the extrema of the series."""
+        vec = self.output_vector(output)
+        s = self.signal(self.unpack(u), Omega, vec)
+        return _series_max_abs(self.basis, s)
+
+    def output_vector(self, output: str | ArrayLike) -> np.ndarray:
+        """The combination vector of ``output`` over ``system.state_names``.
+
+        Raises
+        ------
+        ModelError
+            For an output that is no coordinate or linear combination of the states.
+        """
+        if isinstance(output, str):
+            return self.system.output(output)
+        vec = np.asarray(output, dtype=float).reshape(-1)
+        if vec.size != self.system.n or not np.any(vec) or not np.all(np.isfinite(vec)):
+            raise ModelError(
+                f"output vector {output!r}: expected {self.system.n} finite numbers over "
+                f"{self.system.state_names}, not all zero"
+            )
+        return vec
+
+
+def _series_max_abs(basis: HarmonicBasis, s: np.ndarray) -> float:
+    """``max |x(theta)|`` of one series (:func:`_max_abs_many`)."""
+    return float(_max_abs_many(basis, np.asarray(s, dtype=float)[None, :])[0])
+
+
+def _max_abs_many(basis: HarmonicBasis, S: np.ndarray) -> np.ndarray:
+    """``max |x(theta)|`` of each row of ``S`` (coefficients): the best of ``16 H`` samples
+    (at least 64), refined by Newton on ``x' = 0`` (steps kept within one sample spacing),
+    vectorised over the rows."""
+    S = np.asarray(S, dtype=float)
+    N = max(64, 16 * basis.kmax)
+    th = _TWO_PI * np.arange(N) / N
+    X = S @ basis.design(th).T
+    i = np.argmax(np.abs(X), axis=1)
+    best = np.abs(X[np.arange(S.shape[0]), i])
+    t = th[i]
+    h = _TWO_PI / N
+    ks = basis.k.astype(float)
+    a, b = S[:, basis.a_index], S[:, basis.b_index]
+    a0 = S[:, 0] if basis.bias else 0.0
+    for _ in range(8):
+        c, sn = np.cos(np.outer(t, ks)), np.sin(np.outer(t, ks))
+        d1 = np.sum((-a * sn + b * c) * ks, axis=1)
+        d2 = np.sum((-a * c - b * sn) * ks**2, axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step = np.where(d2 != 0.0, d1 / d2, 0.0)
+        t = t - np.clip(step, -h, h)
+        if np.all(np.abs(step) < 1e-14):
+            break
+    c, sn = np.cos(np.outer(t, ks)), np.sin(np.outer(t, ks))
+    x = a0 + np.sum(a * c + b * sn, axis=1)
+    return np.maximum(best, np.abs(x))
+
+
+# =============================================================================================
+# results and front functions
+# =============================================================================================
+@dataclass(frozen=True, eq=False)
+class SystemBalanceSolution:
+    """One harmonic-balance orbit of a system.
+
+    Attributes
+    ----------
+    Omega : float
+    U : numpy.ndarray
+        ``(n2 + n1, size)`` coefficients, one row per name of :attr:`coordinates`.
+    coordinates : tuple of str
+    basis : HarmonicBasis
+    m : int
+    multipliers : numpy.ndarray or None
+        Floquet multipliers (monodromy of the linearisation), by decreasing modulus.
+    n2 : int
+        Number of second-order coordinates (the first ``n2`` rows of ``U``).
+    """
+
+    Omega: float
+    U: np.ndarray
+    coordinates: tuple[str, ...]
+    basis: HarmonicBasis
+    m: int
+    multipliers: np.ndarray | None
+    n2: int
+
+    @property
+    def stable(self) -> bool | None:
+        if self.multipliers is None:
+            return None
+        return bool(np.abs(self.multipliers).max() <= 1.0 + _UNIT_TOL)
+
+    def __call__(self, t: ArrayLike, coordinate: str | int = 0) -> np.ndarray:
+        """The series of one coordinate at times ``t``."""
+        j = self.coordinates.index(coordinate) if isinstance(coordinate, str) else int(coordinate)
+        th = np.asarray(t, dtype=float) * self.Omega / self.m
+        return self.basis.evaluate(self.U[j], th.reshape(-1)).reshape(np.shape(th))
+
+    def max_abs(self) -> dict[str, float]:
+        """``max_t |z_j(t)|`` per coordinate."""
+        return {c: _series_max_abs(self.basis, self.U[j]) for j, c in enumerate(self.coordinates)}
+
+    def state(self, t: float = 0.0) -> np.ndarray:
+        """The full state ``y = (q, q', p)`` at time ``t`` (an initial state for shooting)."""
+        th = float(t) * self.Omega / self.m
+        w = self.Omega / self.m
+        ph = self.basis.design(np.array([th]))[0]
+        dph = self.basis.design(np.array([th]), 1)[0]
+        n2 = self.n2
+        q = self.U[:n2] @ ph
+        v = w * (self.U[:n2] @ dph)
+        p = self.U[n2:] @ ph
+        return np.concatenate([q, v, p])
+
+
+def _solution(sb: SystemBalance, u: np.ndarray, W: float, stability: bool):
+    mu = sb.multipliers(u, W) if stability else None
+    return SystemBalanceSolution(
+        float(W), sb.unpack(u).copy(), sb.coordinates, sb.basis, sb.m, mu, sb.n2
+    )
+
+
+def system_balance_orbit(
+    system: System,
+    Omega: float,
+    *,
+    harmonics: int = 7,
+    m: int = 1,
+    guess: ArrayLike | None = None,
+    stability: bool = True,
+    tol: float = 1e-10,
+    max_iterations: int = 60,
+) -> SystemBalanceSolution:
+    """One harmonic-balance orbit of ``system`` at the frequency ``Omega``.
+
+    Parameters
+    ----------
+    system : System
+    Omega : float
+    harmonics : int
+        ``H >= 1``.
+    m : int
+        Response period in forcing periods.
+    guess : array_like, optional
+        Flat coefficients (``SystemBalance.n_unknowns``) or ``(n2 + n1, 2H + 1)``; default
+        the steady state of the system linearised about zero.
+    stability : bool
+        Compute the Floquet multipliers.
+    tol, max_iterations
+        Newton's tolerance (scaled correction) and iteration cap.
+
+    Raises
+    ------
+    ParameterError, ModelError
+        Bad input (``H < 1``, a zero combination, ...).
+    SystemBalanceError
+        No convergence.
+    """
+    sb = SystemBalance(system, harmonics, m=m)
+    g = None if guess is None else np.asarray(guess, dtype=float).reshape(-1)
+    u = sb.solve(Omega, g, tol=tol, max_iterations=max_iterations)
+    return _solution(sb, u, Omega, stability)
+
+
+@dataclass(frozen=True, eq=False)
+class SystemBalanceBranch:
+    """A continued branch of harmonic-balance orbits.
+
+    Attributes
+    ----------
+    Omega : numpy.ndarray
+        ``(P,)`` parameter values along the curve.
+    U : numpy.ndarray
+        ``(P, n2 + n1, size)`` coefficients.
+    coordinates : tuple of str
+    amplitudes : dict of str to numpy.ndarray
+        ``max_t |z_j(t)|`` per coordinate along the branch.
+    output : str
+    output_amplitude : numpy.ndarray
+        ``max_t |o(t)|`` of the output along the branch.
+    max_multiplier : numpy.ndarray or None
+        ``max |mu|`` per point (None without stability).
+    stable : numpy.ndarray or None
+    folds : tuple of float
+        Parameter values of the folds the continuation located.
+    curve : ContinuationCurve
+        The raw continuation result.
+    """
+
+    Omega: np.ndarray
+    U: np.ndarray
+    coordinates: tuple[str, ...]
+    amplitudes: dict
+    output: str
+    output_amplitude: np.ndarray
+    max_multiplier: np.ndarray | None
+    stable: np.ndarray | None
+    folds: tuple[float, ...]
+    curve: ContinuationCurve
+
+    def __len__(self) -> int:
+        return int(self.Omega.size)
+
+
+def _stable_start(sb: SystemBalance, W: float) -> np.ndarray:
+    """A solution at ``W`` from the segment guesses, a stable one when there is one (the
+    exact segment orbits first)."""
+    found: list[np.ndarray] = []
+    for g, _ in sb.segment_guesses(W):
+        try:
+            u = sb.solve(W, g, max_iterations=40)
+        except SystemBalanceError:
+            continue
+        if any(np.abs(u - v).max() <= 1e-7 * max(1.0, np.abs(v).max()) for v in found):
+            continue
+        if np.abs(sb.multipliers(u, W)).max() <= 1.0 + _UNIT_TOL:
+            return u
+        found.append(u)
+    if found:
+        return found[0]
+    return sb.solve(W)
+
+
+def system_balance_branch(
+    system: System,
+    window: Sequence[float],
+    *,
+    harmonics: int = 7,
+    m: int = 1,
+    output: str | ArrayLike | None = None,
+    start: ArrayLike | None = None,
+    direction: int = -1,
+    stability: bool = True,
+    ds_max: float = 0.05,
+    tol: float = 1e-9,
+    max_points: int = 2000,
+    balance: SystemBalance | None = None,
+) -> SystemBalanceBranch:
+    """Continue harmonic-balance orbits of ``system`` through a frequency window.
+
+    Starts at the high end (``direction=-1``; low end with ``1``) from ``start`` or Newton from
+    the linearised steady state there, and follows the branch through folds with the
+    continuation core (:func:`perturb.numeric.continuation.continue_curve`, Hermite predictor,
+    early acceptance). Branches not connected to the start are not searched for.
+
+    Parameters
+    ----------
+    system : System
+    window : (float, float)
+        ``0 < low < high``.
+    harmonics, m
+        As :class:`SystemBalance`.
+    output : str or array_like, optional
+        The measured output (default the first coordinate): a coordinate name, combination
+        text or a vector over ``system.state_names``.
+    start : array_like, optional
+        Coefficients of a solution (or a guess) at the starting end.
+    direction : {-1, 1}
+    stability : bool
+        Floquet multipliers at every point.
+    ds_max, tol, max_points
+        Continuation step cap (scaled arclength), corrector tolerance, points cap.
+    balance : SystemBalance, optional
+        A prepared balance (same ``harmonics``/``m``) to reuse its set-up.
+
+    Raises
+    ------
+    ParameterError, ModelError
+        Bad input: a window that is not ``0 < low < high``, an output that is not a coordinate
+        or combination of the states, ...
+    SystemBalanceError
+        No start.
+    """
+    try:
+        lo, hi = (float(v) for v in window)
+    except (TypeError, ValueError):
+        raise ParameterError(f"window = {window!r}: expected (low, high)") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
+        raise ParameterError(f"window = {window!r}: expected finite 0 < low < high")
+    if direction not in (1, -1):
+        raise ParameterError(f"direction = {direction!r}: expected 1 or -1")
+    sb = balance if balance is not None else SystemBalance(system, harmonics, m=m)
+    if output is None:
+        out_name = sb.coordinates[0]
+    elif isinstance(output, str):
+        out_name = output
+    else:
+        out_name = "output"
+    vec = sb.output_vector(out_name if output is None else output)
+    W0 = hi if direction == -1 else lo
+    if start is None:
+        u0 = _stable_start(sb, W0)
+    else:
+        u0 = sb.solve(W0, np.asarray(start, dtype=float).reshape(-1))
+    scale = max(1e-10, float(np.abs(u0).max()))
+    try:
+        curve = continue_curve(
+            sb.residual,
+            sb.jacobian,
+            u0,
+            W0,
+            (lo, hi),
+            direction=direction,
+            u_scale=1e-2 * scale,
+            lam_scale=hi - lo,
+            adaptive_scale=True,
+            ds_max=ds_max,
+            tol=tol,
+            max_points=max_points,
+            predictor="hermite",
+            early_accept=True,
+        )
+    except ContinuationError as exc:
+        raise SystemBalanceError(f"continuation of {system.name!r} failed: {exc}") from None
+    Us = np.asarray(curve.u)
+    Ws = np.asarray(curve.lam, dtype=float)
+    U3 = Us.reshape(Ws.size, sb.neq, sb.size)
+    amps = {c: _max_abs_many(sb.basis, U3[:, j, :]) for j, c in enumerate(sb.coordinates)}
+    out_amp = _max_abs_many(
+        sb.basis, np.array([sb.signal(U3[p], Ws[p], vec) for p in range(Ws.size)])
+    )
+    mm = st = None
+    if stability:
+        mm = np.array([float(np.abs(sb.multipliers(Us[p], Ws[p])).max()) for p in range(Ws.size)])
+        st = mm <= 1.0 + _UNIT_TOL
+    return SystemBalanceBranch(
+        Ws,
+        Us.reshape(Ws.size, sb.neq, sb.size),
+        sb.coordinates,
+        amps,
+        out_name,
+        out_amp,
+        mm,
+        st,
+        tuple(float(f.lam) for f in curve.folds),
+        curve,
+    )
