@@ -654,8 +654,13 @@ class SystemBalance:
         ii, jj = ii.reshape(-1), jj.reshape(-1)
         eye = np.eye(size)
         out = []
-        for combo in range(min(total, int(limit))):
-            segs, rest = {}, combo
+        # every combination of segments with their offsets (candidate exact orbits), then the
+        # same slopes through the origin: for a clearance whose free segment leaves a
+        # coordinate without stiffness (an impact pair away from contact: a singular family
+        # of orbits) the contact slope without its offset is the useful guess
+        for combo in range(min(2 * total, int(limit))):
+            with_offset = combo < total
+            segs, rest = {}, combo % total
             for i, cnt in zip(exact, counts, strict=True):
                 segs[i], rest = rest % cnt, rest // cnt
             rows, cols, vals = [self._lin_rows], [self._lin_cols], [lin]
@@ -664,7 +669,8 @@ class SystemBalance:
             for idx, el in enumerate(self.elements):
                 if idx in segs:
                     slope = float(el.pwl.slopes[segs[idx]])
-                    rhs[:, 0] -= el.w * float(el.pwl.offsets[segs[idx]])
+                    if with_offset:
+                        rhs[:, 0] -= el.w * float(el.pwl.offsets[segs[idx]])
                     Js = slope * eye
                 elif el.kind == "aft_s":
                     P, Js = self._aft_s(el, np.zeros(size), True)
@@ -694,8 +700,8 @@ class SystemBalance:
             del zero
             U = u.reshape(self.neq, size)
             UD = self._DT(U)
-            inside = True
-            for idx, seg in segs.items():
+            inside = with_offset
+            for idx, seg in segs.items() if with_offset else ():
                 el = self.elements[idx]
                 s = el.alpha @ U + w * (el.beta @ UD)
                 pc = crossing_intervals(el.pwl, self.basis, TruncatedSeries(self.basis, s))
@@ -734,6 +740,12 @@ class SystemBalance:
                     return self.solve(Omega, u0, tol=tol, max_iterations=max_iterations)
                 except SystemBalanceError as exc:
                     last = exc
+            # Newton homotopy from each guess: R(u) - (1 - lam) R(u_g) = 0 traced from lam = 0
+            # to 1 by the continuation core, which passes the folds where damped Newton stalls
+            for u0 in starts:
+                u = self._homotopy(Omega, u0, tol)
+                if u is not None:
+                    return u
             assert last is not None
             raise last
         u = self.unpack(guess).reshape(-1).copy()
@@ -765,6 +777,43 @@ class SystemBalance:
             f"converge in {max_iterations} Newton steps (|R| = {best:.3g}): give a guess or "
             "more iterations"
         )
+
+    def _homotopy(self, Omega: float, u0: np.ndarray, tol: float) -> np.ndarray | None:
+        """A solution by the Newton homotopy from ``u0`` (None when it does not reach 1)."""
+        r0 = self.evaluate(u0, Omega, False)[0]
+
+        def residual(u, lam):
+            return self.evaluate(u, Omega, False)[0] - (1.0 - lam) * r0
+
+        def jacobian(u, lam):
+            _, J, _ = self.evaluate(u, Omega, True)
+            return J, r0
+
+        scale = max(1e-10, float(np.abs(u0).max()))
+        try:
+            curve = continue_curve(
+                residual,
+                jacobian,
+                u0,
+                0.0,
+                (0.0, 1.0),
+                direction=1,
+                u_scale=1e-2 * scale,
+                lam_scale=1.0,
+                adaptive_scale=True,
+                ds_max=0.1,
+                tol=1e-9,
+                max_points=400,
+                predictor="hermite",
+            )
+        except (ContinuationError, ParameterError):
+            return None
+        if curve.lam.size == 0 or abs(float(curve.lam[-1]) - 1.0) > 1e-12:
+            return None
+        try:
+            return self.solve(Omega, np.asarray(curve.u[-1]), tol=tol, max_iterations=20)
+        except SystemBalanceError:
+            return None
 
     # ---------------------------------------------------------------- stability -------
     def _field_jacobian(self, slopes: dict[int, float], y: np.ndarray | None = None, w=None):
