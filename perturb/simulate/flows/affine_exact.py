@@ -290,12 +290,22 @@ class AffineTrajectory:
             raise ParameterError(
                 f"t outside t_span = {self.t_span!r}: expected finite t0 <= t <= t1"
             )
-        idx = np.clip(np.searchsorted(self.starts, ta, side="right") - 1, 0, len(self.starts) - 1)
         n = self.system.n
         out = np.empty((n, ta.size))
-        for k in np.unique(idx):
-            sel = idx == k
-            out[:, sel] = self._pieces[int(k)].state(ta[sel] - self.starts[int(k)])
+        if ta.size > 1 and (ta[1:] >= ta[:-1]).all():
+            # sorted times (samples of an orbit): each piece owns one slice
+            cut = np.searchsorted(ta, self.starts[1:], side="left").tolist()
+            lo = 0
+            for k, hi in enumerate([*cut, ta.size]):
+                if hi > lo:
+                    out[:, lo:hi] = self._pieces[k].state(ta[lo:hi] - self._starts[k])
+                lo = max(lo, hi)
+        else:
+            idx = np.searchsorted(self.starts, ta, side="right") - 1
+            idx = np.clip(idx, 0, len(self.starts) - 1)
+            for k in np.unique(idx):
+                sel = idx == k
+                out[:, sel] = self._pieces[int(k)].state(ta[sel] - self.starts[int(k)])
         model = self._pieces[0].region.model
         if model.scaled:
             out *= model.D[:, None]  # the pieces hold the scaled state z = y / D
@@ -579,7 +589,13 @@ class _ModalPiece:
             return S * self.sig[None, :, None], B
         E = np.exp(self.mu[:, None] * taus)  # (nt, m)
         aE = np.abs(E)
-        return (self.Gp @ E).real, self.aWp[2:] @ np.maximum(aE[:, :-1], aE[:, 1:])
+        ns, m = self.ns, taus.size
+        # (one 2-D product each: the rows of (p, j) stacked)
+        G = (self.Gp.reshape(3 * ns, -1) @ E).real.reshape(3, ns, m)
+        B = (self.aWp[2:].reshape(2 * ns, -1) @ np.maximum(aE[:, :-1], aE[:, 1:])).reshape(
+            2, ns, m - 1
+        )
+        return G, B
 
     def g01(self, j: int, tau: float) -> tuple[float, float]:
         """``(g_j, g_j')`` at ``tau`` as Python floats (``g_j = sigma_j s_j``; the root
@@ -1127,7 +1143,7 @@ def _hermite_start(a: float, w: float, ga: float, gw: float, da: float, dw: floa
     L = w - a
     ma, mw = da * L, dw * L
     x = ga / (ga - gw)
-    for _ in range(8):
+    for _ in range(4):
         x2 = x * x
         x3 = x2 * x
         val = (2 * x3 - 3 * x2 + 1) * ga + (x3 - 2 * x2 + x) * ma + (3 * x2 - 2 * x3) * gw
@@ -1138,7 +1154,7 @@ def _hermite_start(a: float, w: float, ga: float, gw: float, da: float, dw: floa
         xn = x - val / der
         if not 0.0 < xn < 1.0:
             break
-        done = abs(xn - x) <= 1e-12
+        done = abs(xn - x) <= 1e-9
         x = xn
         if done:
             break
