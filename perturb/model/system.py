@@ -947,6 +947,95 @@ class System:
             out.append(Constraint(e.name, e.kind, c, lo, hi, e.restitution, w))
         return tuple(out)
 
+    def invariants(self, rtol: float = 1e-10) -> np.ndarray:
+        r"""The conserved linear combinations of the state: the rows ``c`` (over
+        :attr:`state_names`) whose rate depends on the time only, ``c . y' = c . b(t)``.
+
+        Such a ``c`` is a left null vector of the linear part ``A`` (``c^T A = 0``) that also
+        annihilates every element's force ``B^-1 w_e`` (stops and friction contacts included:
+        their constraint forces act along the same ``w_e``), so that ``c^T A_i = 0`` and
+        ``c^T b_i = 0`` in every region of :meth:`piecewise_affine`, whatever the element's
+        law. Then ``c . y(t) = c . y(0) + int_0^t c . b``: with a forcing whose ``c . b`` has
+        zero mean, periodic orbits come in continuous families along the invariant (the mount's
+        ``C1 p1 + C2 p2 - A_r x`` in ``mount_linear``), one orbit per value of it; with a
+        nonzero mean the combination drifts and there is no periodic orbit.
+
+        Parameters
+        ----------
+        rtol
+            Numeric rank tolerance: a left singular vector counts as null when its singular
+            value is at most ``rtol`` times the largest one, after equilibrating the rows and
+            columns of ``[A, B^-1 w_1, ...]`` (the mount's rates differ by 17 decades without
+            being nearly dependent; a left null vector of the scaled matrix is one of the
+            original after undoing the row scaling).
+
+        Returns
+        -------
+        ndarray, shape (r, n)
+            A basis of the invariants in reduced row-echelon form (each row's pivot entry 1,
+            the other rows 0 there), ``r = 0`` rows when there is none.
+
+        Raises
+        ------
+        ParameterError
+            Free parameters in the matrices or the elements' distributions (a free forcing
+            frequency is fine), or ``rtol`` not in ``(0, 1)``.
+        ModelError
+            A singular mass matrix.
+        """
+        if isinstance(rtol, bool) or not isinstance(rtol, int | float) or not 0 < rtol < 1:
+            raise ParameterError(f"rtol = {rtol!r}: expected a relative tolerance in (0, 1)")
+        key = ("invariants", float(rtol), tuple(self.params.items()))
+        if key in self._cache:
+            return self._cache[key].copy()
+        # only the linear part and the elements' distributions matter: a forcing frequency
+        # (Omega) still free does not
+        vals = {real_symbol(k): sp.Float(v) for k, v in self.params.items() if v is not None}
+        mats = [self.M, self.D, self.K, self.C, self.E]
+        mats += [sp.Matrix([e.distribution]) for e in self.elements]
+        free = sorted({str(x) for m in mats for x in m.xreplace(vals).free_symbols})
+        if free:
+            raise ParameterError(
+                f"system {self.name!r} needs values for {', '.join(free)} (in its matrices or "
+                "elements) to find its invariants"
+            )
+
+        def arr(mat: Any) -> np.ndarray:
+            return np.array(mat.xreplace(vals).evalf(), dtype=float).reshape(mat.shape)
+
+        n, n2 = self.n, len(self.coordinates)
+        try:
+            Binv = np.linalg.inv(np.hstack([arr(self.M), arr(self.D)]))
+        except np.linalg.LinAlgError:
+            raise ModelError(
+                f"the mass matrix [M D] of {self.name!r} is singular: expected an invertible "
+                "matrix"
+            ) from None
+        cols = [np.zeros((n, n))]
+        cols[0][:n2, n2 : 2 * n2] = np.eye(n2)
+        cols[0][n2:, :] = -Binv @ np.hstack([arr(self.K), arr(self.C), arr(self.E)])
+        for e in self.elements:
+            g = np.zeros((n, 1))
+            g[n2:, 0] = Binv @ arr(sp.Matrix(list(e.distribution)))[:, 0]
+            cols.append(g)
+        # balance A by a diagonal similarity T^-1 A T (the states' natural scales: the mount's
+        # pressures and flows differ by 10 decades), then scale every column to max 1: a left
+        # null vector c_b of the scaled matrix is c = T^-1 c_b, its rounding relative to each
+        # state's own scale, so entries at rounding level are recognised and set to 0
+        scale = _balance(cols[0])
+        mat = np.hstack(cols) / scale[:, None]
+        mat[:, :n] *= scale[None, :]
+        col = np.abs(mat).max(axis=0)
+        mat = mat / np.where(col > 0, col, 1.0)[None, :]
+        U, sv, _ = np.linalg.svd(mat)
+        top = float(sv[0]) if sv.size and sv[0] > 0 else 1.0
+        rank = int(np.sum(sv > rtol * top)) if float(np.abs(mat).max()) > 0 else 0
+        cb = _row_echelon(U[:, rank:].T)
+        cb[np.abs(cb) <= 1e-12] = 0.0
+        out = _row_echelon(cb / scale[None, :]) if cb.size else np.zeros((0, n))
+        self._cache[key] = out
+        return out.copy()
+
     def field(self, t: float, y: Sequence[float], active: Mapping[str, int] | None = None):
         """The vector field ``y'`` at time ``t`` (any elements; parameter values needed).
 
@@ -1403,6 +1492,55 @@ def _parallel(a: np.ndarray, b: np.ndarray) -> float | None:
     if alpha != 0 and np.allclose(b, alpha * a, rtol=1e-13, atol=1e-14 * np.abs(b).max()):
         return float(alpha)
     return None
+
+
+def _balance(A: np.ndarray, sweeps: int = 64) -> np.ndarray:
+    """Diagonal ``T`` (powers of 2) with ``T^-1 A T`` balanced: each state's off-diagonal row
+    and column norms brought within a factor 2 of each other (Parlett-Reinsch, at most
+    ``sweeps`` sweeps). States that no other state touches keep scale 1."""
+    B = np.abs(np.array(A, dtype=float))
+    np.fill_diagonal(B, 0.0)
+    n = B.shape[0]
+    t = np.ones(n)
+    for _ in range(sweeps):  # bounded: converges in a few sweeps for these sizes
+        done = True
+        for i in range(n):
+            c = float(np.sum(B[:, i] * t[i] / t))  # column i of T^-1 A T: A_ji t_i / t_j
+            r = float(np.sum(B[i, :] * t / t[i]))  # row i: A_ij t_j / t_i
+            if c == 0.0 or r == 0.0:
+                continue
+            f = 2.0 ** round(0.5 * math.log2(r / c))
+            if f != 1.0:
+                t[i] *= f
+                done = False
+        if done:
+            break
+    return t
+
+
+def _row_echelon(rows: np.ndarray) -> np.ndarray:
+    """Reduced row-echelon form of independent ``rows`` (partial pivoting on the largest
+    entry of each column in turn; entries below ``1e-14`` of a row's scale set to 0), for
+    :meth:`System.invariants`: a basis that does not depend on the SVD's rotation."""
+    R = np.array(rows, dtype=float).reshape(-1, rows.shape[-1] if rows.ndim == 2 else 0)
+    r, n = R.shape
+    lead = 0
+    for i in range(r):
+        while lead < n:
+            j = i + int(np.argmax(np.abs(R[i:, lead])))
+            if abs(R[j, lead]) > 1e-12 * max(float(np.abs(R[i:]).max()), 1e-300):
+                break
+            lead += 1
+        if lead == n:
+            break
+        R[[i, j]] = R[[j, i]]
+        R[i] = R[i] / R[i, lead]
+        for k in range(r):
+            if k != i:
+                R[k] = R[k] - R[k, lead] * R[i]
+        lead += 1
+    R[np.abs(R) <= 1e-14 * np.maximum(np.abs(R).max(axis=1, keepdims=True), 1e-300)] = 0.0
+    return R
 
 
 def _harmonics(F: sp.Matrix, t: sp.Symbol) -> list[tuple[float, np.ndarray, np.ndarray]]:
