@@ -93,6 +93,12 @@ __all__ = [
     "SystemResponse",  # noqa: F822 - built on first access (module __getattr__)
     "SYSTEM_INTEGRATORS",
     "orbit_columns",
+    "limit_cycles",
+    "LimitCycles",
+    "Equilibrium",
+    "is_forced",
+    "invariant_note",
+    "combination_text",
     "system_time_history",
     "SystemHistory",
     "derive",
@@ -357,6 +363,7 @@ def periodic_orbits(
     transient_periods: int = 100,
     extent: float | None = None,
     output: str | None = None,
+    invariants: Sequence[float] | None = None,
 ) -> tuple:
     """Every period-``m`` orbit found at forcing frequency ``Omega`` (the front door).
 
@@ -370,6 +377,24 @@ def periodic_orbits(
     phase) and orbits of a shorter period are dropped. The orbits are sorted by ``max |.|`` of
     ``output`` (:func:`system_output`; default the first coordinate), whose numbers
     :func:`orbit_columns` gives.
+
+    A system with conserved linear combinations (:meth:`System.invariants
+    <perturb.model.system.System.invariants>`: ``c . y' = c . b(t)``, e.g. ``C1 p1 + C2 p2``
+    of ``mount_linear``) has a continuous family of orbits, one per value of each invariant.
+    The orbit returned is the one whose period-mean of ``c . y(t)`` equals ``invariants``
+    (one number per row of ``system.invariants()``; default 0, the value of the rest state
+    ``y = 0``: the mount's chambers hold their rest volume on average): the seeds are
+    projected onto that level set and Newton runs on it (:func:`_pinned_orbit`), so one orbit
+    per frequency is found. Its multipliers hold one exact 1 per invariant (the family's
+    direction, trivial), left out of ``stability`` and ``max_multiplier``
+    (:func:`invariant_note` says so in one line).
+
+    A system without harmonic forcing (autonomous: ``belt``, ``drill_string``, a van der Pol
+    written as equations) has limit cycles of their own period instead: ``Omega`` must be
+    None (or only set a parameter), ``m`` 1, and the answer is :func:`limit_cycles`'s
+    ``cycles`` (each ``orbit.period``, its multipliers with the trivial 1; a drill string's
+    orbit is periodic up to a shift of its angles, gauge ``d . y0 = 0``). Its equilibria
+    (stable ones, when no cycle is found) come from :func:`limit_cycles` itself.
 
     :func:`perturb.simulate.orbits.search.periodic_orbits` (attractors from a grid of
     initial conditions, closed-form segment orbits, ``guesses``), started also, for
@@ -385,7 +410,12 @@ def periodic_orbits(
     """
     if is_system(oscillator):
         return _system_periodic_orbits(
-            oscillator, Omega, m, guesses, grid, transient_periods, extent, output
+            oscillator, Omega, m, guesses, grid, transient_periods, extent, output, invariants
+        )
+    if invariants is not None:
+        raise ParameterError(
+            f"invariants = {invariants!r}: an option of systems with conserved combinations; "
+            f"{getattr(oscillator, 'name', 'the oscillator')!r} is one coordinate"
         )
     check_oscillator_output(oscillator, output)
     from perturb import seeds
@@ -757,18 +787,36 @@ def _system_periodic_orbits(
     transient_periods: int,
     extent: float | None,
     output: str | None,
+    invariants: Sequence[float] | None = None,
 ) -> tuple:
     """:func:`periodic_orbits` for a :class:`~perturb.model.system.System`."""
     import numpy as np
 
+    system = _system_at(system, Omega)
+    if not is_forced(system):
+        if m != 1:
+            raise ParameterError(
+                f"m = {m!r}: system {system.name!r} is autonomous (no forcing), so there are no "
+                "forcing periods to count; its limit cycles have their own period (m = 1)"
+            )
+        if invariants is not None:
+            _invariant_pin(system, invariants)  # names the invariants, or says there are none
+        return limit_cycles(
+            system,
+            guesses=guesses,
+            grid=grid,
+            transient_periods=transient_periods,
+            extent=extent,
+            output=output,
+        ).cycles
     m = checks.whole(m, "m", 1, 64, "forcing periods per orbit")
     grid = checks.whole(grid, "grid", 0, 100, "random starting states")
     transient_periods = checks.whole(transient_periods, "transient_periods", 0, 100_000)
     factor = 3.0 if extent is None else checks.finite(extent, "extent")
     if not factor > 0:
         raise ParameterError(f"extent = {extent!r}: expected a positive number")
-    system = _system_at(system, Omega)
     c, _ = system_output(system, output)
+    pin = _invariant_pin(system, invariants)
     flow = _system_flow(system)
     T = _forcing_period(flow, system)
     n = system.n
@@ -796,6 +844,8 @@ def _system_periodic_orbits(
             starts.append(y)
     rng = np.random.default_rng(0)  # reproducible starts
     starts += [factor * size * rng.uniform(-1.0, 1.0, n) for _ in range(grid)]
+    if pin is not None:  # on the pinned level set: seeds projected, no family to drift along
+        starts = [_project_on(pin[0], pin[1], y) for y in starts]
     candidates = [*given, *linear]
     for y in starts:  # settled long runs: the attractors
         try:
@@ -814,7 +864,7 @@ def _system_periodic_orbits(
     for y in candidates:  # bounded: one Newton solve per candidate
         if known(y, 1e-5):
             continue
-        orbit = _shoot(flow, y, m, T)
+        orbit = _shoot(flow, y, m, T) if pin is None else _pinned_orbit(flow, y, m, T, pin, size)
         if orbit is None:
             continue
         _, S = orbit.sample_states(m)  # y(jT), j = 0..m-1
@@ -868,6 +918,562 @@ def _shoot(flow: Any, y: Any, m: int, T: float) -> Any:
         return multiple_shooting(flow, Y.T.copy(), m=m, max_iter=40)
     except PerturbError:
         return orbit  # the single-shooting orbit (converged; its rounding amplified)
+
+
+# ------------------------------------------------------------------------------------------
+# conserved linear combinations (System.invariants): orbits pinned on one member of a family
+# ------------------------------------------------------------------------------------------
+def is_forced(system: Any) -> bool:
+    """Whether a system has a harmonic forcing (a term ``a cos(w t)`` / ``a sin(w t)``, ``w >
+    0``); without one it is autonomous: its periodic orbits are limit cycles of their own
+    period (:func:`limit_cycles`)."""
+    if not system.F.has(system.t):
+        return False
+    if system.free_parameters:  # e.g. Omega still to be set: the time dependence decides
+        return True
+    return any(om > 0.0 for om, _, _ in system.numeric_form()["harmonics"])
+
+
+def combination_text(c: Any, names: Sequence[str]) -> str:
+    """``c`` over ``names`` as text, ``"p1 + 100*p2"`` (12 significant digits)."""
+    parts = []
+    for ci, nm in zip(c, names, strict=True):
+        if ci == 0:
+            continue
+        mag = abs(float(ci))
+        term = nm if mag == 1.0 else f"{mag:.12g}*{nm}"
+        parts.append((" - " if ci < 0 else " + ") + term)
+    text = "".join(parts)
+    return text[3:] if text.startswith(" + ") else "-" + text[3:]
+
+
+def _invariant_pin(
+    system: Any, values: Sequence[float] | None
+) -> tuple[Any, Any, list[str]] | None:
+    """``(C, target, labels)``: the invariants ``C`` of ``system`` (rows) and the values
+    ``C y0`` of the orbit whose period-mean of ``C y(t)`` is ``values`` (default 0, the rest
+    state's), or None without invariants.
+
+    ``C y(t) = C y(0) + int_0^t C b``; for ``C b = sum alpha_k cos w_k t + beta_k sin w_k t``
+    the mean of the integral over a common period is ``sum beta_k / w_k``.
+
+    Raises
+    ------
+    ModelError
+        A constant part of ``C b`` (the combination drifts: no periodic orbit at all).
+    ParameterError
+        ``values`` not ``r`` finite numbers.
+    """
+    import numpy as np
+
+    from perturb.errors import ModelError
+
+    C = system.invariants()
+    r = C.shape[0]
+    labels = [combination_text(c, system.state_names) for c in C]
+    if r == 0:
+        if values is not None and len(list(values)) != 0:
+            raise ParameterError(
+                f"invariants = {values!r}: system {system.name!r} has no conserved linear "
+                "combination (System.invariants() is empty); expected none"
+            )
+        return None
+    if values is None:
+        vals = np.zeros(r)
+    else:
+        try:
+            vals = np.array([checks.finite(v, "invariants") for v in values], dtype=float)
+        except TypeError:
+            vals = np.array([])
+        if vals.size != r:
+            raise ParameterError(
+                f"invariants = {values!r}: expected {r} number(s), the period-mean value(s) of "
+                f"{'; '.join(labels)}"
+            )
+    num = system.numeric_form()
+    n2 = num["n2"]
+    Cb = C[:, n2:] @ num["Binv"]  # c . b(t) = c[n2:] . Binv F(t)
+    offset = np.zeros(r)
+    for om, cu, cv in num["harmonics"]:
+        if om == 0.0:
+            rate = Cb @ cu
+            size = np.abs(Cb) @ np.abs(cu)
+            if np.any(np.abs(rate) > 1e-12 * np.maximum(size, 1e-300)):
+                raise ModelError(
+                    f"system {system.name!r}: the conserved combination(s) "
+                    f"{'; '.join(labels)} change at the constant rate(s) {rate.tolist()} "
+                    "(a constant forcing part along them): no periodic orbit exists"
+                )
+            continue
+        offset += (Cb @ cv) / om
+    return C, vals - offset, labels
+
+
+def _project_on(C: Any, target: Any, y: Any) -> Any:
+    """``y`` moved along the rows of ``C`` onto ``C y = target`` (least change)."""
+    import numpy as np
+
+    return y - C.T @ np.linalg.solve(C @ C.T, C @ y - target)
+
+
+def _pinned_orbit(flow: Any, y: Any, m: int, T: float, pin: tuple, size: Any) -> Any:
+    """The period-``m`` orbit from the guess ``y`` with ``C y0 = target`` (``pin``): Newton
+    on ``y0 = y_p + S Q z`` (``S = diag(size)``, the states' scales; ``Q`` an orthonormal basis
+    of the scaled invariants' null space), whose ``n - r`` periodicity equations ``Q^T S^-1
+    (phi(y0) - y0) = 0`` are the whole condition (``C (phi(y0) - y0) = int C b = 0`` holds on
+    its own), with the square Jacobian ``Q^T (S^-1 M S - I) Q``. The orbit's trivial
+    multipliers (``C M = C``: one 1 per invariant) are set to exactly 1 and left out of its
+    stability, which the restriction ``Q^T S^-1 M S Q`` decides. None when Newton fails."""
+    import dataclasses
+
+    import numpy as np
+
+    from perturb.simulate.orbits.shooting import (
+        UNIT_TOL,
+        classify_multipliers,
+        periodic_orbit,
+        shooting_newton,
+    )
+
+    C, target, _ = pin
+    r, n = C.shape
+    Cs = C * size[None, :]
+    Q = np.linalg.svd(Cs)[2][r:].T  # orthonormal basis of {w : Cs w = 0}
+    y_p = _project_on(C, target, np.asarray(y, dtype=float))
+    P = m * T
+
+    def state(z: Any) -> Any:
+        return y_p + size * (Q @ z)
+
+    def evaluate(z: Any) -> tuple:
+        y0 = state(z)
+        res = flow(y0, 0.0, P, sensitivity=True)
+        M = np.asarray(res.sensitivity, dtype=float)
+        Ms = M * size[None, :] / size[:, None]
+        return Q.T @ ((np.asarray(res.y) - y0) / size), Q.T @ (Ms - np.eye(n)) @ Q, M
+
+    try:
+        out = shooting_newton(
+            evaluate,
+            np.zeros(n - r),
+            tol=1e-13,
+            max_iter=40,
+            scale=lambda z: 1.0,  # the residual is in units of each state's own scale
+            what="shooting on the invariants' level set",
+        )
+        y0 = state(out.z)
+        # the orbit object (dense output, statistics) of the converged state: no Newton step
+        orbit = periodic_orbit(flow, y0, m=m, max_iter=0, tol=1e-6)
+    except PerturbError:
+        return None
+    Ms = np.asarray(orbit.monodromy) * size[None, :] / size[:, None]
+    inner = np.linalg.eigvals(Q.T @ Ms @ Q)
+    mu = np.concatenate([np.ones(r, dtype=complex), inner.astype(complex)])
+    mu = mu[np.argsort(-np.abs(mu), kind="stable")]
+    mu.setflags(write=False)
+    stability, max_mu = classify_multipliers(inner, autonomous=False, unit_tol=UNIT_TOL)
+    return dataclasses.replace(orbit, multipliers=mu, stability=stability, max_multiplier=max_mu)
+
+
+def invariant_note(system: Any, values: Sequence[float] | None = None) -> str | None:
+    """One line on a system's conserved combinations and the value its orbits are pinned at
+    (None without invariants)."""
+    C = system.invariants()
+    if C.shape[0] == 0:
+        return None
+    labels = [combination_text(c, system.state_names) for c in C]
+    vals = [0.0] * len(labels) if values is None else [float(v) for v in values]
+    pinned = "; ".join(f"mean of {lab} = {v:g}" for lab, v in zip(labels, vals, strict=True))
+    return (
+        f"conserved combination(s) of {system.name!r}: {'; '.join(labels)} (its rate depends "
+        f"on the time only, so periodic orbits form a family along it); the orbit with "
+        f"{pinned} over the period is reported (default 0: the rest state y = 0; other "
+        f"values: invariants= / --invariants); {len(labels)} multiplier(s) 1 trivial, left out "
+        "of the stability"
+    )
+
+
+# ------------------------------------------------------------------------------------------
+# autonomous systems: limit cycles and equilibria
+# ------------------------------------------------------------------------------------------
+class Equilibrium:
+    """An equilibrium of an autonomous system (or, for a system with a drift direction ``d``
+    such as the drill string's angles, a steady drift ``y' = rate * d``).
+
+    Attributes
+    ----------
+    y : ndarray, shape (n,)
+        The state (drift systems: with ``d . y = 0``).
+    eigenvalues : ndarray of complex
+        Of the Jacobian there, by decreasing real part (a drift system's trivial 0 included).
+    stable : bool
+        Every non-trivial eigenvalue has a negative real part.
+    drift_rate : float or None
+        ``rate`` of a steady drift; None for a true equilibrium.
+    """
+
+    def __init__(self, y, eigenvalues, stable, drift_rate=None) -> None:
+        self.y, self.eigenvalues, self.stable = y, eigenvalues, bool(stable)
+        self.drift_rate = drift_rate
+
+    def __repr__(self) -> str:
+        kind = "equilibrium" if self.drift_rate is None else f"steady drift {self.drift_rate:.6g}"
+        return (
+            f"Equilibrium({kind}, {'stable' if self.stable else 'unstable'}, y = "
+            f"{[float(v) for v in self.y]})"
+        )
+
+
+class LimitCycles:
+    """What :func:`limit_cycles` found: ``cycles`` (tuple of
+    :class:`~perturb.simulate.orbits.shooting.PeriodicOrbit`, by amplitude), ``equilibria``
+    (tuple of :class:`Equilibrium`), ``drift`` (the direction ``d`` or None: orbits periodic up
+    to a shift along it, gauge ``d . y0 = 0``), ``shifts`` (per cycle, the shift along ``d``
+    over one period; 0 without drift) and ``notes`` (one line each: what was tried, what
+    failed)."""
+
+    def __init__(self, cycles, equilibria, drift, shifts, notes) -> None:
+        self.cycles, self.equilibria, self.drift = tuple(cycles), tuple(equilibria), drift
+        self.shifts, self.notes = tuple(shifts), tuple(notes)
+
+    def __repr__(self) -> str:
+        return (
+            f"LimitCycles({len(self.cycles)} cycle(s), periods "
+            f"{[round(o.period, 10) for o in self.cycles]}, {len(self.equilibria)} "
+            "equilibri(um/a))"
+        )
+
+
+#: Time scales (2 pi / the fastest oscillation of the linearisation) per settling chunk, and
+#: the window sampled for crossings after settling.
+_SETTLE_CHUNK = 10
+_WINDOW = 20
+_SAMPLES_PER_SCALE = 64
+
+
+def _autonomous_flow(system: Any) -> Any:
+    """The flow for limit cycles: event-driven when the system has stops or friction contacts
+    (sticking phases), else :func:`make_flow` (exact when piecewise affine, else DOP853), all
+    at ``rtol = 1e-12`` with ``atol`` ``1e-12`` scaled down to small states (as
+    :func:`_event_flow`)."""
+    from perturb.simulate.flows.factory import make_flow
+    from perturb.simulate.flows.system_events import SystemEventFlow
+
+    contacts = [e.name for e in system.elements if e.kind in ("stop", "friction")]
+    atol = float(_event_flow(system, [0.0] * system.n).atol)
+    if contacts:
+        return SystemEventFlow(system, rtol=1e-12, atol=atol)
+    return make_flow(system, rtol=1e-12, atol=atol)
+
+
+def _drift_direction(system: Any, A: Any) -> Any:
+    """The one direction ``d`` with ``f(y + s d) = f(y)`` (``A d = 0`` and every element's
+    combination blind to it: a free rotation angle), unit max-norm; None when there is none or
+    more than one, or an element depends on the whole state."""
+    import numpy as np
+
+    rows = [A]
+    for e in system.elements:
+        c = system.numeric_form()["comb"][e.name][0]
+        if c is None:
+            return None
+        rows.append(np.asarray(c, dtype=float)[None, :])
+    mat = np.vstack(rows)
+    scale = np.abs(mat).max(axis=1, keepdims=True)
+    mat = mat / np.where(scale > 0, scale, 1.0)
+    _, sv, Vt = np.linalg.svd(mat)
+    n = A.shape[0]
+    sv = np.concatenate([sv, np.zeros(max(0, n - sv.size))])
+    null = Vt[sv <= 1e-10 * max(float(sv.max()), 1e-300)]
+    if null.shape[0] != 1:
+        return None
+    d = null[0] / null[0][np.argmax(np.abs(null[0]))]
+    d[np.abs(d) < 1e-12] = 0.0
+    return d
+
+
+def _equilibrium(flow: Any, y: Any, d: Any, scale: float) -> Any:
+    """Newton on ``f(y) = 0`` (with a drift ``d``: ``f(y) = s d``, ``d . y = 0``) from ``y``,
+    40 steps at most; ``(y, s)`` or None."""
+    import numpy as np
+
+    n = y.size
+    z = np.append(np.array(y, dtype=float), 0.0) if d is not None else np.array(y, dtype=float)
+    if d is not None:
+        z[:n] -= d * float(d @ z[:n]) / float(d @ d)
+    for _ in range(40):
+        yy = z[:n]
+        try:
+            f = np.asarray(flow.vector_field(0.0, yy), dtype=float)
+            J = np.asarray(flow.jacobian(0.0, yy), dtype=float)
+        except (PerturbError, ArithmeticError, ValueError):
+            return None
+        if d is not None:
+            r = np.append(f - z[n] * d, d @ yy)
+            K = np.zeros((n + 1, n + 1))
+            K[:n, :n], K[:n, n], K[n, :n] = J, -d, d
+        else:
+            r, K = f, J
+        if not np.all(np.isfinite(r)):
+            return None
+        if float(np.abs(r).max()) <= 1e-12 * max(scale, 1.0) * max(1.0, float(np.abs(J).max())):
+            return z[:n].copy(), (float(z[n]) if d is not None else None)
+        try:
+            step = np.linalg.solve(K, -r)
+        except np.linalg.LinAlgError:
+            return None
+        if not np.all(np.isfinite(step)):
+            return None
+        z = z + step
+        if float(np.abs(z[:n]).max()) > 1e8 * max(scale, 1.0):
+            return None
+    return None
+
+
+def _crossings(t: Any, s: Any, value: float) -> list:
+    """Times and sample indices where ``s`` crosses ``value`` upwards (linear interpolation)."""
+    import numpy as np
+
+    j = np.flatnonzero((s[:-1] < value) & (s[1:] >= value))
+    return [
+        (float(t[i] + (value - s[i]) / (s[i + 1] - s[i]) * (t[i + 1] - t[i])), int(i)) for i in j
+    ]
+
+
+def limit_cycles(
+    system: Any,
+    *,
+    guesses: Sequence[Sequence[float]] = (),
+    grid: int = 3,
+    transient_periods: int = 100,
+    extent: float | None = None,
+    output: str | None = None,
+) -> LimitCycles:
+    """Every limit cycle (and equilibrium) found of an autonomous system (no harmonic forcing).
+
+    The equilibria come from Newton on ``f(y) = 0`` from the zero state and from where the
+    settled runs come to rest (a system with a drift direction ``d``, ``f(y + s d) = f(y)``
+    such as a freely turning angle: steady drifts ``f(y) = s d``). The time scale ``tau`` is
+    ``2 pi`` over the fastest oscillation of the Jacobian at the first equilibrium (or of the
+    linear part). Runs start from each equilibrium nudged by ``1e-3`` of its scale, from the
+    zero state, from ``+-extent`` (default 3) times each coordinate's scale about the first
+    equilibrium, from ``guesses`` and from ``grid`` random states in that box (a fixed seed);
+    each settles for up to ``transient_periods * tau`` (in chunks of ``10 tau``, stopped as
+    soon as it comes near a cycle already found), then ``20 tau`` are sampled: a run that
+    still oscillates gives the phase state (the velocity, else first-order state, of the
+    largest relative range), its mid-range value as the phase, the period between upward
+    crossings and the state there; :func:`perturb.simulate.orbits.shooting.limit_cycle`
+    (with ``drift=d`` when there is one) polishes the cycle. Cycles equal in period, and in the
+    ``max |.|`` and mean of every state not along ``d``, are one.
+
+    Flows: :class:`~perturb.simulate.flows.system_events.SystemEventFlow` when the system has
+    friction contacts or stops, else :func:`~perturb.simulate.flows.factory.make_flow` (exact
+    piecewise-affine or DOP853), ``rtol = 1e-12``.
+
+    Returns
+    -------
+    LimitCycles
+        Cycles sorted by ``max |.|`` of ``output``, equilibria, notes.
+
+    Raises
+    ------
+    ModelError
+        A forced system, or one with conserved combinations (:meth:`System.invariants
+        <perturb.model.system.System.invariants>`; not searched yet).
+    ParameterError
+        Bad ``guesses``, ``grid``, ``transient_periods`` or ``extent``.
+    """
+    import numpy as np
+
+    from perturb.errors import ModelError
+    from perturb.simulate.orbits.shooting import limit_cycle
+
+    if is_forced(system):
+        raise ModelError(
+            f"system {system.name!r} is forced (harmonic terms in its equations): its orbits are "
+            "at the forcing frequency (periodic_orbits with Omega), not limit cycles"
+        )
+    C = system.invariants()
+    if C.shape[0]:
+        labels = "; ".join(combination_text(c, system.state_names) for c in C)
+        raise ModelError(
+            f"system {system.name!r} is autonomous with the conserved combination(s) {labels}: "
+            "its limit cycles come in families along them, which this search does not pin yet"
+        )
+    grid = checks.whole(grid, "grid", 0, 100, "random starting states")
+    transient_periods = checks.whole(transient_periods, "transient_periods", 0, 100_000)
+    factor = 3.0 if extent is None else checks.finite(extent, "extent")
+    if not factor > 0:
+        raise ParameterError(f"extent = {extent!r}: expected a positive number")
+    c_out, _ = system_output(system, output)
+    n = system.n
+    given = []
+    for g in guesses:
+        try:
+            y = np.array(g, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            y = np.array([])
+        if y.size != n or not np.all(np.isfinite(y)):
+            raise ParameterError(
+                f"guess {g!r}: expected {n} finite numbers ({', '.join(system.state_names)})"
+            )
+        given.append(y)
+    flow = _autonomous_flow(system)
+    notes: list[str] = []
+    num = system.numeric_form()
+    n2 = num["n2"]
+    A = np.zeros((n, n))
+    A[:n2, n2 : 2 * n2] = np.eye(n2)
+    A[n2:, :] = -num["Binv"] @ num["L"]
+    d = _drift_direction(system, A)
+    free = np.ones(n, dtype=bool) if d is None else d == 0  # states not along the drift
+
+    def gauge(y: Any) -> Any:
+        return y if d is None else y - d * float(d @ y) / float(d @ d)
+
+    # equilibria from the zero state (and the linear part's)
+    equilibria: list = []
+
+    def add_equilibrium(y: Any) -> None:
+        scale = max(1.0, float(np.abs(y).max()))
+        found = _equilibrium(flow, y, d, scale)
+        if found is None:
+            return
+        ye, rate = found
+        for e in equilibria:
+            if float(np.abs(gauge(e.y) - gauge(ye)).max()) <= 1e-8 * scale:
+                return
+        J = np.asarray(flow.jacobian(0.0, ye), dtype=float)
+        lam = np.linalg.eigvals(J)
+        lam = lam[np.argsort(-lam.real, kind="stable")]
+        nontrivial = lam if d is None else np.delete(lam, int(np.argmin(np.abs(lam))))
+        stable = bool(np.all(nontrivial.real < 0)) if nontrivial.size else True
+        equilibria.append(Equilibrium(ye, lam, stable, rate))
+
+    add_equilibrium(np.zeros(n))
+    try:
+        b0 = flow.vector_field(0.0, np.zeros(n))
+        add_equilibrium(gauge(-np.linalg.lstsq(A, b0, rcond=None)[0]))
+    except (np.linalg.LinAlgError, PerturbError, ValueError):
+        pass
+    ref = equilibria[0].y if equilibria else np.zeros(n)
+    try:
+        J0 = np.asarray(flow.jacobian(0.0, ref), dtype=float)
+    except (PerturbError, ValueError):
+        J0 = A
+    lam = np.linalg.eigvals(J0)
+    fast = float(np.abs(lam.imag).max()) if lam.size else 0.0
+    if not fast > 0:
+        nonzero = np.abs(lam[np.abs(lam) > 1e-12 * max(1.0, float(np.abs(lam).max()))])
+        fast = float(nonzero.min()) if nonzero.size else 1.0
+    tau = 2.0 * math.pi / fast
+    size = np.abs(ref).copy()
+    size = np.where(size > 1e-12 * max(1.0, float(size.max())), size, max(1.0, float(size.max())))
+    size = np.where(free, size, 0.0) if d is not None else size
+    starts = [*given]
+    rng = np.random.default_rng(0)  # reproducible starts
+    for e in equilibria:
+        starts.append(e.y + 1e-3 * np.maximum(np.abs(e.y), 1.0) * rng.uniform(-1.0, 1.0, n))
+    starts.append(np.zeros(n))
+    for name in system_coordinates(system):
+        i = system.state_names.index(name)
+        if d is not None and d[i] != 0:
+            continue  # a drifting angle: a shift along d is the same motion
+        for sign in (1.0, -1.0):
+            y = ref.copy()
+            y[i] += sign * factor * max(size[i], 1e-300)
+            starts.append(y)
+    starts += [ref + factor * size * rng.uniform(-1.0, 1.0, n) for _ in range(grid)]
+
+    cycles: list = []
+    shifts: list = []
+    samples: list = []  # each cycle's sampled states (gauged, drift-free states), for "near"
+    keys: list = []
+
+    def near_known(y: Any) -> bool:
+        yy = gauge(y)[free]
+        scale = max(1.0, float(np.abs(yy).max()))
+        return any(
+            float(np.abs(S - yy[:, None]).max(axis=0).min()) <= 1e-3 * scale for S in samples
+        )
+
+    bound = 1e8 * max(1.0, float(np.abs(size).max()), float(np.abs(ref).max()))
+    for y in starts:  # bounded: a fixed number of starts, each a bounded run and one Newton
+        z = np.asarray(y, dtype=float)
+        t = 0.0
+        try:
+            for _ in range(max(1, math.ceil(transient_periods / _SETTLE_CHUNK))):
+                z = gauge(np.asarray(flow(z, t, t + _SETTLE_CHUNK * tau).y, dtype=float))
+                t += _SETTLE_CHUNK * tau
+                if not np.all(np.isfinite(z)) or float(np.abs(z).max()) > bound:
+                    raise ArithmeticError("escaped")
+                if near_known(z):
+                    break
+            if near_known(z):
+                continue
+            tw = np.linspace(t, t + _WINDOW * tau, _WINDOW * _SAMPLES_PER_SCALE + 1)
+            ys = np.asarray(flow(z, t, tw[-1], t_eval=tw).ys, dtype=float).T
+        except (PerturbError, ArithmeticError, ValueError) as exc:
+            notes.append(f"a run from {np.round(y, 6).tolist()} gave up: {exc}")
+            continue
+        rng_state = ys.max(axis=1) - ys.min(axis=1)
+        mag = np.maximum(np.abs(ys).max(axis=1), 1e-300)
+        rel = np.where(free, rng_state / mag, 0.0)
+        if float(rel.max()) <= 1e-7:
+            add_equilibrium(ys[:, -1])  # came to rest
+            continue
+        cand = [i for i in range(n2, n) if free[i]] or [i for i in range(n) if free[i]]
+        k = max(cand, key=lambda i: (rel[i], -i))
+        value = 0.5 * float(ys[k].max() + ys[k].min())
+        cross = _crossings(tw, ys[k], value)
+        if len(cross) < 3:
+            notes.append(
+                f"a run from {np.round(y, 6).tolist()} settled on no oscillation of "
+                f"{system.state_names[k]} with three crossings in {_WINDOW} time scales"
+            )
+            continue
+        (t1, _), (t2, i2) = cross[-2], cross[-1]
+        f = (value - ys[k, i2]) / (ys[k, i2 + 1] - ys[k, i2])
+        guess = gauge(ys[:, i2] + f * (ys[:, i2 + 1] - ys[:, i2]))
+        guess[k] = value
+        try:
+            orbit = limit_cycle(
+                flow, guess, t2 - t1, phase_state=k, phase_value=value, drift=d, max_iter=40
+            )
+        except PerturbError as exc:
+            notes.append(f"limit_cycle from a settled run failed: {exc}")
+            add_equilibrium(ys[:, -1])  # a slowly decaying oscillation: its equilibrium
+            continue
+        _, Y = orbit.sample_states(_STATS_SAMPLES)
+        Yf = Y[free]  # states not along the drift (the gauge leaves them unchanged)
+        eye = np.eye(n)
+        # phase-independent numbers: refined maxima; the sampled means agree to ~1e-6 (a
+        # stick-slip signal's kinks) whichever crossing the phase condition picked
+        key = np.concatenate(
+            [
+                [orbit.period],
+                [float(orbit.max_abs(eye[i])) for i in range(n) if free[i]],
+                Yf.mean(axis=1),
+            ]
+        )
+        if any(
+            float(np.abs(key - other).max()) <= 1e-5 * max(1.0, float(np.abs(other).max()))
+            for other in keys
+        ):
+            continue
+        keys.append(key)
+        cycles.append(orbit)
+        samples.append(Yf)
+        end = np.asarray(flow(orbit.y0, 0.0, orbit.period).y, dtype=float)
+        shifts.append(0.0 if d is None else float(d @ (end - orbit.y0)) / float(d @ d))
+    order = sorted(range(len(cycles)), key=lambda i: float(cycles[i].max_abs(c_out)))
+    return LimitCycles(
+        [cycles[i] for i in order],
+        equilibria,
+        d,
+        [shifts[i] for i in order],
+        notes,
+    )
 
 
 class SystemHistory:
@@ -1100,6 +1706,7 @@ def _system_response(
                 "takes seeds=[(Omega, y0), ...] with its n states"
             )
     system_output(system, output)  # a bad output is refused before any work
+    _check_frequency_response(system, frequencies is not None)
     if frequencies is not None:
         return _system_solutions_at(
             system, checks.frequencies(frequencies, MAX_FREQUENCIES), output, options
@@ -1122,26 +1729,56 @@ def _system_response(
     )
 
 
-def _system_solutions_at(
-    system: Any, frequencies: list[float], output: str | None, options: dict[str, Any]
+def _check_frequency_response(system: Any, listed: bool) -> None:
+    """Refuse what has no frequency response, or would return a family of orbits.
+
+    Raises
+    ------
+    ModelError
+        An autonomous system (no forcing frequency to vary); a system with conserved
+        combinations (:meth:`System.invariants <perturb.model.system.System.invariants>`) over
+        a traced window: the continuation (:mod:`perturb.simulate.exact_response`) does not pin
+        them, so it would follow a family of orbits. At listed frequencies the pinned orbits of
+        :func:`periodic_orbits` answer instead.
+    """
+    from perturb.errors import ModelError
+
+    if not is_forced(system):
+        raise ModelError(
+            f"system {system.name!r} is autonomous (no harmonic forcing): there is no forcing "
+            "frequency to vary, so no frequency response; its periodic orbits are limit cycles "
+            f"of their own period: perturb periodic {system.name} (without --omega), or "
+            "perturb.solve.periodic_orbits(system) / limit_cycles(system)"
+        )
+    C = system.invariants()
+    if C.shape[0] and not listed:
+        labels = "; ".join(combination_text(c, system.state_names) for c in C)
+        raise ModelError(
+            f"system {system.name!r} conserves {labels} (its rate depends on the time only), so "
+            "its periodic orbits form a family along it; the traced exact response does not "
+            "pin it yet. Listed frequencies work (frc --omega w1,w2 / frequencies=[...]: one "
+            f"orbit each, the mean of {labels} pinned at 0), as does perturb periodic "
+            f"{system.name} --omega W / periodic_orbits(system, W, invariants=...)"
+        )
+
+
+def _traced_crossings(
+    system: Any,
+    targets: list[float],
+    window: tuple,
+    found_at: dict,
+    output: str | None,
+    options: dict[str, Any],
+    notes: list[str],
 ) -> Any:
-    """Every orbit of a system found at exactly ``frequencies`` (see :func:`_system_response`)."""
+    """The exact branches traced over ``window`` from the orbits ``found_at`` each target
+    frequency (and ``options["seeds"]``), each crossing of a target polished by shooting and
+    added to ``found_at`` when new; the traced result (None when the continuation failed)."""
     import numpy as np
 
-    from perturb.response import Branch
     from perturb.simulate.exact_response import exact_branches
-    from perturb.simulate.exact_response.api import ONE_FREQUENCY_WINDOW
     from perturb.simulate.exact_response.results import polish_at
 
-    targets = sorted(set(frequencies))
-    if len(targets) == 1:
-        window = (targets[0] / ONE_FREQUENCY_WINDOW, targets[0] * ONE_FREQUENCY_WINDOW)
-    else:
-        window = (targets[0], targets[-1])
-    notes: list[str] = []
-    found_at = {
-        w: list(_system_periodic_orbits(system, w, 1, (), 3, 100, None, output)) for w in targets
-    }
     seeds = list(options.pop("seeds", ())) + [
         (w, o.y0) for w, orbits in found_at.items() for o in orbits
     ]
@@ -1170,6 +1807,35 @@ def _system_solutions_at(
                         for o in found_at[w]
                     ):
                         found_at[w].append(orbit)
+    return traced
+
+
+def _system_solutions_at(
+    system: Any, frequencies: list[float], output: str | None, options: dict[str, Any]
+) -> Any:
+    """Every orbit of a system found at exactly ``frequencies`` (see :func:`_system_response`)."""
+    import numpy as np
+
+    from perturb.response import Branch
+    from perturb.simulate.exact_response.api import ONE_FREQUENCY_WINDOW
+
+    targets = sorted(set(frequencies))
+    if len(targets) == 1:
+        window = (targets[0] / ONE_FREQUENCY_WINDOW, targets[0] * ONE_FREQUENCY_WINDOW)
+    else:
+        window = (targets[0], targets[-1])
+    notes: list[str] = []
+    found_at = {
+        w: list(_system_periodic_orbits(system, w, 1, (), 3, 100, None, output)) for w in targets
+    }
+    pinned = invariant_note(system)
+    if pinned is not None:
+        # the continuation does not pin the invariants (it would trace a family): the pinned
+        # orbits of periodic_orbits at each frequency are the answer
+        notes.append(pinned)
+        traced = None
+    else:
+        traced = _traced_crossings(system, targets, window, found_at, output, options, notes)
     branches, columns = [], []
     coords = system_coordinates(system)
     for w in targets:

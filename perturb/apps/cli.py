@@ -8,7 +8,7 @@ Subcommands::
     perturb frc MODEL [--method hb1] [--param k=-2 ...] [--omega 0.2:2.0[:N] | w1,w2]
                       [--harmonics H | 1,3 (shb)] [--out frc.csv] [--plot frc.png]
     perturb simulate MODEL [--param ...] --y0 x,v --t 0:100 [--method auto|exact|event|lcp|ode]
-    perturb periodic MODEL [--param ...] --omega 0.6 [--m 1]
+    perturb periodic MODEL [--param ...] --omega 0.6 [--m 1]   (autonomous system: no --omega)
     perturb derive METHOD MODEL [--order N] [--param ...] [--latex F.tex] [--json F.json]
     perturb run [SCENE.toml] [--out DIR] [--rtol R] answer a scene (default: the embedded one)
 
@@ -16,7 +16,9 @@ MODEL is a builtin oscillator, an equation string, a builtin system of several c
 (``nsd2``, ``impact_pair``, ``mount``, ...) or one equation per coordinate separated by
 ``;`` (parsed safely, :meth:`perturb.model.system.System.parse`). A system takes ``frc``
 (``--method exact``, its only method for now), ``simulate`` (``--y0`` its states in the order
-``perturb models`` lists) and ``periodic``; ``--output`` names what ``amplitude`` measures (a
+``perturb models`` lists) and ``periodic`` (an autonomous system, ``belt``, ``drill_string``:
+its limit cycles and equilibria, without ``--omega``, which is refused there; ``frc`` refuses
+it, there being no forcing frequency); ``--output`` names what ``amplitude`` measures (a
 coordinate or a linear combination such as ``"x1 - x2"``), and every coordinate's ``max |.|``
 and mean follow in the columns ``amplitude_<name>``, ``mean_<name>``.
 
@@ -719,9 +721,13 @@ def _periodic_system(args: argparse.Namespace, system) -> str:
     """The CSV of ``perturb periodic`` on a system: the SDOF columns (of ``--output``), each
     coordinate's ``amplitude_<name>`` and ``mean_<name>``, the multipliers and the initial
     state ``y0_<state>``."""
-    from perturb.solve import orbit_columns, periodic_orbits, system_coordinates
+    from perturb.solve import invariant_note, orbit_columns, periodic_orbits, system_coordinates
 
-    orbits = periodic_orbits(system, args.omega, m=args.m, output=args.output)
+    values = _invariant_values(args.invariants)
+    orbits = periodic_orbits(system, args.omega, m=args.m, output=args.output, invariants=values)
+    note = invariant_note(system, values)
+    if note is not None:
+        print(f"note: {note}", file=sys.stderr)
     coords = system_coordinates(system)
     cols = ["omega", "m", "amplitude", "first_harmonic_amplitude", "mean", "stable"]
     cols += ["max_multiplier", "stability"]
@@ -741,20 +747,129 @@ def _periodic_system(args: argparse.Namespace, system) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _invariant_values(text: str | None) -> list[float] | None:
+    """``--invariants``: a comma list of finite numbers (its count is checked against the
+    system's invariants by :func:`perturb.solve.periodic_orbits`)."""
+    if text is None:
+        return None
+    return [parse_number(v.strip(), "--invariants") for v in text.split(",")]
+
+
+def _periodic_autonomous(args: argparse.Namespace, system) -> str:
+    """``perturb periodic`` on an autonomous system: its limit cycles
+    (:func:`perturb.solve.limit_cycles`), one row each with the forced orbits' columns,
+    ``period`` (and ``omega = 2 pi / period``), the multipliers (one trivial 1; a drifting
+    system's drift direction's as 0), ``kind = limit_cycle``; then one row per equilibrium
+    (``kind = equilibrium`` or ``steady_drift``: ``period`` inf, ``omega`` 0, no multipliers,
+    its Jacobian's ``eigenvalues``), so the CSV is never silently empty."""
+    from perturb.solve import limit_cycles, orbit_columns, system_coordinates
+
+    if args.omega is not None:
+        raise ParameterError(
+            f"--omega {args.omega:g}: system {system.name!r} is autonomous (no forcing term, so "
+            "no forcing frequency Omega): its limit cycles have their own period, which "
+            "perturb periodic finds; leave --omega out"
+        )
+    if args.m != 1:
+        raise ParameterError(
+            f"--m {args.m}: system {system.name!r} is autonomous (no forcing periods to count); "
+            "leave --m out"
+        )
+    if args.invariants is not None:
+        _invariant_values(args.invariants)
+        raise ParameterError(
+            f"--invariants {args.invariants}: the limit-cycle search of an autonomous system "
+            "takes no invariant values (it refuses systems with conserved combinations)"
+        )
+    found = limit_cycles(system, output=args.output)
+    coords = system_coordinates(system)
+    cols = ["omega", "m", "period", "amplitude", "first_harmonic_amplitude", "mean", "stable"]
+    cols += ["max_multiplier", "stability"]
+    cols += [f"amplitude_{c}" for c in coords] + [f"mean_{c}" for c in coords]
+    cols += ["multipliers"] + [f"y0_{name}" for name in system.state_names]
+    cols += ["kind", "eigenvalues"]
+    lines = [",".join(cols)]
+    for o in found.cycles:
+        num = orbit_columns(system, o, args.output)
+        row = [repr(2.0 * math.pi / o.period), "1", repr(float(o.period))]
+        row += [repr(num[k]) for k in ("amplitude", "first_harmonic_amplitude", "mean")]
+        row += [str(int(o.max_multiplier < 1)), repr(float(o.max_multiplier)), o.stability]
+        row += [repr(num[f"amplitude_{c}"]) for c in coords]
+        row += [repr(num[f"mean_{c}"]) for c in coords]
+        row += [_multipliers_text(o.multipliers)] + [repr(float(v)) for v in o.y0]
+        row += ["limit_cycle", ""]
+        lines.append(",".join(row))
+    from perturb.solve import system_output
+
+    c, _ = system_output(system, args.output)
+    names = system.state_names
+    for e in found.equilibria:
+        val = float(c @ e.y)
+        row = ["0.0", "1", "inf", repr(abs(val)), "0.0", repr(val), str(int(e.stable)), ""]
+        row += ["stable" if e.stable else "unstable"]
+        row += [repr(abs(float(e.y[names.index(n)]))) for n in coords]
+        row += [repr(float(e.y[names.index(n)])) for n in coords]
+        row += [""] + [repr(float(v)) for v in e.y]
+        row += ["equilibrium" if e.drift_rate is None else "steady_drift"]
+        row += [_multipliers_text(e.eigenvalues)]
+        lines.append(",".join(row))
+    what = f"system {system.name!r} is autonomous: "
+    if found.cycles:
+        periods = ", ".join(f"{o.period:.10g} ({o.stability})" for o in found.cycles)
+        what += f"{len(found.cycles)} limit cycle(s), period {periods}"
+    else:
+        what += "no limit cycle found"
+    if found.equilibria:
+        what += "; " + "; ".join(
+            ("equilibrium" if e.drift_rate is None else f"steady drift at rate {e.drift_rate:.6g}")
+            + f" ({'stable' if e.stable else 'unstable'}, eigenvalues "
+            + ", ".join(f"{complex(z):.6g}" for z in e.eigenvalues)
+            + ")"
+            for e in found.equilibria
+        )
+    elif not found.cycles:
+        what += " and no equilibrium (every run escaped or failed; see the notes)"
+    print(what, file=sys.stderr)
+    if found.drift is not None:
+        shifts = ", ".join(f"{s:.10g}" for s in found.shifts)
+        print(
+            f"note: the motion drifts along d = {found.drift.tolist()} ({system.name} turns): "
+            f"each cycle is periodic up to a shift of {shifts} times d per period; y0 is given "
+            "with d . y0 = 0, the multiplier of d taken out (0)",
+            file=sys.stderr,
+        )
+    for note in found.notes:
+        print(f"note: {note}", file=sys.stderr)
+    return "\n".join(lines) + "\n"
+
+
 def _cmd_periodic(args: argparse.Namespace) -> int:
     from perturb.solve import periodic_orbits
 
     _check_outputs(out=args.out)
     whole(args.m, "--m", 1, MAX_SUBHARMONIC, "forcing periods per orbit")
-    if not args.omega > 0:
-        raise ParameterError(f"--omega {args.omega}: expected a forcing frequency > 0")
-    _check_omega_range("--omega", str(args.omega), [args.omega])
+    if args.omega is not None:
+        if not args.omega > 0:
+            raise ParameterError(f"--omega {args.omega}: expected a forcing frequency > 0")
+        _check_omega_range("--omega", str(args.omega), [args.omega])
     params = dict(parse_param(p) for p in args.param or ())
     osc = _model_from_arg(args.model, params)
-    from perturb.solve import check_oscillator_output, is_system
+    from perturb.solve import check_oscillator_output, is_forced, is_system
 
+    autonomous = is_system(osc) and not is_forced(osc)
+    if args.invariants is not None and not is_system(osc):
+        raise ParameterError(
+            f"--invariants {args.invariants}: an option of systems with conserved "
+            "combinations; an oscillator has one coordinate"
+        )
+    if args.omega is None and not autonomous:
+        raise ParameterError(
+            f"--omega: required for {args.model!r}, a forced model (its periodic orbits are at "
+            "a forcing frequency, e.g. --omega 0.6); only an autonomous system (no forcing "
+            "term, e.g. belt) goes without it"
+        )
     if is_system(osc):
-        text = _periodic_system(args, osc)
+        text = _periodic_autonomous(args, osc) if autonomous else _periodic_system(args, osc)
         if args.out:
             _write_text(args.out, text)
         else:
@@ -1044,12 +1159,23 @@ def build_parser() -> argparse.ArgumentParser:
         "coordinate separated by ';'",
     )
     p.add_argument("--param", action="append", metavar="NAME=VALUE", help="parameter value")
-    p.add_argument("--omega", type=_finite("--omega"), required=True, help="forcing frequency")
+    p.add_argument(
+        "--omega",
+        type=_finite("--omega"),
+        help="forcing frequency (required, except for an autonomous system such as belt or "
+        "drill_string: its limit cycles have their own period, and --omega is refused)",
+    )
     p.add_argument(
         "--m",
         type=int,
         default=1,
         help=f"forcing periods per orbit (default 1, at most {MAX_SUBHARMONIC})",
+    )
+    p.add_argument(
+        "--invariants",
+        metavar="V1[,V2...]",
+        help="systems with conserved combinations (mount_linear: p1 + 100*p2): the period-mean "
+        "value of each, pinning one orbit of the family (default 0, the rest state's)",
     )
     p.add_argument(
         "--output",
