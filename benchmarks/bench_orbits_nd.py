@@ -32,24 +32,30 @@ the SDOF segments kept on the ``PWLSystem``, the n-D region eigen-decompositions
 
 from __future__ import annotations
 
-import argparse
 import os
-import platform
-import statistics
-import sys
-import time
 
-import numpy as np
-import scipy
+# one BLAS thread: the matrices here are 4x4 to 16x16, and on a loaded machine a BLAS thread
+# pool makes a LAPACK call wait for a free core (wall time many times the CPU time)
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from perturb.errors import PerturbError
-from perturb.model.builtins import builtin_model
-from perturb.model.system import System, gap
-from perturb.model.system_builtins import builtin_system
-from perturb.simulate.flows.affine_exact import AffineExactFlow, propagate
-from perturb.simulate.flows.exact import ExactPWLFlow
-from perturb.simulate.flows.factory import make_flow
-from perturb.simulate.orbits.shooting import periodic_orbit
+import argparse  # noqa: E402
+import platform  # noqa: E402
+import statistics  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+import scipy  # noqa: E402
+
+from perturb.errors import PerturbError  # noqa: E402
+from perturb.model.builtins import builtin_model  # noqa: E402
+from perturb.model.system import System, gap  # noqa: E402
+from perturb.model.system_builtins import builtin_system  # noqa: E402
+from perturb.simulate.flows.affine_exact import AffineExactFlow, propagate  # noqa: E402
+from perturb.simulate.flows.exact import ExactPWLFlow  # noqa: E402
+from perturb.simulate.flows.factory import make_flow  # noqa: E402
+from perturb.simulate.orbits.shooting import periodic_orbit  # noqa: E402
 
 
 def timed(fn, repeat: int) -> tuple[float, float, float, float, object]:

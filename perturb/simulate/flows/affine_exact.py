@@ -949,10 +949,10 @@ class _Model:
 
         On a surface (``s_j = 0``) the side is the one the field moves into; both sides
         pushing into the surface of a discontinuous field is sliding (an error)."""
-        s = self.C @ y - self.d
-        key = [1 if sj >= 0.0 else -1 for sj in s]
-        on = set()
-        for j in np.flatnonzero(s == 0.0):
+        sl = (self.C @ y - self.d).tolist()
+        key = [1 if sj >= 0.0 else -1 for sj in sl]
+        on: set[int] = set()
+        for j in [i for i, sj in enumerate(sl) if sj == 0.0]:
             j = int(j)
             on.add(j)
             plus = tuple(key[:j] + [1] + key[j + 1 :])
@@ -1336,7 +1336,7 @@ def _check_args(system, y0, t0, t1, max_events, max_steps) -> tuple[np.ndarray, 
         y = np.array(y0, dtype=float).reshape(-1)
     except (TypeError, ValueError):
         raise ParameterError(f"y0 = {y0!r}: expected {system.n} finite numbers") from None
-    if y.size != system.n or not np.all(np.isfinite(y)):
+    if y.size != system.n or not np.isfinite(y).all():
         raise ParameterError(
             f"y0 = {y.tolist()!r}: expected {system.n} finite numbers "
             f"({', '.join(system.state_names)})"
@@ -1348,7 +1348,7 @@ def _check_args(system, y0, t0, t1, max_events, max_steps) -> tuple[np.ndarray, 
     if not (math.isfinite(t0) and math.isfinite(t1) and t1 > t0):
         raise ParameterError(f"(t0, t1) = ({t0!r}, {t1!r}): expected finite t1 > t0")
     for name, val in (("max_events", max_events), ("max_steps", max_steps)):
-        if isinstance(val, bool) or not isinstance(val, int | np.integer) or val < 0:
+        if isinstance(val, bool) or not isinstance(val, (int, np.integer)) or val < 0:
             raise ParameterError(f"{name} = {val!r}: expected a non-negative integer")
     return y, t0, t1
 
