@@ -105,7 +105,8 @@ concave: concave with :math:`g > 0` at both ends, it has no root; convex, its mi
 crossing (a dip of :math:`g` below zero between two grid points) is found, and a near miss is
 correctly absent, whatever the grid.  Roots of :math:`g` and :math:`g'` are solved by a
 safeguarded Newton–bisection on the closed form (exact derivatives), which never leaves its
-bracket.  A minimum with :math:`|g| \le` tol (a few rounding units of the terms of :math:`s`),
+bracket; a crossing on a monotone interval by safeguarded Halley–bisection from the root of the
+cubic Hermite interpolant of the grid's :math:`g, g'` (two closed-form evaluations).  A minimum with :math:`|g| \le` tol (a few rounding units of the terms of :math:`s`),
 or a crossing whose penetration depth :math:`g'^2/(2g'')` is below tol, is a *tangency*: logged,
 and the region is kept.  At a crossing the state is projected onto the surface
 (:math:`y \leftarrow y - c\,(c\cdot y - d)/|c|^2`) and the region of the sign pattern on the
