@@ -106,9 +106,10 @@ crossing (a dip of :math:`g` below zero between two grid points) is found, and a
 correctly absent, whatever the grid.  Roots of :math:`g` and :math:`g'` are solved by a
 safeguarded Newton–bisection on the closed form (exact derivatives), which never leaves its
 bracket; a crossing on a monotone interval by safeguarded Halley–bisection from the root of the
-cubic Hermite interpolant of the grid's :math:`g, g'` (two closed-form evaluations).  A minimum with :math:`|g| \le` tol (a few rounding units of the terms of :math:`s`),
-or a crossing whose penetration depth :math:`g'^2/(2g'')` is below tol, is a *tangency*: logged,
-and the region is kept.  At a crossing the state is projected onto the surface
+cubic Hermite interpolant of the grid's :math:`g, g'` (two closed-form evaluations).  A
+minimum with :math:`|g| \le` tol (a few rounding units of the terms of :math:`s`), or a
+crossing whose penetration depth :math:`g'^2/(2g'')` is below tol, is a *tangency*: logged, and
+the region is kept.  At a crossing the state is projected onto the surface
 (:math:`y \leftarrow y - c\,(c\cdot y - d)/|c|^2`) and the region of the sign pattern on the
 far side takes over.  When the field is discontinuous across the surface and the far side
 pushes back into it (both sides point into the surface: sliding / sticking), the propagation
@@ -857,9 +858,15 @@ def _state_scale(system: PiecewiseAffineSystem) -> np.ndarray:
     of two make ``y = D z`` and ``D^{-1} y`` exact.  ``D = I`` unless balancing reduces the
     1-norm of ``sum_r |A_r|`` by more than ``_BALANCE_GAIN``."""
     n = system.n
+    mats = [np.asarray(reg.A, dtype=float) for reg in system.regions.values()]
+    # (a frequency response builds one system per frequency with the same matrices)
+    ckey = (n, b"".join(A.tobytes() for A in mats))
+    hit = _SCALE_CACHE.get(ckey)
+    if hit is not None:
+        return hit
     S = np.zeros((n, n))
-    for reg in system.regions.values():
-        S += np.abs(np.asarray(reg.A, dtype=float))
+    for A in mats:
+        S += np.abs(A)
     one = np.ones(n)
     norm = float(S.sum(axis=0).max())
     if not (norm > 0.0 and math.isfinite(norm)):
@@ -871,7 +878,37 @@ def _state_scale(system: PiecewiseAffineSystem) -> np.ndarray:
     # exact powers of two (matrix_balance returns them; rounding guards against any other)
     scale = np.exp2(np.round(np.log2(scale)))
     balanced = float((S * (scale[None, :] / scale[:, None])).sum(axis=0).max())
-    return scale if balanced * _BALANCE_GAIN < norm else one
+    out = scale if balanced * _BALANCE_GAIN < norm else one
+    _remember(_SCALE_CACHE, ckey, out)
+    return out
+
+
+#: caches keyed by matrix bytes, shared by the systems of a family (a frequency response
+#: builds one PiecewiseAffineSystem per frequency; only the inputs change): the state scale
+#: of a set of region matrices, and the eigen-decomposition of one matrix
+_SCALE_CACHE: dict = {}
+_EIG_CACHE: dict = {}
+_CACHE_SIZE = 512
+
+
+def _remember(cache: dict, key, value) -> None:
+    if len(cache) >= _CACHE_SIZE:
+        cache.pop(next(iter(cache)))  # the oldest entry
+    cache[key] = value
+
+
+def _eig(A: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarray | None]:
+    """``(lambda, V, cond(V), V^-1 or None)`` of ``A`` (``V^-1`` only when ``cond(V)`` is
+    finite and at most ``_COND_MAX``), cached by the bytes of ``A``."""
+    key = (A.shape, A.tobytes())
+    hit = _EIG_CACHE.get(key)
+    if hit is None:
+        lam, V = np.linalg.eig(A)
+        cond = float(np.linalg.cond(V))
+        Vinv = np.linalg.inv(V) if math.isfinite(cond) and cond <= _COND_MAX else None
+        hit = (lam, V, cond, Vinv)
+        _remember(_EIG_CACHE, key, hit)
+    return hit
 
 
 class _Model:
@@ -920,10 +957,9 @@ class _Model:
             A, b = self.region_data(key)
             reg = None
             if self.representation in ("auto", "modal"):
-                lam, V = np.linalg.eig(A)
-                cond = np.linalg.cond(V)
-                if math.isfinite(cond) and cond <= _COND_MAX:
-                    reg = _ModalRegion(self, key, A, b, lam, V, np.linalg.inv(V))
+                lam, V, cond, Vinv = _eig(A)
+                if Vinv is not None:
+                    reg = _ModalRegion(self, key, A, b, lam, V, Vinv)
                 elif self.representation == "modal":
                     raise PerturbError(
                         f"region {key}: the eigenvectors of A are ill conditioned (cond = "
