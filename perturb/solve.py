@@ -1192,7 +1192,7 @@ def _drift_direction(system: Any, A: Any) -> Any:
     return d
 
 
-def _equilibrium(flow: Any, y: Any, d: Any, scale: float) -> Any:
+def _equilibrium(flow: Any, jac: Any, y: Any, d: Any, scale: float) -> Any:
     """Newton on ``f(y) = 0`` (with a drift ``d``: ``f(y) = s d``, ``d . y = 0``) from ``y``,
     40 steps at most; ``(y, s)`` or None."""
     import numpy as np
@@ -1205,7 +1205,7 @@ def _equilibrium(flow: Any, y: Any, d: Any, scale: float) -> Any:
         yy = z[:n]
         try:
             f = np.asarray(flow.vector_field(0.0, yy), dtype=float)
-            J = np.asarray(flow.jacobian(0.0, yy), dtype=float)
+            J = np.asarray(jac(0.0, yy), dtype=float)
         except (PerturbError, ArithmeticError, ValueError):
             return None
         if d is not None:
@@ -1319,6 +1319,12 @@ def limit_cycles(
             )
         given.append(y)
     flow = _autonomous_flow(system)
+    if not hasattr(flow, "jacobian"):  # the exact piecewise-affine flow: DOP853's field has it
+        from perturb.simulate.flows.factory import make_flow
+
+        jac = make_flow(system, method="ode").jacobian
+    else:
+        jac = flow.jacobian
     notes: list[str] = []
     num = system.numeric_form()
     n2 = num["n2"]
@@ -1336,14 +1342,14 @@ def limit_cycles(
 
     def add_equilibrium(y: Any) -> None:
         scale = max(1.0, float(np.abs(y).max()))
-        found = _equilibrium(flow, y, d, scale)
+        found = _equilibrium(flow, jac, y, d, scale)
         if found is None:
             return
         ye, rate = found
         for e in equilibria:
             if float(np.abs(gauge(e.y) - gauge(ye)).max()) <= 1e-8 * scale:
                 return
-        J = np.asarray(flow.jacobian(0.0, ye), dtype=float)
+        J = np.asarray(jac(0.0, ye), dtype=float)
         lam = np.linalg.eigvals(J)
         lam = lam[np.argsort(-lam.real, kind="stable")]
         nontrivial = lam if d is None else np.delete(lam, int(np.argmin(np.abs(lam))))
@@ -1358,7 +1364,7 @@ def limit_cycles(
         pass
     ref = equilibria[0].y if equilibria else np.zeros(n)
     try:
-        J0 = np.asarray(flow.jacobian(0.0, ref), dtype=float)
+        J0 = np.asarray(jac(0.0, ref), dtype=float)
     except (PerturbError, ValueError):
         J0 = A
     lam = np.linalg.eigvals(J0)
@@ -1419,8 +1425,11 @@ def limit_cycles(
         rng_state = ys.max(axis=1) - ys.min(axis=1)
         mag = np.maximum(np.abs(ys).max(axis=1), 1e-300)
         rel = np.where(free, rng_state / mag, 0.0)
-        if float(rel.max()) <= 1e-7:
-            add_equilibrium(ys[:, -1])  # came to rest
+        half = ys.shape[1] // 2
+        first = np.where(free, np.ptp(ys[:, :half], axis=1), 0.0)
+        second = np.where(free, np.ptp(ys[:, half:], axis=1), 0.0)
+        if float(rel.max()) <= 1e-7 or float(second.max()) <= 0.5 * float(first.max()):
+            add_equilibrium(ys[:, -1])  # came to rest, or still decaying towards it
             continue
         cand = [i for i in range(n2, n) if free[i]] or [i for i in range(n) if free[i]]
         k = max(cand, key=lambda i: (rel[i], -i))
