@@ -906,6 +906,9 @@ def _eig(A: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarray | Non
         lam, V = np.linalg.eig(A)
         cond = float(np.linalg.cond(V))
         Vinv = np.linalg.inv(V) if math.isfinite(cond) and cond <= _COND_MAX else None
+        for arr in (lam, V, Vinv):
+            if arr is not None:
+                arr.setflags(write=False)  # shared by every region built from A
         hit = (lam, V, cond, Vinv)
         _remember(_EIG_CACHE, key, hit)
     return hit
