@@ -1207,7 +1207,10 @@ class EventFlow(Flow):
         H = st.h if st.h is not None else _FIRST_CHUNK * h_cap
         surf = [(self.surfaces[j], float(st.sigma[j]), st.guard.get(j, -np.inf)) for j in active]
         n = stepper.rule.n
-        for _ in range(_MAX_CHUNKS):
+        # a bound on the steps of this segment: generous per forcing period of its span (a
+        # period takes a handful), so only a collapsing step length reaches it
+        max_chunks = int(_MAX_CHUNKS + _MAX_CHUNKS * min(span_total / h_cap, 1e6))
+        for _ in range(max_chunks):
             span = t1 - t
             H = min(H, h_cap)
             last = H >= span * (1.0 - 1e-9)
@@ -1243,7 +1246,7 @@ class EventFlow(Flow):
             if last:
                 return None, "end", t1, _augmented(x0, v0, phi)
         raise PerturbError(
-            f"more than {_MAX_CHUNKS} collocation steps in one smooth segment of "
+            f"more than {max_chunks} collocation steps in one smooth segment of "
             f"{self.oscillator.name!r} after t = {st.t!r} (reached t = {t!r})"
         )
 
@@ -1618,8 +1621,9 @@ class EventFlow(Flow):
 #: the first collocation step of a call, as a fraction of the forcing period (2 pi when
 #: autonomous); later steps follow the error estimate
 _FIRST_CHUNK = 0.25
-#: collocation steps allowed in one smooth segment (a period takes a handful)
-_MAX_CHUNKS = 100_000
+#: collocation steps allowed in one smooth segment, and per forcing period of its span (a
+#: period takes a handful)
+_MAX_CHUNKS = 10_000
 #: the collocation step length may shrink to this fraction of max(1, |t|, span) before the
 #: segment falls back to DOP853
 _MIN_CHUNK = 1e-9

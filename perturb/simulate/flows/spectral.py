@@ -53,6 +53,8 @@ MAX_NEWTON = 12
 #: Newton stops when the collocation residual is below this, relative to max(1, max |u|): the
 #: update it would still make moves x by about H^2/8 of it
 _NEWTON_TOL = 1e-13
+#: ... or after an update below this (relative to the same): the next would be below rounding
+_SKIP = 1e-8
 
 _getrf, _getrs = lapack.dgetrf, lapack.dgetrs
 
@@ -68,6 +70,8 @@ class ChebyshevRule:
     Q: np.ndarray
     Q2: np.ndarray
     to_coef: np.ndarray
+    #: the rows of ``to_coef`` giving the last three Chebyshev coefficients (error estimate)
+    tail: np.ndarray
 
 
 @lru_cache(maxsize=8)
@@ -93,7 +97,9 @@ def chebyshev_rule(n: int) -> ChebyshevRule:
         arr.setflags(write=False)
     Q2 = Q @ Q
     Q2.setflags(write=False)
-    return ChebyshevRule(n, s, bary, Q, Q2, to_coef)
+    tail = np.ascontiguousarray(to_coef[-3:])
+    tail.setflags(write=False)
+    return ChebyshevRule(n, s, bary, Q, Q2, to_coef, tail)
 
 
 def interpolation_row(rule: ChebyshevRule, s: float) -> np.ndarray:
@@ -152,6 +158,11 @@ class Chunk:
         return x, v, np.array([[xx, xv], [vx, vv]])
 
 
+def _rows(q):
+    """A per-node factor as a column (scaling the rows of a matrix); a scalar as it is."""
+    return q[:, None] if np.ndim(q) else q
+
+
 class ChebyshevStep:
     """Collocation steps of one vectorised field.
 
@@ -177,15 +188,13 @@ class ChebyshevStep:
         self.rtol, self.atol = float(rtol), float(atol)
         self.rule = chebyshev_rule(n)
 
-    def _eval(self, t, x, v):
-        shape = t.shape
-        out = []
-        for q in self.field(t, x, v):
-            # a constant partial derivative comes back as a scalar
-            if type(q) is not np.ndarray or q.shape != shape:
-                q = np.full(shape, float(q)) if np.ndim(q) == 0 else np.broadcast_to(q, shape)
-            out.append(q)
-        return out
+    def _raw(self, t, x, v):
+        """``(a, a_x, a_v)`` with ``a`` an array of the nodes' shape; the partial derivatives
+        may be scalars (constants)."""
+        a, ax, av = self.field(t, x, v)
+        if type(a) is not np.ndarray or a.shape != t.shape:
+            a = np.full(t.shape, float(a)) if np.ndim(a) == 0 else np.broadcast_to(a, t.shape)
+        return a, ax, av
 
     def attempt(
         self,
@@ -209,46 +218,67 @@ class ChebyshevStep:
         Q2h = h2 * rule.Q2
         base_x = x0 + tau * v0
         if u0 is None:
-            a, _, _ = self._eval(t[:1], np.array([x0]), np.array([v0]))
+            a, _, _ = self._raw(t[:1], np.array([x0]), np.array([v0]))
             u = np.full(n1, float(a[0]))
         else:
             u = np.array(u0, dtype=float)
         eye = np.eye(n1)
+        # Newton stops on a small residual, or on an update so small that the next one would
+        # be below rounding (quadratic convergence); the iterates do not depend on
+        # ``sensitivity``, so a run with and without it takes the same steps
+        refactor = False
+        J_v = None  # eye - a_v H/2 Q, formed once when a_v is a constant (linear damping)
         with np.errstate(all="ignore"):
             for _ in range(MAX_NEWTON):
                 x = base_x + Q2h @ u
                 v = v0 + Qh @ u
-                a, ax, av = self._eval(t, x, v)
+                a, ax, av = self._raw(t, x, v)
                 r = u - a
-                J = eye - ax[:, None] * Q2h - av[:, None] * Qh
+                if J_v is None:
+                    J_v = eye - av * Qh if np.ndim(av) == 0 else False
+                if J_v is False:
+                    J = eye - _rows(ax) * Q2h - _rows(av) * Qh
+                else:
+                    J = J_v - _rows(ax) * Q2h
                 lu, piv, info = _getrf(J, overwrite_a=True)
                 if info != 0:
                     return None, math.inf
-                scale_u = max(1.0, float(np.max(np.abs(u))))
-                res = float(np.max(np.abs(r)))
+                scale_u = max(1.0, float(np.abs(u).max()))
+                res = float(np.abs(r).max())
                 if not math.isfinite(res):
                     return None, math.inf
                 if res <= _NEWTON_TOL * scale_u:
                     break
                 du, info = _getrs(lu, piv, r)
                 u = u - du
+                if float(np.abs(du).max()) <= _SKIP * scale_u:
+                    x = base_x + Q2h @ u
+                    v = v0 + Qh @ u
+                    refactor = True
+                    break
             else:
                 return None, math.inf
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
             return None, math.inf
         # error estimate: the tail of the Chebyshev series of u, integrated once (v) and
         # twice (x); a decaying series has its error below the last coefficients
-        c = rule.to_coef @ u
-        tail = float(np.abs(c[-1]) + np.abs(c[-2]) + np.abs(c[-3]))
+        tail = float(np.abs(rule.tail @ u).sum())
         err_v = h1 * tail
         err_x = h2 * tail
-        tol_x = self.atol + self.rtol * float(np.max(np.abs(x)))
-        tol_v = self.atol + self.rtol * float(np.max(np.abs(v)))
+        tol_x = self.atol + self.rtol * float(np.abs(x).max())
+        tol_v = self.atol + self.rtol * float(np.abs(v).max())
         ratio = max(err_x / tol_x, err_v / tol_v)
         if not math.isfinite(ratio) or ratio > 1.0:
             return None, ratio if math.isfinite(ratio) else math.inf
         sens = None
         if sensitivity:
+            if refactor:  # the Jacobian at the accepted iterate
+                _, ax, av = self._raw(t, x, v)
+                J = eye - _rows(ax) * Q2h - _rows(av) * Qh
+                lu, piv, info = _getrf(J, overwrite_a=True)
+                if info != 0:
+                    return None, math.inf
+            ax = np.broadcast_to(ax, tau.shape)
             # one right-hand side at a time: OpenBLAS runs a solve with several in threads,
             # whose start-up and spinning cost far more than this small solve (measured: the
             # whole frequency response took 7x the CPU time on a loaded machine)
