@@ -145,6 +145,22 @@ Parallel tracing
     stopped (the missing tests replayed point by point), and results are used in submission
     order: the branches are exactly the serial ones, whatever the timing.
 
+Systems of several coordinates
+    A :class:`~perturb.model.system.System` (``FlowFamily(system)``: the exact affine flow
+    :class:`~perturb.simulate.flows.affine_exact.AffineExactFlow`, built once and rescaled in
+    the forcing frequency) is traced by the same core with its ``n`` states per node
+    (``G_z`` blocks of ``n x n``; multipliers by ``eigvals``).  :math:`\partial G/\partial p`
+    is exact for the frequency parameter (the particular solution above with
+    :math:`R = (i\omega I - A)^{-1}` of each region, saltation at discontinuous crossings).
+    Closed-form arcs are replaced by seeds: the steady state of every linear region that
+    stays inside it (exact orbits, traced by shooting).  Every point carries, besides the
+    statistics of the output :math:`c\cdot y` (``output=``, default the first coordinate),
+    ``max |q_k|`` and the mean of every coordinate (extrema: cubic Hermite location on the
+    sampled rates, value on the exact trajectory); a system's statistics are accepted within
+    ``min(ND_STATS_TOL, 10 tol)`` = 1e-9 (the oscillator's ``STATS_TOL`` would leave ~5e-9 in
+    the maxima and ~3e-7 in the multipliers).  Odd symmetry is tested on the n-dimensional
+    field.
+
 Layout
     The package is split by concern, each module importing only earlier ones:
     ``base`` (constants) → ``problem`` (the shooting problem: points, evaluation of the flow

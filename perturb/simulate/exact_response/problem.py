@@ -209,6 +209,7 @@ class Engine:
             name = self.model_system.name
             self._nd_setup(output)
         else:
+            self.output = None  # an oscillator's statistics are those of x
             sym = frequency_symbol(family.oscillator)
             self.positive = sym is not None and sym.name == family.parameter
             name = family.oscillator.name
