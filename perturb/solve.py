@@ -817,6 +817,7 @@ def _system_periodic_orbits(
         raise ParameterError(f"extent = {extent!r}: expected a positive number")
     c, _ = system_output(system, output)
     pin = _invariant_pin(system, invariants)
+    _check_no_free_family(system)
     flow = _system_flow(system)
     T = _forcing_period(flow, system)
     n = system.n
@@ -1192,6 +1193,47 @@ def _drift_direction(system: Any, A: Any) -> Any:
     return d
 
 
+def _linear_part(system: Any) -> Any:
+    """The linear part ``A`` of ``y' = A y + g(y) + b(t)`` (elements left out)."""
+    import numpy as np
+
+    num = system.numeric_form()
+    n, n2 = system.n, num["n2"]
+    A = np.zeros((n, n))
+    A[:n2, n2 : 2 * n2] = np.eye(n2)
+    A[n2:, :] = -num["Binv"] @ num["L"]
+    return A
+
+
+def _check_no_free_family(system: Any) -> None:
+    """A forced system whose field is blind to shifts along a direction ``d`` (a free
+    translation or rotation) that no invariant pins has no isolated periodic orbit: each orbit
+    ``y(t)`` comes with ``y(t) + s d`` for every ``s`` (or drifts along ``d``).
+
+    Raises
+    ------
+    ModelError
+        Naming ``d``.
+    """
+    import numpy as np
+
+    from perturb.errors import ModelError
+
+    d = _drift_direction(system, _linear_part(system))
+    if d is None:
+        return
+    C = system.invariants()
+    if C.shape[0] and float(np.abs(C @ d).max()) > 1e-9 * float(np.abs(C).max()):
+        return  # pinning the invariant pins the shift too (mount_linear: equal pressures)
+    text = combination_text(d, system.state_names)
+    raise ModelError(
+        f"system {system.name!r} is unchanged by a shift of its state along d = {text} (a free "
+        "translation or rotation) that no conserved combination pins: its forced orbits are "
+        "not isolated (each comes with every shifted copy) or drift along d; expected a "
+        "restoring element on that direction (e.g. a spring to the ground)"
+    )
+
+
 def _equilibrium(flow: Any, jac: Any, y: Any, d: Any, scale: float) -> Any:
     """Newton on ``f(y) = 0`` (with a drift ``d``: ``f(y) = s d``, ``d . y = 0``) from ``y``,
     40 steps at most; ``(y, s)`` or None."""
@@ -1326,11 +1368,8 @@ def limit_cycles(
     else:
         jac = flow.jacobian
     notes: list[str] = []
-    num = system.numeric_form()
-    n2 = num["n2"]
-    A = np.zeros((n, n))
-    A[:n2, n2 : 2 * n2] = np.eye(n2)
-    A[n2:, :] = -num["Binv"] @ num["L"]
+    n2 = system.numeric_form()["n2"]
+    A = _linear_part(system)
     d = _drift_direction(system, A)
     free = np.ones(n, dtype=bool) if d is None else d == 0  # states not along the drift
 

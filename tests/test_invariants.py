@@ -161,3 +161,17 @@ def test_a_drifting_invariant_has_no_periodic_orbit():
     )
     with pytest.raises(ModelError, match="constant rate.*no periodic orbit"):
         periodic_orbits(s, 1.3)
+
+
+def test_a_free_translation_without_a_pinning_invariant_is_refused():
+    # two masses coupled to each other only: every orbit comes with all its translates
+    # x1 + s, x2 + s (the momentum invariant x1' + x2' does not fix s)
+    s = System.parse(
+        [
+            "x1'' + c*(x1' - x2') + k*(x1 - x2) = F*cos(Omega*t)",
+            "x2'' + c*(x2' - x1') + k*(x2 - x1) = 0",
+        ],
+        {"c": 0.1, "k": 2.0, "F": 1.0, "Omega": 1.3},
+    )
+    with pytest.raises(ModelError, match="shift of its state along d = x1 \\+ x2.*not isolated"):
+        periodic_orbits(s, 1.3)
