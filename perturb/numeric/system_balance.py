@@ -118,6 +118,8 @@ _TWO_PI = 2.0 * math.pi
 _UNIT_TOL = 1e-6
 #: Sub-intervals per highest harmonic for the midpoint monodromy of smooth elements.
 _SMOOTH_STEPS_PER_HARMONIC = 8
+#: Newton runs from automatic starting guesses at one frequency.
+_MAX_STARTS = 6
 
 
 class SystemBalanceError(PerturbError):
@@ -249,6 +251,9 @@ class SystemBalance:
         The continuation parameter, default ``"Omega"``.
     samples : int, optional
         AFT samples per period for non-PWL elements (default ``4 H + 1``).
+    projection : {"exact", "aft"}
+        ``"aft"`` samples the PWL elements too (the comparison option: slowly convergent and
+        aliased for nonsmooth forces).
 
     Attributes
     ----------
@@ -276,6 +281,7 @@ class SystemBalance:
         m: int = 1,
         parameter: str = "Omega",
         samples: int | None = None,
+        projection: str = "exact",
     ) -> None:
         if not isinstance(system, System):
             raise ParameterError(f"system = {system!r}: expected a perturb System")
@@ -303,6 +309,9 @@ class SystemBalance:
         self.size = self.basis.size
         self.n_unknowns = neq * self.size
         self.samples = self._samples(samples)
+        if projection not in ("exact", "aft"):
+            raise ParameterError(f"projection = {projection!r}: expected 'exact' or 'aft'")
+        self.projection = projection
         B, L = num["B"], num["L"]
         self._Binv = num["Binv"]
         self._L = L
@@ -408,6 +417,16 @@ class SystemBalance:
                 pwl = to_pwl(fexpr, _S_SYMBOL).numeric()
             except (NonsmoothError, ModelError, ParameterError, TypeError, ValueError):
                 pwl = None
+        if pwl is not None and self.projection == "aft":
+            # the comparison option: the same PWL force sampled (no Dirac terms of jumps)
+            def f_pwl(x, pwl=pwl):
+                seg = pwl.segment_index(x)
+                return pwl.slopes[seg] * x + pwl.offsets[seg]
+
+            def df_pwl(x, pwl=pwl):
+                return pwl.slopes[pwl.segment_index(x)]
+
+            return _Element(e.name, "aft_s", alpha, beta, w, c, f=f_pwl, df=df_pwl)
         if pwl is not None:
             return _Element(
                 e.name,
@@ -733,16 +752,23 @@ class SystemBalance:
             No convergence within ``max_iterations`` (the message has the residual reached).
         """
         if guess is None:
-            starts = [u for u, _ in self.segment_guesses(Omega)] or [self.linear_guess(Omega)]
+            # exact segment orbits first, then the linearisation about zero, then the other
+            # segment guesses: at most _MAX_STARTS Newton runs (each capped), then the
+            # homotopy from the first two (a chain of n gaps has 3^n combinations)
+            seg = self.segment_guesses(Omega, limit=4 * _MAX_STARTS)
+            starts = [u for u, inside in seg if inside]
+            starts.append(self.linear_guess(Omega))
+            starts += [u for u, inside in seg if not inside]
+            starts = starts[:_MAX_STARTS]
             last: SystemBalanceError | None = None
             for u0 in starts:
                 try:
                     return self.solve(Omega, u0, tol=tol, max_iterations=max_iterations)
                 except SystemBalanceError as exc:
                     last = exc
-            # Newton homotopy from each guess: R(u) - (1 - lam) R(u_g) = 0 traced from lam = 0
+            # Newton homotopy from a guess: R(u) - (1 - lam) R(u_g) = 0 traced from lam = 0
             # to 1 by the continuation core, which passes the folds where damped Newton stalls
-            for u0 in starts:
+            for u0 in starts[:2]:
                 u = self._homotopy(Omega, u0, tol)
                 if u is not None:
                     return u
@@ -751,7 +777,8 @@ class SystemBalance:
         u = self.unpack(guess).reshape(-1).copy()
         scale = max(1e-12, float(np.abs(u).max()))
         best = np.inf
-        for it in range(int(max_iterations)):
+        it = 0
+        for it in range(int(max_iterations)):  # noqa: B007 -- reported below
             r, J, _ = self.evaluate(u, Omega, True, sparse=True)
             nr = float(np.linalg.norm(r))
             try:
@@ -760,22 +787,25 @@ class SystemBalance:
                 du = np.linalg.lstsq(J.toarray(), -r, rcond=None)[0]
             # Armijo halving: a poor guess may overshoot across a switching angle
             lam = 1.0
-            for _ in range(20):
+            decreased = False
+            for _ in range(12):
                 un = u + lam * du
                 rn = self.evaluate(un, Omega, False)[0]
                 if np.linalg.norm(rn) < (1 - 1e-4 * lam) * nr or nr == 0.0:
+                    decreased = True
                     break
                 lam *= 0.5
+            if not decreased:
+                break  # stalled: a local minimum of |R| (the caller tries another start)
             u = un
             best = min(best, float(np.linalg.norm(rn)))
             scale = max(scale, float(np.abs(u).max()))
             if float(np.abs(lam * du).max()) <= tol * scale:
                 return u
-            del it
         raise SystemBalanceError(
             f"harmonic balance of {self.system.name!r} at {self.parameter} = {Omega:g} did not "
-            f"converge in {max_iterations} Newton steps (|R| = {best:.3g}): give a guess or "
-            "more iterations"
+            f"converge in {it + 1} of at most {max_iterations} Newton steps (|R| = {best:.3g}): "
+            "give a guess or more iterations"
         )
 
     def _homotopy(self, Omega: float, u0: np.ndarray, tol: float) -> np.ndarray | None:
@@ -1072,6 +1102,7 @@ def system_balance_orbit(
     stability: bool = True,
     tol: float = 1e-10,
     max_iterations: int = 60,
+    projection: str = "exact",
 ) -> SystemBalanceSolution:
     """One harmonic-balance orbit of ``system`` at the frequency ``Omega``.
 
@@ -1090,6 +1121,8 @@ def system_balance_orbit(
         Compute the Floquet multipliers.
     tol, max_iterations
         Newton's tolerance (scaled correction) and iteration cap.
+    projection : {"exact", "aft"}
+        As :class:`SystemBalance`.
 
     Raises
     ------
@@ -1098,7 +1131,7 @@ def system_balance_orbit(
     SystemBalanceError
         No convergence.
     """
-    sb = SystemBalance(system, harmonics, m=m)
+    sb = SystemBalance(system, harmonics, m=m, projection=projection)
     g = None if guess is None else np.asarray(guess, dtype=float).reshape(-1)
     u = sb.solve(Omega, g, tol=tol, max_iterations=max_iterations)
     return _solution(sb, u, Omega, stability)
@@ -1148,7 +1181,10 @@ def _stable_start(sb: SystemBalance, W: float) -> np.ndarray:
     """A solution at ``W`` from the segment guesses, a stable one when there is one (the
     exact segment orbits first)."""
     found: list[np.ndarray] = []
-    for g, _ in sb.segment_guesses(W):
+    seg = sb.segment_guesses(W, limit=4 * _MAX_STARTS)
+    starts = [u for u, inside in seg if inside] + [sb.linear_guess(W)]
+    starts += [u for u, inside in seg if not inside]
+    for g in starts[:_MAX_STARTS]:
         try:
             u = sb.solve(W, g, max_iterations=40)
         except SystemBalanceError:

@@ -1,0 +1,223 @@
+"""Benchmark: numeric multi-harmonic balance of systems of several coordinates
+(:mod:`perturb.numeric.system_balance`).
+
+Reproduce with::
+
+    PYTHONPATH=. python benchmarks/bench_system_balance.py [--repeat 3] [--quick]
+
+Everything is timed in this one process (``time.perf_counter`` wall and ``time.process_time``
+CPU; minimum over ``--repeat`` runs; one BLAS thread):
+
+1. **nsd2, whole response**: ``system_balance_branch(nsd2, (0.5, 2.0), harmonics=15)`` (default
+   nsd2, k = -0.5, F = 2; and the hardening k = 0.3, F = 0.6 with its folds), Floquet
+   multipliers at every point; the set-up (``SystemBalance``, SymPy once per system) apart.
+   Target (issue 16): <= 0.5 s.
+2. **Accuracy at fixed Omega** (nsd2, Omega = 1.2): error of each coordinate's max|.| against
+   the exact orbit (``periodic_orbit`` on ``AffineExactFlow``, 2^14 samples), exact
+   projection and AFT with 4H + 1 samples (``projection="aft"``) beside the truncation floor
+   (the exact orbit's Fourier series cut at H), H = 1, 3, 7, 15, 31, 63.
+3. **Chain of n masses** (n = 2, 4, 8, 16, 32), one two-sided gap per mass on the relative
+   displacement to its left neighbour (ground for the first): per (n, H) the time of one
+   residual + Jacobian assembly (dense, and sparse CSC), of a dense LU of the same matrix, of
+   one sparse Newton solve at fixed Omega (SuperLU), and of a whole response (continuation,
+   dense Jacobians: the core takes dense matrices) over a window around the first resonance.
+   The assembly's growth with n is the point: per gap it is ``nnz(w) nnz(c) = 4`` blocks of
+   ``O(H^2)``, so the sparse assembly grows ~linearly in n, while the dense LU grows like
+   ``(n H)^3``.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import platform  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+import scipy  # noqa: E402
+import scipy.linalg as sla  # noqa: E402
+
+from perturb.model.system import System, gap  # noqa: E402
+from perturb.model.system_builtins import builtin_system  # noqa: E402
+from perturb.numeric.system_balance import (  # noqa: E402
+    SystemBalance,
+    system_balance_branch,
+    system_balance_orbit,
+)
+from perturb.simulate.flows.factory import make_flow  # noqa: E402
+from perturb.simulate.orbits.shooting import periodic_orbit  # noqa: E402
+
+
+def timed(fn, repeat: int):
+    """(min wall, min CPU, last result) over ``repeat`` runs."""
+    walls, cpus, out = [], [], None
+    for _ in range(repeat):
+        w0, c0 = time.perf_counter(), time.process_time()
+        out = fn()
+        walls.append(time.perf_counter() - w0)
+        cpus.append(time.process_time() - c0)
+    return min(walls), min(cpus), out
+
+
+def nsd2_response(repeat: int) -> None:
+    print("== 1. nsd2 whole response, H = 15, window (0.5, 2.0), multipliers at every point")
+    for label, params in (
+        ("k=-0.5 F=2 (default)", {}),
+        ("k=0.3 F=0.6 (folds)", dict(k=0.3, F=0.6)),
+    ):
+        system = builtin_system("nsd2").with_params(**params)
+        w, c, sb = timed(lambda system=system: SystemBalance(system, 15), 1)
+        print(f"  {label}: set-up {w * 1e3:.1f} ms")
+        for stab in (False, True):
+            w, c, br = timed(
+                lambda system=system, sb=sb, stab=stab: system_balance_branch(
+                    system, (0.5, 2.0), balance=sb, stability=stab
+                ),
+                repeat,
+            )
+            print(
+                f"    stability={stab!s:5}: {len(br)} points, folds {len(br.folds)}, "
+                f"wall {w:.3f} s, CPU {c:.3f} s "
+                f"({br.curve.residual_evaluations} residual evaluations)"
+            )
+
+
+def _peak(x):
+    i = int(np.argmax(np.abs(x)))
+    n = x.size
+    a, b, c = x[(i - 1) % n], x[i], x[(i + 1) % n]
+    den = a - 2 * b + c
+    d = 0.5 * (a - c) / den if den != 0 else 0.0
+    return abs(b - 0.25 * (a - c) * d)
+
+
+def accuracy(Hs) -> None:
+    print("== 2. nsd2 at Omega = 1.2: |max|x_j|_HB - max|x_j|_exact| (exact, AFT 4H+1, floor)")
+    system = builtin_system("nsd2")
+    W = 1.2
+    ref = system_balance_orbit(system, W, harmonics=15, stability=False)
+    flow = make_flow(system.with_params(Omega=W), W)
+    orb = periodic_orbit(flow, ref.state(0.0))
+    N = 2**14
+    T = 2 * np.pi / W
+    Y = np.asarray(flow(orb.y0, 0.0, T, t_eval=np.arange(N) * T / N).ys)[:, :2]
+    exact = [_peak(Y[:, j]) for j in range(2)]
+    print(f"  exact orbit {orb.stability}, max|x1| = {exact[0]:.10f}, max|x2| = {exact[1]:.10f}")
+    print("    H   x1 exact     x1 AFT       x1 floor  |  x2 exact     x2 AFT       x2 floor")
+    for H in Hs:
+        guess = np.zeros((2, 2 * H + 1))
+        k = min(2 * H + 1, ref.U.shape[1])
+        guess[:, :k] = ref.U[:, :k]
+        line = f"  {H:3d}"
+        errs = {}
+        for proj in ("exact", "aft"):
+            try:
+                sol = system_balance_orbit(
+                    system, W, harmonics=H, guess=guess, stability=False, projection=proj
+                )
+                a = sol.max_abs()
+                errs[proj] = [abs(a[c] - exact[j]) for j, c in enumerate(("x1", "x2"))]
+            except Exception:  # noqa: BLE001 -- a benchmark row, not a result
+                errs[proj] = [float("nan")] * 2
+        for j in range(2):
+            X = np.fft.rfft(Y[:, j])
+            X[H + 1 :] = 0
+            floor = abs(_peak(np.fft.irfft(X, n=N)) - exact[j])
+            line += f"   {errs['exact'][j]:.3e}    {errs['aft'][j]:.3e}    {floor:.3e}"
+            if j == 0:
+                line += "  |"
+        print(line)
+
+
+def chain(n: int) -> System:
+    """n unit masses, springs 1 to ground and 0.5 between neighbours, damping 0.05 per mass,
+    a gap (clearance 0.2, stiffness 2) on each mass's displacement relative to its left
+    neighbour (ground for the first), F = 0.2 cos(W t) on the first mass."""
+    K = np.zeros((n, n))
+    for i in range(n):
+        K[i, i] += 1.0
+        if i + 1 < n:
+            K[i, i] += 0.5
+            K[i + 1, i + 1] += 0.5
+            K[i, i + 1] -= 0.5
+            K[i + 1, i] -= 0.5
+    names = [f"x{i + 1}" for i in range(n)]
+    els = [gap("x1", 0.2, 4.0)] + [
+        gap(f"{names[i]} - {names[i - 1]}", 0.2, 4.0) for i in range(1, n)
+    ]
+    forcing = ["0.2*cos(Omega*t)"] + ["0"] * (n - 1)
+    return System.from_matrices(
+        np.eye(n).tolist(),
+        (0.05 * np.eye(n)).tolist(),
+        K.tolist(),
+        elements=els,
+        forcing=forcing,
+        coordinates=names,
+        params={"Omega": 1.1},
+        name=f"chain{n}",
+    )
+
+
+W_CHAIN = 1.1
+
+
+def chain_table(ns, Hs, repeat: int, response_limit: int, W: float = W_CHAIN) -> None:
+    print("== 3. chain of n masses, one gap each: times per operation (ms), W = 1.1")
+    print(
+        "    n    H  unknowns  assemble-dense  assemble-sparse  dense-LU  sparse-Newton-solve"
+        "  response(points, s)"
+    )
+    for n in ns:
+        w0 = time.perf_counter()
+        system = chain(n)
+        build = time.perf_counter() - w0
+        for H in Hs:
+            sb = SystemBalance(system, H)
+            u = sb.solve(W)
+            td, _, J = timed(lambda sb=sb, u=u: sb.evaluate(u, W)[1], repeat)
+            ts, _, _ = timed(lambda sb=sb, u=u: sb.evaluate(u, W, sparse=True)[1], repeat)
+            tl, _, _ = timed(lambda J=J: sla.lu_factor(J), repeat)
+            tn, _, _ = timed(lambda sb=sb, u=u: sb.solve(W, u * 1.01), repeat)
+            resp = "-"
+            if sb.n_unknowns <= response_limit:
+                ev0 = sb.evaluations
+                tr, _, br = timed(
+                    lambda sb=sb, system=system: system_balance_branch(
+                        system, (0.8, 1.3), balance=sb, stability=True
+                    ),
+                    1,
+                )
+                resp = (
+                    f"{len(br)} pts, {sb.evaluations - ev0} evals, {tr:.2f} s "
+                    f"({tr / len(br) * 1e3:.1f} ms/pt)"
+                )
+            print(
+                f"  {n:3d} {H:4d} {sb.n_unknowns:9d} {td * 1e3:14.2f} {ts * 1e3:16.2f} "
+                f"{tl * 1e3:9.2f} {tn * 1e3:20.2f}  {resp}"
+            )
+        print(f"       (System.from_matrices for n = {n}: {build:.2f} s, not in the table)")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--quick", action="store_true", help="n <= 8, H <= 15, no H = 63")
+    args = ap.parse_args(argv)
+    print(
+        f"python {sys.version.split()[0]}, numpy {np.__version__}, scipy {scipy.__version__}, "
+        f"{platform.machine()}, {os.cpu_count()} cpus"
+    )
+    nsd2_response(args.repeat)
+    accuracy((1, 3, 7, 15, 31) if args.quick else (1, 3, 7, 15, 31, 63))
+    ns = (2, 4, 8) if args.quick else (2, 4, 8, 16, 32)
+    chain_table(ns, (3, 7, 15), args.repeat, 300 if args.quick else 500)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
