@@ -251,3 +251,26 @@ def test_bad_input():
         SystemBalance(system, 1, m=2)
     with pytest.raises(PerturbError, match="window"):
         system_balance_branch(system, (2.0, 1.0), harmonics=3)
+
+
+def test_subharmonic_basis_of_linear_system():
+    """m = 2 (response period two forcing periods): the forcing at Omega is harmonic 2 of
+    Omega/2; a linear system's solution is the closed form there and zero elsewhere."""
+    system = System.parse(
+        ["x1'' + 0.1*x1' + 2*x1 - x2 = cos(Omega*t)", "x2'' + 0.2*x2' + x2 - x1 = 0"],
+        {"Omega": 1.3},
+    )
+    W = 1.3
+    sol = system_balance_orbit(system, W, harmonics=5, m=2)
+    M = np.eye(2)
+    C = np.diag([0.1, 0.2])
+    K = np.array([[2.0, -1.0], [-1.0, 1.0]])
+    Z = np.linalg.solve(K - W**2 * M + 1j * W * C, np.array([1.0, 0.0], dtype=complex))
+    U = sol.U
+    assert np.allclose(U[:, 3], Z.real, rtol=0, atol=1e-12)
+    assert np.allclose(U[:, 4], -Z.imag, rtol=0, atol=1e-12)
+    others = np.delete(U, [3, 4], axis=1)
+    assert np.abs(others).max() <= 1e-12
+    # sampled at the forcing period, the m = 2 series repeats
+    t = np.linspace(0, 2 * np.pi / W, 7)
+    assert np.allclose(sol(t, "x1"), sol(t + 2 * np.pi / W, "x1"), rtol=0, atol=1e-12)
