@@ -51,6 +51,15 @@ mean come as ``amplitude_<name>`` / ``mean_<name>`` (:class:`SystemResponse`,
 :func:`orbit_columns`). :func:`system_time_history` integrates a system (exact piecewise-affine
 flow, DOP853, or event-driven with stops and friction contacts).
 
+An autonomous system (no harmonic forcing, :func:`is_forced`: the belt, the drill string) has
+limit cycles of their own period instead: :func:`limit_cycles` (cycles, equilibria, notes;
+:func:`periodic_orbits` returns its cycles) and no frequency response (refused by name). A
+system with conserved linear combinations (:meth:`System.invariants
+<perturb.model.system.System.invariants>`, ``mount_linear``'s ``C1 p1 + C2 p2``) has a family
+of orbits; :func:`periodic_orbits` pins the period-mean of each (default 0, the rest state's;
+``invariants=``) and reports one orbit per frequency, and so does :func:`frequency_response` at
+listed frequencies, while a traced window is refused for it (:func:`_check_frequency_response`).
+
 Importing this module loads neither SymPy nor SciPy: each route imports its solver when
 it runs.
 """
@@ -1111,18 +1120,20 @@ class Equilibrium:
         Every non-trivial eigenvalue has a negative real part.
     drift_rate : float or None
         ``rate`` of a steady drift; None for a true equilibrium.
+    stability : str
+        ``"stable"``, ``"unstable"``, or ``"marginal"`` when the largest non-trivial real part
+        is within ``1e-9 max(1, max |lambda|)`` of 0 (a centre, or one of a continuum of
+        sticking equilibria: the linearisation does not decide).
     """
 
-    def __init__(self, y, eigenvalues, stable, drift_rate=None) -> None:
+    def __init__(self, y, eigenvalues, stable, drift_rate=None, stability=None) -> None:
         self.y, self.eigenvalues, self.stable = y, eigenvalues, bool(stable)
         self.drift_rate = drift_rate
+        self.stability = stability or ("stable" if stable else "unstable")
 
     def __repr__(self) -> str:
         kind = "equilibrium" if self.drift_rate is None else f"steady drift {self.drift_rate:.6g}"
-        return (
-            f"Equilibrium({kind}, {'stable' if self.stable else 'unstable'}, y = "
-            f"{[float(v) for v in self.y]})"
-        )
+        return f"Equilibrium({kind}, {self.stability}, y = {[float(v) for v in self.y]})"
 
 
 class LimitCycles:
@@ -1392,8 +1403,10 @@ def limit_cycles(
         lam = np.linalg.eigvals(J)
         lam = lam[np.argsort(-lam.real, kind="stable")]
         nontrivial = lam if d is None else np.delete(lam, int(np.argmin(np.abs(lam))))
-        stable = bool(np.all(nontrivial.real < 0)) if nontrivial.size else True
-        equilibria.append(Equilibrium(ye, lam, stable, rate))
+        top = float(nontrivial.real.max()) if nontrivial.size else -1.0
+        margin = 1e-9 * max(1.0, float(np.abs(lam).max()))
+        label = "stable" if top < -margin else ("unstable" if top > margin else "marginal")
+        equilibria.append(Equilibrium(ye, lam, label == "stable", rate, label))
 
     add_equilibrium(np.zeros(n))
     try:

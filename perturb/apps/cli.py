@@ -806,7 +806,7 @@ def _periodic_autonomous(args: argparse.Namespace, system) -> str:
     for e in found.equilibria:
         val = float(c @ e.y)
         row = ["0.0", "1", "inf", repr(abs(val)), "0.0", repr(val), str(int(e.stable)), ""]
-        row += ["stable" if e.stable else "unstable"]
+        row += [e.stability]
         row += [repr(abs(float(e.y[names.index(n)]))) for n in coords]
         row += [repr(float(e.y[names.index(n)])) for n in coords]
         row += [""] + [repr(float(v)) for v in e.y]
@@ -822,7 +822,7 @@ def _periodic_autonomous(args: argparse.Namespace, system) -> str:
     if found.equilibria:
         what += "; " + "; ".join(
             ("equilibrium" if e.drift_rate is None else f"steady drift at rate {e.drift_rate:.6g}")
-            + f" ({'stable' if e.stable else 'unstable'}, eigenvalues "
+            + f" ({e.stability}, eigenvalues "
             + ", ".join(f"{complex(z):.6g}" for z in e.eigenvalues)
             + ")"
             for e in found.equilibria
