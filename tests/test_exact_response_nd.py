@@ -337,3 +337,21 @@ def test_parallel_tracing_gives_the_serial_branches():
             assert p.parameter == q.parameter
             np.testing.assert_array_equal(p.y0, q.y0)
             np.testing.assert_array_equal(p.coordinate_amplitudes, q.coordinate_amplitudes)
+
+
+def test_detached_branch_is_found_and_closed():
+    # a closed loop of period-1 orbits inside [0.6447, 0.7199], reached by no other branch
+    res = exact_branches(builtin_system("nsd2"), (0.62, 0.75), workers=1, progress=False)
+    loops = [br for br in res.branches if br.closed]
+    assert loops
+    br = loops[0]
+    assert 0.62 < br.parameters.min() and br.parameters.max() < 0.75
+    first, last = br.points[0], br.points[-1]
+    scale = max(1.0, first.amplitude)
+    assert abs(first.parameter - last.parameter) < 0.02 * (0.75 - 0.62)
+    assert abs(first.amplitude - last.amplitude) < 0.05 * scale
+    for q in (br.points[len(br) // 4], br.points[(3 * len(br)) // 4]):
+        y, amps, mult = reference_orbit(q.parameter, q.y0)
+        np.testing.assert_allclose(q.y0, y, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(q.coordinate_amplitudes, amps[:2], rtol=1e-9, atol=1e-9)
+        assert_multipliers(q.multipliers, mult, 1e-7)
