@@ -1345,15 +1345,15 @@ class EventFlow(Flow):
 
     def _chunk_tols(self, s: Surface, chunk: Chunk, t: float) -> tuple[float, float]:
         """Rounding tolerance of ``h`` and the graze depth at a time of a step."""
-        x, v, _ = chunk.state(t)
+        x, v = chunk.states(np.array([t]))[:, 0]
         y = np.array([x, v])
         tol = _ZERO_ULPS * _EPS * (abs(s.a * x) + abs(s.b * v) + abs(s.c))
         return tol, max(tol, self._graze_depth(s, y))
 
     @staticmethod
     def _chunk_h(chunk: Chunk, a: float, b: float, c: float, t: float) -> float:
-        x, v, _ = chunk.state(t)
-        return a * x + b * v + c
+        x, v = chunk.states(np.array([t]))[:, 0]
+        return float(a * x + b * v + c)
 
     @staticmethod
     def _chunk_zero(
@@ -1368,23 +1368,24 @@ class EventFlow(Flow):
     ) -> float:
         """The first zero in ``[lo, hi]`` of ``side * h`` (``derivative``: of ``side * h'``)
         on the step's polynomial, where the function is >= 0 at ``lo`` and < 0 at ``hi``
-        (``derivative``: < 0 at ``lo``, >= 0 at ``hi``); Illinois regula falsi, to rounding
-        of the time."""
+        (``derivative``: < 0 at ``lo``, >= 0 at ``hi``): Newton steps on the polynomial
+        (crossings), kept inside the bracket by Illinois regula falsi, to rounding of the
+        time."""
         rule = chunk.rule
+        # the function and (crossings only: the rate of h' would need the jerk, so closest
+        # approaches use regula falsi alone) its rate at the nodes
         if derivative:
-            p, q, c, sign = chunk.v, chunk.u, 0.0, -side
+            g_nodes = -side * (a * chunk.v + b * chunk.u)
+            d_nodes = None
         else:
-            p, q, sign = chunk.x, chunk.v, side
-        # the rate of the function (crossings only: Newton steps; the rate of h' would need
-        # the jerk, so closest approaches use regula falsi alone)
-        r_p, r_q = (chunk.v, chunk.u) if not derivative else (None, None)
+            g_nodes = side * (a * chunk.x + b * chunk.v + c)
+            d_nodes = side * (a * chunk.v + b * chunk.u)
 
         def f(t: float) -> tuple[float, float]:
             row = interpolation_row(rule, float(chunk.s_of(t)))
-            val = sign * (a * float(row @ p) + b * float(row @ q) + c)
-            if r_p is None:
-                return val, math.nan
-            return val, sign * (a * float(row @ r_p) + b * float(row @ r_q))
+            if d_nodes is None:
+                return float(row @ g_nodes), math.nan
+            return float(row @ g_nodes), float(row @ d_nodes)
 
         f_lo, _ = f(lo)
         f_hi, d_hi = f(hi)
