@@ -939,7 +939,9 @@ def is_forced(system: Any) -> bool:
     period (:func:`limit_cycles`)."""
     if not system.F.has(system.t):
         return False
-    if system.free_parameters:  # e.g. Omega still to be set: the time dependence decides
+    if tuple(system.free_parameters) == ("Omega",):  # its value does not decide (F = 0 does)
+        return is_forced(system.with_params(Omega=1.0))
+    if system.free_parameters:  # amplitudes still to be set: the time dependence decides
         return True
     return any(om > 0.0 for om, _, _ in system.numeric_form()["harmonics"])
 
@@ -1805,10 +1807,13 @@ def _check_frequency_response(system: Any, listed: bool) -> None:
     from perturb.errors import ModelError
 
     if not is_forced(system):
+        from perturb.model.system_builtins import BUILTIN_SYSTEMS
+
+        model = system.name if system.name in BUILTIN_SYSTEMS else "MODEL"
         raise ModelError(
             f"system {system.name!r} is autonomous (no harmonic forcing): there is no forcing "
             "frequency to vary, so no frequency response; its periodic orbits are limit cycles "
-            f"of their own period: perturb periodic {system.name} (without --omega), or "
+            f"of their own period: perturb periodic {model} (without --omega), or "
             "perturb.solve.periodic_orbits(system) / limit_cycles(system)"
         )
     C = system.invariants()

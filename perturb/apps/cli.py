@@ -856,7 +856,12 @@ def _cmd_periodic(args: argparse.Namespace) -> int:
     osc = _model_from_arg(args.model, params)
     from perturb.solve import check_oscillator_output, is_forced, is_system
 
-    autonomous = is_system(osc) and not is_forced(osc)
+    # a forcing amplitude of 0 makes the system autonomous: decide with Omega set (to --omega,
+    # or any value when it is left out: it then only multiplies the vanished forcing's time)
+    at = osc
+    if is_system(osc) and "Omega" in osc.free_parameters:
+        at = osc.with_params(Omega=1.0 if args.omega is None else args.omega)
+    autonomous = is_system(osc) and not is_forced(at)
     if args.invariants is not None and not is_system(osc):
         raise ParameterError(
             f"--invariants {args.invariants}: an option of systems with conserved "
@@ -869,7 +874,7 @@ def _cmd_periodic(args: argparse.Namespace) -> int:
             "term, e.g. belt) goes without it"
         )
     if is_system(osc):
-        text = _periodic_autonomous(args, osc) if autonomous else _periodic_system(args, osc)
+        text = _periodic_autonomous(args, at) if autonomous else _periodic_system(args, osc)
         if args.out:
             _write_text(args.out, text)
         else:
