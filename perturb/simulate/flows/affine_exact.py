@@ -1219,10 +1219,11 @@ def _solve_halley(piece, j, a, w, ga, gw, start):
     Hermite start one step reaches full precision), never leaving the bracket; stops at the
     resolution of ``t`` (``4 eps |t|``).  Returns ``(root, t, g'(t), g''(t))`` with ``t``
     the last point evaluated (within rounding of the root)."""
-    if gw == 0.0:
-        _, d1, d2 = piece.g012(j, w)
-        return w, w, d1, d2
-    lo, hi = a, w  # g(lo) > 0 >= g(hi)
+    for end, g_end in ((w, gw), (a, ga)):
+        if g_end == 0.0:  # (the root is an end point, as in _solve)
+            _, d1, d2 = piece.g012(j, end)
+            return end, end, d1, d2
+    lo, hi = a, w  # g(lo) > 0 > g(hi)
     t = start if a < start < w else a + (w - a) * ga / (ga - gw)
     if not a < t < w:
         t = 0.5 * (a + w)
