@@ -1529,6 +1529,13 @@ def limit_cycles(
         samples.append(Yf)
         end = np.asarray(flow(orbit.y0, 0.0, orbit.period).y, dtype=float)
         shifts.append(0.0 if d is None else float(d @ (end - orbit.y0)) / float(d @ d))
+    family = [o for o in cycles if np.all(np.abs(np.abs(o.multipliers) - 1.0) <= 1e-6)]
+    if family:
+        notes.append(
+            f"{len(family)} of the cycles have every multiplier on the unit circle at 1: they "
+            "are members of a continuous family (a conservative system), not isolated limit "
+            "cycles; the ones listed are those the runs happened to settle near"
+        )
     order = sorted(range(len(cycles)), key=lambda i: float(cycles[i].max_abs(c_out)))
     return LimitCycles(
         [cycles[i] for i in order],

@@ -311,3 +311,24 @@ def test_autonomous_misuse_is_one_clear_line(argv, match, capsys):
     import re
 
     assert re.search(match, err), err
+
+
+def test_unforced_oscillator_equation_gives_its_limit_cycle():
+    # one equation without forcing: the one-coordinate system's limit cycle (van der Pol)
+    code, rows, err = cli("periodic", "x'' - 0.5*(1 - x^2)*x' + x = 0")
+    assert code == 0, err
+    found = cycles(rows)
+    assert len(found) == 1, err
+
+    def rhs(t, y):
+        return [y[1], 0.5 * (1 - y[0] ** 2) * y[1] - y[0]]
+
+    def top(t, y):
+        return y[1]
+
+    top.direction = -1
+    settle = solve_ivp(rhs, (0.0, 300.0), [2.0, 0.0], "DOP853", rtol=RTOL, atol=ATOL)
+    s = solve_ivp(rhs, (0.0, 80.0), settle.y[:, -1], "DOP853", rtol=RTOL, atol=ATOL, events=top)
+    tops = s.t_events[0]
+    assert float(found[0]["period"]) == pytest.approx((tops[-1] - tops[-11]) / 10, abs=1e-8)
+    assert float(found[0]["amplitude_x"]) == pytest.approx(float(s.y_events[0][-1][0]), abs=1e-8)

@@ -856,6 +856,18 @@ def _cmd_periodic(args: argparse.Namespace) -> int:
     osc = _model_from_arg(args.model, params)
     from perturb.solve import check_oscillator_output, is_forced, is_system
 
+    if not is_system(osc) and args.omega is None and args.invariants is None:
+        # an oscillator without forcing (x'' - eps (1 - x^2) x' + x = 0): its limit cycles,
+        # as the one-coordinate system
+        from perturb.model.system import System
+
+        try:
+            as_system = System.from_oscillator(osc)
+            if not is_forced(as_system):
+                check_oscillator_output(osc, args.output)
+                osc = as_system
+        except PerturbError:
+            pass  # not expressible as a system: --omega is then required below
     # a forcing amplitude of 0 makes the system autonomous: decide with Omega set (to --omega,
     # or any value when it is left out: it then only multiplies the vanished forcing's time)
     at = osc
