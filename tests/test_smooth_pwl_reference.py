@@ -278,3 +278,19 @@ def test_periodic_orbits_front_door_matches_the_reference_states():
         assert np.max(np.abs(orbit.y0 - y_ref)) <= 1e-8 * max(1.0, np.max(np.abs(y_ref)))
         assert abs(orbit.amplitude - amp_ref) <= 1e-8 * amp_ref
         assert abs(orbit.max_multiplier - mult_ref) <= 1e-5
+
+
+def test_bad_arguments_are_named():
+    from perturb.errors import ParameterError
+
+    osc = Oscillator.parse(EQUATION).with_params({"Omega": 1.0})
+    with pytest.raises(ParameterError, match="integrator = 'rk4'"):
+        EventFlow(osc, integrator="rk4")
+
+    def field(t, x, v):
+        return -x, -1.0, 0.0
+
+    with pytest.raises(ParameterError, match="n = 2"):
+        ChebyshevStep(field, rtol=1e-10, atol=1e-12, n=2)
+    with pytest.raises(ParameterError, match="rtol = -1"):
+        ChebyshevStep(field, rtol=-1, atol=1e-12)

@@ -39,6 +39,8 @@ import numpy as np
 from numpy.polynomial import chebyshev as cheb
 from scipy.linalg import lapack
 
+from perturb.errors import ParameterError
+
 __all__ = [
     "ChebyshevRule",
     "ChebyshevStep",
@@ -184,6 +186,11 @@ class ChebyshevStep:
         atol: float,
         n: int = 24,
     ) -> None:
+        if isinstance(n, bool) or not isinstance(n, int) or not 4 <= n <= 64:
+            raise ParameterError(f"n = {n!r}: expected a whole number from 4 to 64")
+        for name, value in (("rtol", rtol), ("atol", atol)):
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ParameterError(f"{name} = {value!r}: expected a positive finite number")
         self.field = field
         self.rtol, self.atol = float(rtol), float(atol)
         self.rule = chebyshev_rule(n)
@@ -205,9 +212,27 @@ class ChebyshevStep:
         sensitivity: bool,
         u0: np.ndarray | None = None,
     ) -> tuple[Chunk | None, float]:
-        """One step of length ``H``: ``(chunk, error ratio)``, chunk None when Newton fails or
-        the error estimate exceeds the tolerance (the ratio then says by how much; ``inf``
-        for a failed Newton iteration)."""
+        """One step of length ``H`` from ``(ta, x0, v0)``.
+
+        Parameters
+        ----------
+        ta, x0, v0
+            Start time and state.
+        H
+            Step length (positive).
+        sensitivity
+            Also compute the node sensitivities ``d(x_k, v_k)/d(x0, v0)``.
+        u0
+            Starting accelerations at the nodes for Newton (default: the field's value at
+            the start, at every node).
+
+        Returns
+        -------
+        (Chunk or None, float)
+            The step and its error ratio (error estimate over tolerance, at most 1), or None
+            when Newton fails (ratio ``inf``) or the estimate exceeds the tolerance (the ratio
+            says by how much: the caller shortens the step).
+        """
         rule = self.rule
         n1 = rule.n + 1
         h1 = 0.5 * H
