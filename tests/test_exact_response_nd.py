@@ -355,3 +355,13 @@ def test_detached_branch_is_found_and_closed():
         np.testing.assert_allclose(q.y0, y, rtol=1e-9, atol=1e-9)
         np.testing.assert_allclose(q.coordinate_amplitudes, amps[:2], rtol=1e-9, atol=1e-9)
         assert_multipliers(q.multipliers, mult, 1e-7)
+
+
+def test_undamped_and_unforced_systems_are_explained():
+    res = exact_branches(
+        builtin_system("nsd2", mu1=0.0, mu2=0.0), (1.0, 1.2), workers=1, progress=False
+    )
+    assert res.branches == () and "undamped" in res.notes[0]
+    # the mount is a step response: no forcing frequency to continue in
+    with pytest.raises(ModelError, match="no parameter 'Omega'"):
+        exact_branches(builtin_system("mount"), (1.0, 1.2), workers=1, progress=False)
