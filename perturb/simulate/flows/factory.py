@@ -611,9 +611,10 @@ class SystemFlowFamily(FlowFamily):
             self._scaled = self._frequency_scaling()
 
     def __repr__(self) -> str:
-        return (
-            f"FlowFamily({self.system.name}, {self.parameter}, {'exact' if self.exact else 'ode'})"
-        )
+        # (also for a half-built family: repr is called when __init__ raises)
+        name = getattr(getattr(self, "system", None), "name", "?")
+        kind = "exact" if getattr(self, "exact", False) else "ode"
+        return f"FlowFamily({name}, {getattr(self, 'parameter', '?')}, {kind})"
 
     def _affine(self, value: float) -> PiecewiseAffineSystem:
         return self.system.with_params({self.parameter: value}).piecewise_affine()
