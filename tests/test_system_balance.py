@@ -297,3 +297,27 @@ def test_monodromy_with_a_jump_equals_exact_orbit():
     sb = SystemBalance(system, H)
     mono = sb.monodromy(_coefficients(Y[:, :2], H).reshape(-1), W)
     assert np.abs(mono - orb.monodromy).max() < 2e-4
+
+
+def test_branch_response_columns_and_output():
+    """The branch's output measures equal the coordinates' ones for output = a coordinate,
+    and the Response branch carries them; the output x1 - x2 is measured on its own series."""
+    system = builtin_system("nsd2").with_params(k=0.3, F=0.6)
+    br = system_balance_branch(system, (1.7, 2.0), harmonics=7, output="x1 - x2")
+    assert br.output == "x1 - x2"
+    cols = br.columns()
+    assert set(cols) == {"amplitude_x1", "amplitude_x2", "mean_x1", "mean_x2"}
+    W = br.Omega
+    # independent: the difference series sampled densely
+    th = np.linspace(0, 2 * np.pi, 4001)
+    H = 7
+    k = np.arange(1, H + 1)
+    D = br.U[:, 0, :] - br.U[:, 1, :]
+    vals = D[:, :1] + D[:, 1::2] @ np.cos(np.outer(k, th)) + D[:, 2::2] @ np.sin(np.outer(k, th))
+    assert np.allclose(br.output_amplitude, np.abs(vals).max(axis=1), rtol=1e-6, atol=0)
+    resp = br.to_response()
+    b = resp.branches[0]
+    assert np.array_equal(b.omega, W) and np.array_equal(b.amplitude, br.output_amplitude)
+    assert np.allclose(b.first_harmonic_amplitude, np.hypot(D[:, 1], D[:, 2]))
+    br1 = system_balance_branch(system, (1.7, 2.0), harmonics=7, output="x2")
+    assert np.allclose(br1.output_amplitude, br1.amplitudes["x2"], rtol=1e-12, atol=0)

@@ -121,6 +121,7 @@ from perturb.numeric.continuation import (
     ContinuationError,
     continue_curve,
 )
+from perturb.response import Branch, Response
 
 __all__ = [
     "SystemBalance",
@@ -1178,6 +1179,11 @@ class SystemBalanceBranch:
         Parameter values of the folds the continuation located.
     curve : ContinuationCurve
         The raw continuation result.
+    output_coefficients : numpy.ndarray
+        ``(P, size)`` coefficients of the output.
+    m : int
+    model : str
+        The system's name.
     """
 
     Omega: np.ndarray
@@ -1190,9 +1196,63 @@ class SystemBalanceBranch:
     stable: np.ndarray | None
     folds: tuple[float, ...]
     curve: ContinuationCurve
+    output_coefficients: np.ndarray
+    m: int = 1
+    model: str = ""
 
     def __len__(self) -> int:
         return int(self.Omega.size)
+
+    @property
+    def output_first_harmonic(self) -> np.ndarray:
+        """Amplitude of the output's component at the forcing frequency (harmonic ``m``)."""
+        a = self.output_coefficients[:, 2 * self.m - 1]
+        b = self.output_coefficients[:, 2 * self.m]
+        return np.hypot(a, b)
+
+    @property
+    def output_mean(self) -> np.ndarray:
+        return self.output_coefficients[:, 0].copy()
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """``amplitude_<name>`` (max |z_j|) and ``mean_<name>`` per coordinate, as the exact
+        response of a System names them."""
+        out = {f"amplitude_{c}": self.amplitudes[c] for c in self.coordinates}
+        out.update({f"mean_{c}": self.U[:, j, 0].copy() for j, c in enumerate(self.coordinates)})
+        return out
+
+    def to_branch(self) -> Branch:
+        """The standard :class:`~perturb.response.Branch` of the output (stability columns
+        NaN-free only when the branch was computed with ``stability=True``)."""
+        n = len(self)
+        stable = self.stable if self.stable is not None else np.zeros(n, dtype=bool)
+        mm = self.max_multiplier if self.max_multiplier is not None else np.full(n, np.nan)
+        return Branch(
+            self.Omega.copy(),
+            self.output_amplitude.copy(),
+            self.output_first_harmonic,
+            self.output_mean,
+            stable.copy(),
+            mm.copy(),
+        )
+
+    def to_response(self) -> Response:
+        """A one-branch :class:`~perturb.response.Response` (method ``"hb-system"``)."""
+        folds = []
+        for lam in self.folds:
+            i = int(np.argmin(np.abs(self.Omega - lam)))
+            folds.append((float(lam), float(self.output_amplitude[i])))
+        return Response(
+            (self.to_branch(),),
+            "hb-system",
+            self.model,
+            folds=tuple(folds),
+            notes=(
+                f"harmonic balance of {len(self.coordinates)} coordinates, H = "
+                f"{(self.U.shape[2] - 1) // 2}, m = {self.m}; output {self.output}; "
+                f"continuation stopped: {self.curve.stop_reason}",
+            ),
+        )
 
 
 def _stable_start(sb: SystemBalance, W: float) -> np.ndarray:
@@ -1312,9 +1372,8 @@ def system_balance_branch(
     Ws = np.asarray(curve.lam, dtype=float)
     U3 = Us.reshape(Ws.size, sb.neq, sb.size)
     amps = {c: _max_abs_many(sb.basis, U3[:, j, :]) for j, c in enumerate(sb.coordinates)}
-    out_amp = _max_abs_many(
-        sb.basis, np.array([sb.signal(U3[p], Ws[p], vec) for p in range(Ws.size)])
-    )
+    out_coef = np.array([sb.signal(U3[p], Ws[p], vec) for p in range(Ws.size)])
+    out_amp = _max_abs_many(sb.basis, out_coef)
     mm = st = None
     if stability:
         mm = np.array([float(np.abs(sb.multipliers(Us[p], Ws[p])).max()) for p in range(Ws.size)])
@@ -1330,4 +1389,7 @@ def system_balance_branch(
         st,
         tuple(float(f.lam) for f in curve.folds),
         curve,
+        out_coef,
+        sb.m,
+        system.name,
     )
