@@ -1137,27 +1137,10 @@ class EventFlow(Flow):
     def _region_segment(self, st: _State, t1: float, out: _Run) -> bool:
         self._refresh(st)
         mode = self._mode(st.sigma)
-        acc = mode.acc
         active = sorted(mode.active)
-        monitors = [
-            self._surface_monitor(j, st.sigma[j], st.guard.get(j, -np.inf), mode) for j in active
-        ]
-        if st.phi is None:
-
-            def fun(t: float, z: np.ndarray) -> np.ndarray:
-                return np.array([z[1], acc(t, z[0], z[1])])
-
-            z0 = st.y
-        else:
-            derivs = mode.derivs
-
-            def fun(t: float, z: np.ndarray) -> np.ndarray:
-                a, ax, av, _ = derivs(t, z[0], z[1])
-                return np.array([z[1], a, z[4], z[5], ax * z[2] + av * z[4], ax * z[3] + av * z[5]])
-
-            z0 = np.concatenate([st.y, st.phi.ravel()])
-        t_start = st.t
         res = None
+        t_start = st.t
+        z0 = st.y if st.phi is None else np.concatenate([st.y, st.phi.ravel()])
         if mode.stepper is not None:
             res = self._segment_chebyshev(mode.stepper, st, t1, active, out)
             if res[1] == "fallback":
@@ -1167,7 +1150,19 @@ class EventFlow(Flow):
                 res = None
         if res is None:
             out.chunks = None
-            res = self._segment(fun, t_start, t1, z0, monitors, out, _xv_state)
+            monitors = [
+                self._surface_monitor(j, st.sigma[j], st.guard.get(j, -np.inf), mode)
+                for j in active
+            ]
+            res = self._segment(
+                self._dop853_field(mode, st.phi is not None),
+                t_start,
+                t1,
+                z0,
+                monitors,
+                out,
+                _xv_state,
+            )
         hit, kind, t_e, z_e = res
         y_e = z_e[:2].copy()
         phi = None if st.phi is None else z_e[2:].reshape(2, 2).copy()
@@ -1424,6 +1419,24 @@ class EventFlow(Flow):
         # a crossing: the first time known beyond the surface (the state is then projected
         # onto it, as after DOP853's event location); a closest approach: either end
         return hi
+
+    @staticmethod
+    def _dop853_field(mode: _Mode, sensitivity: bool) -> Callable:
+        """The frozen field of a mode for ``solve_ivp`` (with the variational equations)."""
+        if not sensitivity:
+            acc = mode.acc
+
+            def fun(t: float, z: np.ndarray) -> np.ndarray:
+                return np.array([z[1], acc(t, z[0], z[1])])
+
+            return fun
+        derivs = mode.derivs
+
+        def fun_s(t: float, z: np.ndarray) -> np.ndarray:
+            a, ax, av, _ = derivs(t, z[0], z[1])
+            return np.array([z[1], a, z[4], z[5], ax * z[2] + av * z[4], ax * z[3] + av * z[5]])
+
+        return fun_s
 
     def _classify(
         self, st: _State, j: int, t_e: float, y_e: np.ndarray, phi: np.ndarray | None, out: _Run

@@ -74,6 +74,8 @@ class ChebyshevRule:
     to_coef: np.ndarray
     #: the rows of ``to_coef`` giving the last three Chebyshev coefficients (error estimate)
     tail: np.ndarray
+    #: the identity of the nodes' dimension
+    eye: np.ndarray
 
 
 @lru_cache(maxsize=8)
@@ -101,7 +103,8 @@ def chebyshev_rule(n: int) -> ChebyshevRule:
     Q2.setflags(write=False)
     tail = np.ascontiguousarray(to_coef[-3:])
     tail.setflags(write=False)
-    return ChebyshevRule(n, s, bary, Q, Q2, to_coef, tail)
+    eye.setflags(write=False)
+    return ChebyshevRule(n, s, bary, Q, Q2, to_coef, tail, eye)
 
 
 def interpolation_row(rule: ChebyshevRule, s: float) -> np.ndarray:
@@ -247,7 +250,7 @@ class ChebyshevStep:
             u = np.full(n1, float(a[0]))
         else:
             u = np.array(u0, dtype=float)
-        eye = np.eye(n1)
+        eye = rule.eye
         # Newton stops on a small residual, or on an update so small that the next one would
         # be below rounding (quadratic convergence); the iterates do not depend on
         # ``sensitivity``, so a run with and without it takes the same steps
