@@ -149,6 +149,8 @@ def test_make_flow_dispatches_systems():
     from perturb.model.system_builtins import builtin_system
     from perturb.simulate.flows.affine_exact import AffineExactFlow
     from perturb.simulate.flows.factory import SystemODEFlow, make_flow
+    from perturb.simulate.flows.system_events import SystemEventFlow
+    from perturb.simulate.flows.system_lcp import SystemLCPFlow
 
     nsd2 = builtin_system("nsd2", Omega=1.2)
     exact = make_flow(nsd2)
@@ -165,8 +167,9 @@ def test_make_flow_dispatches_systems():
     a = ode(y0, 0.0, T, sensitivity=True).sensitivity
     b = exact(y0, 0.0, T, sensitivity=True).sensitivity
     np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)
-    # not piecewise linear: the ODE flow of System.field (autonomous belt)
-    belt = make_flow(builtin_system("belt"))  # Stribeck exp(-|v|): not PWL
+    # not piecewise linear: the ODE flow of System.field (autonomous belt); a friction
+    # contact gets the event-driven flow by default, method="ode" steps over the sticking
+    belt = make_flow(builtin_system("belt"), method="ode")  # Stribeck exp(-|v|): not PWL
     assert isinstance(belt, SystemODEFlow) and belt.autonomous and belt.period is None
     # x'' = -x - (mu_k + (mu_s - mu_k) exp(-|x' - v_b| / v_s)) sign(x' - v_b), x = x' = 1
     assert belt.vector_field(0.0, [1.0, 1.0]) == pytest.approx(
@@ -175,14 +178,25 @@ def test_make_flow_dispatches_systems():
     h = 1e-6
     fd = (belt.vector_field(0.0, [1.0, 1.0 + h]) - belt.vector_field(0.0, [1.0, 1.0 - h])) / 2 / h
     np.testing.assert_allclose(belt.jacobian(0.0, [1.0, 1.0])[:, 1], fd, rtol=1e-8)
-    coulomb = make_flow(builtin_system("belt", mu_s=0.25, mu_k=0.25))  # sign(): PWL
-    assert isinstance(coulomb, AffineExactFlow)
+    # friction contacts and stops switch modes (sticking, impacts, resting): by default the
+    # event-driven flow, which locates those events; with the modes fixed, the exact flow
+    coulomb = builtin_system("belt", mu_s=0.25, mu_k=0.25)  # sign(): PWL
+    assert isinstance(make_flow(coulomb), SystemEventFlow)
+    assert isinstance(make_flow(coulomb, active={"friction(x')": None}), AffineExactFlow)
+    assert isinstance(make_flow(coulomb, method="exact"), AffineExactFlow)
     with pytest.raises(ModelError, match="not piecewise linear"):
         make_flow(builtin_system("belt"), method="exact")
-    # stops are constraints: a mode for each is required
+    assert isinstance(make_flow(builtin_system("mount")), SystemEventFlow)
     with pytest.raises(ModelError, match="decoupler"):
-        make_flow(builtin_system("mount"))
+        make_flow(builtin_system("mount"), method="exact")
     assert isinstance(make_flow(builtin_system("mount"), active={"decoupler": -1}), AffineExactFlow)
+    assert isinstance(make_flow(builtin_system("mount"), method="lcp", h=1e-4), SystemLCPFlow)
+    with pytest.raises(ParameterError, match="h = None"):
+        make_flow(builtin_system("mount"), method="lcp")
+    with pytest.raises(ParameterError, match="h = 0.1"):
+        make_flow(builtin_system("mount"), h=0.1)
+    with pytest.raises(ParameterError, match="method = 'rk4'"):
+        make_flow(builtin_system("mount"), method="rk4")
     with pytest.raises(ParameterError, match="Omega"):
         make_flow(nsd2.piecewise_affine(), 1.0)
     with pytest.raises(ParameterError, match="active"):

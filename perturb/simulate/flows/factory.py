@@ -46,7 +46,8 @@ from perturb.simulate.flows.system import NumericRHS, frequency_symbol
 
 __all__ = ["FlowFamily", "FlowMethod", "SystemFlowFamily", "SystemODEFlow", "make_flow"]
 
-FlowMethod = Literal["auto", "exact", "ode"]
+FlowMethod = Literal["auto", "exact", "ode", "events", "lcp"]
+_METHODS = ("auto", "exact", "ode", "events", "lcp")
 
 
 def _real_positive(name: str, value: object) -> float:
@@ -69,8 +70,10 @@ def make_flow(
     rtol: float = 1e-10,
     atol: float = 1e-12,
     active: Mapping[str, int | None] | None = None,
+    h: float | None = None,
 ) -> Flow:
-    """One flow of ``osc``: exact for piecewise-linear models, else DOP853.
+    """One flow of ``osc``: exact for piecewise-linear models, event-driven for systems with
+    contacts, else DOP853.
 
     Parameters
     ----------
@@ -85,15 +88,24 @@ def make_flow(
         ``"auto"``: the exact flow when the model is piecewise linear (:class:`ExactPWLFlow`
         for an oscillator, :class:`AffineExactFlow` for a system; falling back to the ODE flow
         when the exact flow rejects a feature of it), else the ODE flow (:class:`ODEFlow`,
-        :class:`SystemODEFlow`); ``"exact"``: require the exact flow; ``"ode"``: always the
-        ODE flow.
+        :class:`SystemODEFlow`). A system with stops or friction contacts and no ``active``
+        gets the event-driven flow (:class:`~perturb.simulate.flows.system_events.
+        SystemEventFlow`): impacts, resting and sticking are events that neither the exact
+        nor the ODE flow switches on its own. ``"exact"``: require the exact flow; ``"ode"``:
+        always the ODE flow; ``"events"``: the event-driven flow
+        (:class:`~perturb.simulate.flows.event_driven.EventFlow` for an oscillator);
+        ``"lcp"``: systems only, the Moreau–Jean time-stepper
+        (:class:`~perturb.simulate.flows.system_lcp.SystemLCPFlow`, step ``h``; first order,
+        no sensitivity).
     rtol, atol
-        Tolerances of the ODE flows (the exact flows have none).
+        Tolerances of the ODE and event-driven flows (the exact flows have none).
     active
         Systems only: the mode of every stop (and sticking friction contact), as
         :meth:`System.piecewise_affine <perturb.model.system.System.piecewise_affine>` takes
-        it (``None`` free, ``-1``/``+1`` resting on the lower/upper limit). A system with stops
-        needs it: a stop is a constraint, which neither flow here switches on its own.
+        it (``None`` free, ``-1``/``+1`` resting on the lower/upper limit): the exact and ODE
+        flows then keep these modes for the whole run.
+    h
+        The step of ``method="lcp"`` (required there, refused elsewhere).
 
     Raises
     ------
@@ -102,11 +114,19 @@ def make_flow(
         without such a parameter or for a ``PiecewiseAffineSystem``, ``active`` for an
         oscillator.
     ModelError
-        ``method="exact"`` and the model is not piecewise linear; a system with stops and no
-        ``active``.
+        ``method="exact"`` and the model is not piecewise linear, or it has stops or friction
+        contacts and no ``active``.
     """
+    if method not in _METHODS:
+        raise ParameterError(
+            f"method = {method!r}: expected one of {', '.join(map(repr, _METHODS))}"
+        )
+    if (h is None) != (method != "lcp"):
+        raise ParameterError(
+            f"h = {h!r}: the step is for method='lcp' (required there), not method={method!r}"
+        )
     if isinstance(osc, System | PiecewiseAffineSystem):
-        return _make_system_flow(osc, Omega, method, rtol, atol, active)
+        return _make_system_flow(osc, Omega, method, rtol, atol, active, h)
     if not isinstance(osc, Oscillator):
         raise ParameterError(
             f"osc = {osc!r}: expected an Oscillator, a System or a PiecewiseAffineSystem"
@@ -115,12 +135,17 @@ def make_flow(
         raise ParameterError(
             f"active = {active!r}: stops are for systems (System), not oscillators"
         )
-    if method not in ("auto", "exact", "ode"):
-        raise ParameterError(f"method = {method!r}: expected 'auto', 'exact' or 'ode'")
+    if method == "lcp":
+        raise ParameterError(
+            "method = 'lcp': the Moreau flow is for systems (System); for an oscillator use "
+            "perturb.simulate.flows.lcp"
+        )
     if _real_positive("rtol", rtol) >= 1.0:
         raise ParameterError(f"rtol = {rtol!r}: expected a relative tolerance in (0, 1)")
     rtol = float(rtol)
     atol = _real_positive("atol", atol)
+    if method == "events":
+        return EventFlow(osc, Omega, rtol=rtol, atol=atol)
     if method == "exact":
         if not osc.is_piecewise_linear:
             raise ModelError(
@@ -143,10 +168,9 @@ def _make_system_flow(
     rtol: float,
     atol: float,
     active: Mapping[str, int | None] | None,
+    h: float | None,
 ) -> Flow:
     """:func:`make_flow` for a system of several coordinates (the same checks and choice)."""
-    if method not in ("auto", "exact", "ode"):
-        raise ParameterError(f"method = {method!r}: expected 'auto', 'exact' or 'ode'")
     if _real_positive("rtol", rtol) >= 1.0:
         raise ParameterError(f"rtol = {rtol!r}: expected a relative tolerance in (0, 1)")
     rtol = float(rtol)
@@ -161,6 +185,11 @@ def _make_system_flow(
             raise ParameterError(
                 f"active = {active!r}: a PiecewiseAffineSystem has its stop modes built in"
             )
+        if method in ("events", "lcp"):
+            raise ParameterError(
+                f"method = {method!r}: a PiecewiseAffineSystem has fixed contact modes; pass "
+                "its System"
+            )
         if method == "ode":
             return SystemODEFlow(model, rtol=rtol, atol=atol)
         return AffineExactFlow(model)
@@ -171,6 +200,21 @@ def _make_system_flow(
                 f"one of {', '.join(model.params) or 'none'}); use with_params"
             )
         model = model.with_params(Omega=Omega)
+    if method == "lcp":
+        from perturb.simulate.flows.system_lcp import SystemLCPFlow
+
+        if active is not None:
+            raise ParameterError(f"active = {active!r}: the Moreau flow switches contacts itself")
+        return SystemLCPFlow(model, _real_positive("h", h))
+    contacts = [e.name for e in model.elements if e.kind in ("stop", "friction")]
+    if method == "events" or (method == "auto" and contacts and active is None):
+        from perturb.simulate.flows.system_events import SystemEventFlow
+
+        if active is not None:
+            raise ParameterError(
+                f"active = {active!r}: the event-driven flow switches contacts itself"
+            )
+        return SystemEventFlow(model, rtol=rtol, atol=atol)
     stops = [e.name for e in model.elements if e.kind == "stop"]
     missing = [s for s in stops if s not in dict(active or {})]
     if missing:
