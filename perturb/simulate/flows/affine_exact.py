@@ -138,6 +138,7 @@ Limitations
 from __future__ import annotations
 
 import bisect
+import cmath
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -454,6 +455,7 @@ class _ModalRegion:
         self.YWbase = np.concatenate([self.Ybase, self.Wbase], axis=0)
         self.n = n
         self.sig = np.array(key, dtype=float)
+        self.mupow_sig = self.mupow[:3, None, :] * self.sig[None, :, None]
         self.absd = np.abs(model.d)
         self.amu1 = self.amupow[1]
         self.amu1_list = self.amu1.tolist()
@@ -484,7 +486,7 @@ class _ModalPiece:
         "mu",
         "Y",
         "W",
-        "Wp",
+        "_Wp",
         "aWp",
         "tol",
         "sig",
@@ -505,9 +507,14 @@ class _ModalPiece:
         self.ns = region.Wbase.shape[0]
         om = region.model.omegas
         self.mu = region.mu
-        if om.size:
+        if om.size == 1:
+            # (one harmonic input, the common case: Python complex arithmetic for its phase)
+            ph1 = cmath.exp(complex(0.0, float(om[0]) * t0))
+            yp = region.yconst + (ph1 * region.Z[0]).real  # the particular solution at t0
+            coef = np.concatenate([region.Vinv @ (y0 - yp), _ONE, (ph1,)])
+        elif om.size:
             ph = np.exp(1j * om * t0)
-            yp = region.yconst + (ph @ region.Z).real  # the particular solution at t0
+            yp = region.yconst + (ph @ region.Z).real
             coef = np.concatenate([region.Vinv @ (y0 - yp), _ONE, ph])
         else:
             coef = np.concatenate([region.Vinv @ (y0 - region.yconst), _ONE])
@@ -516,9 +523,9 @@ class _ModalPiece:
         aYW = np.abs(YW)
         self.Y = YW[:n]
         W = self.W = YW[n:]
-        self.Wp = W[None] * region.mupow[:, None, :]  # (4, ns, nt): W mu^p
-        # the same for g = sigma s (the scan's function; a sign flip is exact)
-        self.Gp = self.Wp[:3] * region.sig[None, :, None]
+        self._Wp = None  # W mu^p, (4, ns, nt): built when first needed (see Wp)
+        # g = sigma s (the scan's function): W mu^p sigma, p < 3 (a sign flip is exact)
+        self.Gp = W[None] * region.mupow_sig
         aW = aYW[n:]
         self.aWp = aW[None] * region.amupow[:, None, :]
         self.colnorm = aYW[:n].sum(axis=0)
@@ -599,6 +606,13 @@ class _ModalPiece:
         )
         return G, B
 
+    @property
+    def Wp(self) -> np.ndarray:
+        """``W mu^p``, shape ``(4, ns, nt)`` (the derivatives of ``s``)."""
+        if self._Wp is None:
+            self._Wp = self.W[None] * self.region.mupow[:, None, :]
+        return self._Wp
+
     def g01(self, j: int, tau: float) -> tuple[float, float]:
         """``(g_j, g_j')`` at ``tau`` as Python floats (``g_j = sigma_j s_j``; the root
         solvers' function)."""
@@ -606,8 +620,7 @@ class _ModalPiece:
             dd = self.derivs(j, tau)
             sg = float(self.sig[j])
             return sg * float(dd[0]), sg * float(dd[1])
-        v, d = (self.Wp[:2, j, :] @ np.exp(self.mu * tau)).real.tolist()
-        return (v, d) if self.sig[j] > 0.0 else (-v, -d)
+        return tuple((self.Gp[:2, j, :] @ np.exp(self.mu * tau)).real.tolist())
 
     def g012(self, j: int, tau: float) -> tuple[float, float, float]:
         """``(g_j, g_j', g_j'')`` at ``tau`` as Python floats."""
