@@ -367,12 +367,6 @@ except PerturbError as exc:
 
 
 @pytest.mark.skipif(not os.path.exists("/proc/self/statm"), reason="needs /proc (Linux)")
-@pytest.mark.xfail(
-    strict=True,
-    reason="affine_exact: on cond(M) = 1e12 the expm representation scans at a constant step "
-    "3.5e-13 and keeps every grid node, so AffineExactFlow grows by ~200 B per interval (GBs) "
-    "long before its 5e7-interval budget raises (reproducer in the LCP helper's bug note)",
-)
 def test_near_singular_mass_flow_is_bounded():
     """Through the flow object (the budget users get): the answer, or a PerturbError, within
     60 s and 512 MB of extra memory (a subprocess, so neither can hang or exhaust this run)."""
@@ -396,7 +390,8 @@ def test_near_singular_mass_flow_is_bounded():
         # the gap (|x1| <= 0.5) is not reached from this start: the linear solution holds
         np.testing.assert_allclose(y, expm(2.0 * A) @ [0.1, -0.05, 0.3, 0.2], atol=1e-5)
     else:
-        assert out.startswith("PERTURBERROR") and "max_steps" in out
+        # refused at once, naming the cause (a stiff region) and the budget
+        assert out.startswith("PERTURBERROR") and "max_steps" in out and "stiff" in out
 
 
 def test_near_singular_mass_by_lcp_stepper():
@@ -442,3 +437,18 @@ def test_exactly_singular_mass_is_refused():
         make_flow(sys_, method="exact")
     with pytest.raises(ModelError, match="singular"):
         sys_.numeric_form()
+
+
+def test_long_visit_of_a_defective_region_keeps_exact_crossings():
+    """A free mass (A = [[0, 1], [0, 0]]: a Jordan block, the augmented-exponential form)
+    coasts for ~27 000 grid intervals before it reaches the spring at x = 1e5: the long visit
+    keeps only every 32nd grid node (bounded memory), and the crossing and the dense
+    trajectory between nodes are still the closed form x = 30 t, t_c = 1e5 / 30."""
+    sys_ = System.from_matrices([[1]], [[0]], [[0]], elements=[gap("x1", 1e5, 1.0)])
+    run = propagate(sys_.piecewise_affine(), np.array([0.0, 30.0]), 0.0, 3400.0, dense=True)
+    assert run.stats.n_grid > 20_000 and run.stats.n_expm_pieces >= 1
+    first = run.events[0]
+    assert first.time == pytest.approx(1e5 / 30, rel=4e-16)
+    np.testing.assert_allclose(first.y, [1e5, 30.0], rtol=1e-15)
+    ts = np.linspace(0.0, 3333.0, 101) + 0.0123  # between grid nodes
+    np.testing.assert_allclose(run.trajectory(ts)[0], 30.0 * ts, rtol=1e-14, atol=1e-10)

@@ -742,7 +742,12 @@ class _ExpmPiece:
         return self.region.h
 
     def _node(self, tau: float, z: np.ndarray) -> None:
-        if tau > self._tz[-1]:
+        # A long visit keeps every _NODE_STRIDE-th node only (z between nodes is reached by
+        # the Taylor sub-steps of _expm_apply): a stiff region scanned for millions of grid
+        # intervals would otherwise hold ~200 B per interval (gigabytes before the budget)
+        if tau > self._tz[-1] and (
+            len(self._tz) < _NODES_DENSE or tau - self._tz[-1] >= _NODE_STRIDE * self.region.h
+        ):
             self._tz.append(tau)
             self._zz.append(z)
 
@@ -808,6 +813,11 @@ class _ExpmPiece:
         return float(
             reg.Cp_norm[p, j] * np.linalg.norm(self.z(float(ta))) * math.exp(reg.nu * (tb - ta))
         )
+
+
+#: an expm piece keeps every grid node up to this many, then one per _NODE_STRIDE intervals
+_NODES_DENSE = 8192
+_NODE_STRIDE = 32
 
 
 def _expm_apply(M: np.ndarray, norm: float, tau: float, z: np.ndarray) -> np.ndarray:
@@ -1277,6 +1287,18 @@ def _scan(piece, tau_end: float, touching: set[int], budget: _Budget):
     tangs: list[tuple[float, int]] = []
     if ns == 0 or tau_end <= 0.0:
         return None, tangs
+    if piece.region.kind == "expm" and tau_end > budget.left * piece.region.h:
+        # A stiff region (ill-conditioned modes, e.g. a near-singular mass matrix: |A| ~ 1e10)
+        # is scanned on a grid of 1/(8|A|): reaching tau_end would exhaust the budget only
+        # after minutes of work. Refuse now, with the cause.
+        need = tau_end / piece.region.h
+        raise PerturbError(
+            f"region {piece.region.key} is stiff (|A| = {piece.region.rho:.3g}, grid step "
+            f"{piece.region.h:.3g}): scanning {tau_end:.6g} time units from t = "
+            f"{piece.t0!r} for switches needs ~{need:.3g} grid intervals, more than the "
+            f"{budget.left} left of max_steps = {budget.limit}. A near-singular mass matrix? "
+            "(a coordinate without inertia is a first-order state: declare it so)"
+        )
     tau = 0.0
     touch = set(touching)
     clamp = set(touching)
