@@ -71,8 +71,11 @@ so within the truncation error of the fold (the HB fold and the orbit's differ b
 
 Frequency continuation uses THE continuation core (:func:`perturb.numeric.continuation.
 continue_curve`, Hermite predictor, early acceptance, folds located), as the SDOF
-:mod:`perturb.numeric.harmonic_balance` does; one branch, from the start (no search for
-detached branches or branch switching yet).
+:mod:`perturb.numeric.harmonic_balance` does: :func:`system_balance_branch` one branch from
+the start; :func:`system_balance_response` every branch it can seed in a window (both edges
+and interior frequencies, every HB solution there from segment orbits, the linearisation and
+a bounded multi-start; retraces dropped by a point-on-curve test; odd-symmetry mirrors added;
+detached loops closed). No branch switching at branch points yet.
 
 Starting without a guess
 ------------------------
@@ -129,6 +132,8 @@ __all__ = [
     "SystemBalanceBranch",
     "system_balance_orbit",
     "system_balance_branch",
+    "SystemBalanceResponse",
+    "system_balance_response",
     "SystemBalanceError",
 ]
 
@@ -793,11 +798,35 @@ class SystemBalance:
                     return u
             assert last is not None
             raise last
-        u = self.unpack(guess).reshape(-1).copy()
+        u, it, best = self._newton(
+            Omega, self.unpack(guess).reshape(-1).copy(), tol, max_iterations
+        )
+        if u is not None:
+            return u
+        raise SystemBalanceError(
+            f"harmonic balance of {self.system.name!r} at {self.parameter} = {Omega:g} did not "
+            f"converge in {it + 1} of at most {max_iterations} Newton steps (|R| = {best:.3g}): "
+            "give a guess or more iterations"
+        )
+
+    def _newton(
+        self,
+        Omega: float,
+        u: np.ndarray,
+        tol: float,
+        max_iterations: int,
+        abandon=None,
+        abandon_after: int = 3,
+    ) -> tuple[np.ndarray | None, int, float]:
+        """Damped Newton from ``u``: ``(solution or None, last step index, best |R|)``;
+        ``abandon(u)`` (when given) is asked once after ``abandon_after`` steps whether to
+        give up (the iterate is heading for a solution already known)."""
         scale = max(1e-12, float(np.abs(u).max()))
         best = np.inf
         it = 0
-        for it in range(int(max_iterations)):  # noqa: B007 -- reported below
+        for it in range(int(max_iterations)):  # noqa: B007 -- reported by the caller
+            if abandon is not None and it == abandon_after and abandon(u):
+                return None, it, best
             r, J, _ = self.evaluate(u, Omega, True, sparse=True)
             nr = float(np.linalg.norm(r))
             try:
@@ -820,12 +849,8 @@ class SystemBalance:
             best = min(best, float(np.linalg.norm(rn)))
             scale = max(scale, float(np.abs(u).max()))
             if float(np.abs(lam * du).max()) <= tol * scale:
-                return u
-        raise SystemBalanceError(
-            f"harmonic balance of {self.system.name!r} at {self.parameter} = {Omega:g} did not "
-            f"converge in {it + 1} of at most {max_iterations} Newton steps (|R| = {best:.3g}): "
-            "give a guess or more iterations"
-        )
+                return u, it, best
+        return None, it, best
 
     def _homotopy(self, Omega: float, u0: np.ndarray, tol: float) -> np.ndarray | None:
         """A solution by the Newton homotopy from ``u0`` (None when it does not reach 1)."""
@@ -1336,13 +1361,7 @@ def system_balance_branch(
     if direction not in (1, -1):
         raise ParameterError(f"direction = {direction!r}: expected 1 or -1")
     sb = balance if balance is not None else SystemBalance(system, harmonics, m=m)
-    if output is None:
-        out_name = sb.coordinates[0]
-    elif isinstance(output, str):
-        out_name = output
-    else:
-        out_name = "output"
-    vec = sb.output_vector(out_name if output is None else output)
+    out_name, vec = _output(sb, output)
     W0 = hi if direction == -1 else lo
     if start is None:
         u0 = _stable_start(sb, W0)
@@ -1368,28 +1387,472 @@ def system_balance_branch(
         )
     except ContinuationError as exc:
         raise SystemBalanceError(f"continuation of {system.name!r} failed: {exc}") from None
-    Us = np.asarray(curve.u)
-    Ws = np.asarray(curve.lam, dtype=float)
+    return _make_branch(
+        sb,
+        np.asarray(curve.lam, dtype=float),
+        np.asarray(curve.u),
+        tuple(float(f.lam) for f in curve.folds),
+        curve,
+        out_name,
+        vec,
+        stability,
+    )
+
+
+def _output(sb: SystemBalance, output: str | ArrayLike | None) -> tuple[str, np.ndarray]:
+    """The output's name and its vector over the states (default the first coordinate)."""
+    if output is None:
+        out_name = sb.coordinates[0]
+    elif isinstance(output, str):
+        out_name = output
+    else:
+        out_name = "output"
+    return out_name, sb.output_vector(out_name if output is None else output)
+
+
+def _make_branch(
+    sb: SystemBalance,
+    Ws: np.ndarray,
+    Us: np.ndarray,
+    folds: tuple[float, ...],
+    curve: ContinuationCurve,
+    out_name: str,
+    vec: np.ndarray,
+    stability: bool,
+    mm: np.ndarray | None = None,
+) -> SystemBalanceBranch:
+    """A :class:`SystemBalanceBranch` from points ``(Ws, Us)`` (flat coefficients); the
+    multipliers' moduli ``mm`` when known (a mirror image has its source's)."""
     U3 = Us.reshape(Ws.size, sb.neq, sb.size)
     amps = {c: _max_abs_many(sb.basis, U3[:, j, :]) for j, c in enumerate(sb.coordinates)}
     out_coef = np.array([sb.signal(U3[p], Ws[p], vec) for p in range(Ws.size)])
     out_amp = _max_abs_many(sb.basis, out_coef)
-    mm = st = None
-    if stability:
+    st = None
+    if stability and mm is None:
         mm = np.array([float(np.abs(sb.multipliers(Us[p], Ws[p])).max()) for p in range(Ws.size)])
+    if not stability:
+        mm = None
+    if mm is not None:
         st = mm <= 1.0 + _UNIT_TOL
     return SystemBalanceBranch(
         Ws,
-        Us.reshape(Ws.size, sb.neq, sb.size),
+        U3,
         sb.coordinates,
         amps,
         out_name,
         out_amp,
         mm,
         st,
-        tuple(float(f.lam) for f in curve.folds),
+        folds,
         curve,
         out_coef,
         sb.m,
+        sb.system.name,
+    )
+
+
+# =============================================================================================
+# every branch in a window
+# =============================================================================================
+#: Interior seed frequencies of :func:`system_balance_response` (besides the two edges).
+_INTERIOR_SEEDS = 8
+#: Scale factors of the linear guess in the bounded multi-start at one frequency.
+_MULTI_START_SCALES = (0.5, 2.0, 4.0)
+#: Point-on-curve tolerance (scaled distance: coefficients over the point's largest, Omega
+#: over the window width) below which a solution is taken to lie on a traced branch.
+_ON_CURVE = 0.02
+#: Scaled distance from a traced branch at which a seed's Newton iterate (after three steps)
+#: is abandoned as bound for that branch.
+_NEAR_CURVE = 0.05
+#: Newton steps per seed start.
+_SEED_NEWTON = 15
+
+
+def _mirror_operator(sb: SystemBalance) -> np.ndarray:
+    """``Q`` (``size x size``) with ``mirror(U) = -U Q^T`` row by row: the image
+    ``z(theta) -> -z(theta + pi/m)`` (half a forcing period later, sign flipped)."""
+    delta = math.pi / sb.m
+    Q = np.zeros((sb.size, sb.size))
+    if sb.basis.bias:
+        Q[0, 0] = 1.0
+    for k, ia, ib in zip(sb.basis.k, sb.basis.a_index, sb.basis.b_index, strict=True):
+        c, s = math.cos(k * delta), math.sin(k * delta)
+        # z(theta + d): a_k' = a_k cos kd + b_k sin kd, b_k' = -a_k sin kd + b_k cos kd
+        Q[ia, ia], Q[ia, ib] = c, s
+        Q[ib, ia], Q[ib, ib] = -s, c
+    return Q
+
+
+def _odd_symmetry(sb: SystemBalance, window: tuple[float, float]) -> np.ndarray | None:
+    """The mirror operator when the balance is equivariant under it (``R(M u) = M R(u)``,
+    checked on the residual itself at two random points: an odd system whose forcing changes
+    sign over half a period, such as nsd2), else None."""
+    Q = _mirror_operator(sb)
+    rng = np.random.default_rng(12345)
+
+    def mirror(u):
+        return -(sb.unpack(u) @ Q.T).reshape(-1)
+
+    for W in (window[0] + 0.37 * (window[1] - window[0]), window[1]):
+        decay = np.ones(sb.size)  # a smooth-ish random orbit: harmonics decaying like 1/k
+        decay[sb.basis.a_index] = decay[sb.basis.b_index] = 1.0 / sb.basis.k
+        u = rng.standard_normal(sb.n_unknowns) * np.tile(decay, sb.neq)
+        r = sb.residual(u, W)
+        rm = sb.residual(mirror(u), W)
+        if np.abs(rm - mirror(r)).max() > 1e-9 * (1.0 + np.abs(r).max()):
+            return None
+    return Q
+
+
+def _distance_to_polyline(
+    Ws: np.ndarray, Us: np.ndarray, u: np.ndarray, W: float, width: float
+) -> float:
+    """Scaled distance of ``(u, W)`` from the polyline of the points ``(Us, Ws)``
+    (coefficients over ``max|u|``, Omega over the window width)."""
+    scale = max(1e-12, float(np.abs(u).max()))
+    P = np.column_stack([Us / scale, Ws / width])
+    q = np.append(u / scale, W / width)
+    if P.shape[0] == 1:
+        return float(np.linalg.norm(P[0] - q))
+    a, d = P[:-1], np.diff(P, axis=0)
+    dd = np.einsum("ij,ij->i", d, d)
+    t = np.clip(np.einsum("ij,ij->i", q - a, d) / np.where(dd > 0.0, dd, 1.0), 0.0, 1.0)
+    e = a + t[:, None] * d - q
+    return float(np.sqrt(np.min(np.einsum("ij,ij->i", e, e))))
+
+
+def _on_any(branches, u: np.ndarray, W: float, width: float, rtol: float) -> bool:
+    return any(
+        _distance_to_polyline(b.Omega, b.U.reshape(len(b), -1), u, W, width) <= rtol
+        for b in branches
+    )
+
+
+def _duplicate(br: SystemBalanceBranch, found, width: float, rtol: float) -> bool:
+    """Whether nine points spread along ``br`` all lie on branches of ``found``."""
+    flat = br.U.reshape(len(br), -1)
+    idx = np.unique(np.linspace(0, len(br) - 1, 9).round().astype(int))
+    return all(_on_any(found, flat[i], float(br.Omega[i]), width, rtol) for i in idx)
+
+
+def _solutions_at(
+    sb: SystemBalance, W: float, skip, max_starts: int, near=None
+) -> list[np.ndarray]:
+    """Distinct HB solutions at ``W`` from the frozen-segment orbits, the linearisation
+    about zero and a bounded multi-start (the linear guess scaled), at most ``max_starts``
+    capped Newton runs; guesses for which ``skip(u)`` holds (on a traced branch) are not
+    solved, and a run whose iterate satisfies ``near(u)`` after three steps is abandoned."""
+    seg = sb.segment_guesses(W, limit=64)
+    lin = sb.linear_guess(W)
+    starts = [u for u, inside in seg if inside] + [lin]
+    # the linear guess moved onto the mean position of each frozen-segment orbit: the
+    # asymmetric orbits (biased towards one side of a clearance or negative-stiffness
+    # region) that Newton from a zero-mean guess never reaches
+    L = sb.unpack(lin)
+    biases: list[np.ndarray] = []
+    for u, _ in seg:
+        b = sb.unpack(u)[:, 0]
+        if np.any(b) and not any(np.allclose(b, c) for c in biases):
+            biases.append(b)
+    for b in biases:
+        V = L.copy()
+        V[:, 0] = b
+        starts.append(V.reshape(-1))
+    starts += [u for u, inside in seg if not inside]
+    starts += [c * lin for c in _MULTI_START_SCALES]
+    out: list[np.ndarray] = []
+    runs = 0
+    for g in starts:
+        if runs >= max_starts:
+            break
+        if skip(g):
+            continue
+        runs += 1
+        # from these guesses Newton converges in a few steps or not at all (measured on nsd2:
+        # converged runs took <= 13 steps), so failing runs are cut short; after three steps
+        # an iterate already close to a traced branch is abandoned (it would land on it)
+        u = sb._newton(W, np.asarray(g, dtype=float).copy(), 1e-10, _SEED_NEWTON, abandon=near)[0]
+        if u is None:
+            continue
+        if any(np.abs(u - v).max() <= 1e-7 * max(1.0, np.abs(v).max()) for v in out):
+            continue
+        out.append(u)
+    return out
+
+
+def _trace_through(
+    sb: SystemBalance,
+    u: np.ndarray,
+    W: float,
+    window: tuple[float, float],
+    ds_max: float,
+    tol: float,
+    max_points: int,
+) -> tuple[np.ndarray, np.ndarray, tuple[float, ...], ContinuationCurve] | None:
+    """The branch through the solution ``(u, W)``: traced down, then up unless the first run
+    closed on itself (a detached loop). Points in order from the low-frequency end of the
+    downward run; None when the continuation fails at once."""
+    lo, hi = window
+    scale = max(1e-10, float(np.abs(u).max()))
+    runs = []
+    for direction in (-1, 1):
+        if (direction == -1 and W <= lo) or (direction == 1 and W >= hi):
+            continue
+        try:
+            curve = continue_curve(
+                sb.residual,
+                sb.jacobian,
+                u,
+                W,
+                (lo, hi),
+                direction=direction,
+                u_scale=1e-2 * scale,
+                lam_scale=hi - lo,
+                adaptive_scale=True,
+                ds_max=ds_max,
+                tol=tol,
+                max_points=max_points,
+                predictor="hermite",
+                early_accept=True,
+            )
+        except (ContinuationError, ParameterError):
+            continue
+        runs.append((direction, curve))
+        if curve.stop_reason == "closed":
+            break
+    if not runs:
+        return None
+    Ws_parts, Us_parts, folds = [], [], []
+    for direction, curve in runs:
+        lam = np.asarray(curve.lam, dtype=float)
+        uu = np.asarray(curve.u)
+        if direction == -1:
+            Ws_parts.insert(0, lam[::-1])
+            Us_parts.insert(0, uu[::-1])
+        else:
+            skip = 1 if Ws_parts else 0  # the shared start point
+            Ws_parts.append(lam[skip:])
+            Us_parts.append(uu[skip:])
+        folds += [float(f.lam) for f in curve.folds]
+    return np.concatenate(Ws_parts), np.concatenate(Us_parts), tuple(folds), runs[0][1]
+
+
+@dataclass(frozen=True, eq=False)
+class SystemBalanceResponse:
+    """Every harmonic-balance branch of a system found in a window
+    (:func:`system_balance_response`).
+
+    Attributes
+    ----------
+    branches : tuple of SystemBalanceBranch
+    origins : tuple of str
+        Per branch: ``'edge'`` (seeded at a window edge), ``'interior'`` (seeded inside),
+        ``'mirror'`` (odd-symmetry image of another branch, not traced).
+    window : (float, float)
+    harmonics, m : int
+    output : str
+    odd : bool
+        Whether the balance is odd-symmetric (mirror images added).
+    model : str
+    """
+
+    branches: tuple[SystemBalanceBranch, ...]
+    origins: tuple[str, ...]
+    window: tuple[float, float]
+    harmonics: int
+    m: int
+    output: str
+    odd: bool
+    model: str = ""
+
+    def __len__(self) -> int:
+        return len(self.branches)
+
+    def __iter__(self):
+        return iter(self.branches)
+
+    def columns(self) -> tuple[dict[str, np.ndarray], ...]:
+        """Per branch, ``amplitude_<name>`` and ``mean_<name>`` per coordinate."""
+        return tuple(b.columns() for b in self.branches)
+
+    def closed(self) -> tuple[bool, ...]:
+        """Per branch, whether it is a detached loop (its continuation closed on itself)."""
+        return tuple(b.curve.stop_reason == "closed" for b in self.branches)
+
+    def to_response(self) -> Response:
+        """The standard :class:`~perturb.response.Response` (method ``"hb-system"``), one
+        :class:`~perturb.response.Branch` per branch, folds of every branch."""
+        folds = []
+        for b in self.branches:
+            for lam in b.folds:
+                i = int(np.argmin(np.abs(b.Omega - lam)))
+                folds.append((float(lam), float(b.output_amplitude[i])))
+        return Response(
+            tuple(b.to_branch() for b in self.branches),
+            "hb-system",
+            self.model,
+            folds=tuple(folds),
+            notes=(
+                f"harmonic balance of {len(self.branches[0].coordinates) if self.branches else 0}"
+                f" coordinates, H = {self.harmonics}, m = {self.m}; output {self.output}; "
+                f"{len(self.branches)} branches ({', '.join(self.origins)})"
+                + ("; odd system: mirror images added" if self.odd else ""),
+            ),
+        )
+
+
+def system_balance_response(
+    system: System,
+    window: Sequence[float],
+    *,
+    harmonics: int = 15,
+    m: int = 1,
+    output: str | ArrayLike | None = None,
+    interior: int = _INTERIOR_SEEDS,
+    stability: bool = True,
+    mirror: bool = True,
+    ds_max: float = 0.05,
+    tol: float = 1e-9,
+    max_points: int = 2000,
+    max_branches: int = 16,
+    max_starts: int = 10,
+    balance: SystemBalance | None = None,
+) -> SystemBalanceResponse:
+    """Every harmonic-balance branch of ``system`` in a frequency window.
+
+    Seeds at both window edges and at ``interior`` frequencies evenly inside: at each, every
+    HB solution that Newton reaches from the frozen-segment linear orbits of every region,
+    the linearisation about zero and a bounded multi-start (the linear guess moved onto the
+    mean of each frozen-segment orbit, then scaled by 0.5, 2, 4), at most ``max_starts``
+    Newton runs per frequency (a run whose iterate is within 0.05 of a traced branch after
+    three steps is abandoned). Each solution that lies on no branch traced so far
+    (point-on-curve test: scaled distance to the branch's polyline at most 0.02) is
+    continued both ways with the continuation core (one run when it closes on itself: a
+    detached loop); a traced branch whose nine sample points all lie on known
+    branches is dropped (a retrace). For an odd system (checked on the residual:
+    ``R(M u) = M R(u)`` with ``M`` the image ``y -> -y``, ``t -> t + T/2``) the mirror
+    image of every branch is added, without continuation, unless it is a known branch.
+    Branch points are not switched at: an asymmetric branch born at a pitchfork inside the
+    window is found when a seed frequency meets it (or as the mirror of one that is); a
+    detached loop narrower than the seed spacing ``(high - low) / (interior + 1)`` can be
+    missed (raise ``interior``). Measured on nsd2 (tests/test_system_balance_branches.py):
+    every branch of the exact response over (0.62, 0.75) and (0.5, 2.0) (4 branches, two
+    closed loops) has an HB branch within the polyline's chord error, stability agreeing.
+
+    Parameters
+    ----------
+    system : System
+    window : (float, float)
+        ``0 < low < high``.
+    harmonics, m
+        As :class:`SystemBalance`.
+    output : str or array_like, optional
+        As :func:`system_balance_branch`.
+    interior : int
+        Seed frequencies inside the window (0..50).
+    stability : bool
+        Floquet multipliers at every point.
+    mirror : bool
+        Add the odd-symmetry images.
+    ds_max, tol, max_points
+        Continuation settings (per run).
+    max_branches : int
+        Cap on the branches kept.
+    max_starts : int
+        Newton runs per seed frequency.
+    balance : SystemBalance, optional
+        A prepared balance (same ``harmonics``/``m``).
+
+    Returns
+    -------
+    SystemBalanceResponse
+        Branches in the order found.
+
+    Raises
+    ------
+    ParameterError, ModelError
+        Bad input (window, output, counts).
+    SystemBalanceError
+        No HB solution at any seed frequency.
+    """
+    try:
+        lo, hi = (float(v) for v in window)
+    except (TypeError, ValueError):
+        raise ParameterError(f"window = {window!r}: expected (low, high)") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
+        raise ParameterError(f"window = {window!r}: expected finite 0 < low < high")
+    for name, value, top in (
+        ("interior", interior, 50),
+        ("max_branches", max_branches, 1000),
+        ("max_starts", max_starts, 100),
+    ):
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= top:
+            raise ParameterError(f"{name} = {value!r}: expected an integer in 0..{top}")
+    sb = balance if balance is not None else SystemBalance(system, harmonics, m=m)
+    out_name, vec = _output(sb, output)
+    width = hi - lo
+    found: list[SystemBalanceBranch] = []
+    origins: list[str] = []
+    freqs = [hi, lo] + [float(v) for v in np.linspace(lo, hi, interior + 2)[1:-1]]
+    for idx, W in enumerate(freqs):
+        if len(found) >= max_branches:
+            break
+
+        def skip(g, W=W):
+            return _on_any(found, g, W, width, _ON_CURVE)
+
+        def near(g, W=W):
+            return _on_any(found, g, W, width, _NEAR_CURVE)
+
+        for u in _solutions_at(sb, W, skip, max_starts, near):
+            if len(found) >= max_branches:
+                break
+            if _on_any(found, u, W, width, _ON_CURVE):
+                continue
+            traced = _trace_through(sb, u, W, (lo, hi), ds_max, tol, max_points)
+            if traced is None:
+                continue
+            Ws, Us, folds, curve = traced
+            br = _make_branch(sb, Ws, Us, folds, curve, out_name, vec, stability)
+            if found and _duplicate(br, found, width, _ON_CURVE):
+                continue
+            found.append(br)
+            origins.append("edge" if idx < 2 else "interior")
+    if not found:
+        raise SystemBalanceError(
+            f"harmonic balance of {system.name!r}: no solution at any of the seed frequencies "
+            f"{', '.join(f'{w:g}' for w in freqs)}"
+        )
+    Q = _odd_symmetry(sb, (lo, hi)) if mirror else None
+    if Q is not None:
+        for br in list(found):
+            if len(found) >= max_branches:
+                break
+            Um = -(br.U @ Q.T)
+            flat = Um.reshape(len(br), -1)
+            idx = np.unique(np.linspace(0, len(br) - 1, 9).round().astype(int))
+            if all(_on_any(found, flat[i], float(br.Omega[i]), width, _ON_CURVE) for i in idx):
+                continue  # the image is a known branch (or the branch itself)
+            image = _make_branch(
+                sb,
+                br.Omega.copy(),
+                Um.reshape(len(br), -1),
+                br.folds,
+                br.curve,
+                out_name,
+                vec,
+                stability,
+                mm=None if br.max_multiplier is None else br.max_multiplier.copy(),
+            )
+            found.append(image)
+            origins.append("mirror")
+    return SystemBalanceResponse(
+        tuple(found),
+        tuple(origins),
+        (lo, hi),
+        (sb.size - 1) // 2,
+        sb.m,
+        out_name,
+        Q is not None,
         system.name,
     )
