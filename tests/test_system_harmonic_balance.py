@@ -358,3 +358,44 @@ def test_clear_errors(make, match):
     kw = {"bias": False} if match.startswith("static load") else {}
     with pytest.raises(PerturbError, match=match):
         system_single_harmonic_balance(make(), **kw)
+
+
+def test_gain_at_rest_is_the_limit_of_the_describing_function(bias_system):
+    res = system_single_harmonic_balance(bias_system)
+    values = {k: v for k, v in res.values.items() if v is not None}
+    for df in res.describing_functions:
+        syms = df.gain.free_symbols | df.gain_at_rest.free_symbols | df.function.free_symbols
+        reps = {s: values[s.name] for s in syms if s.name in values}
+        for sigma in (-0.6, -0.1, 0.05, 0.4):
+            limit = float(df.gain_at_rest.xreplace({**reps, df.mean_symbol: sigma}))
+            near = float(
+                df.gain.xreplace({**reps, df.mean_symbol: sigma, df.amplitude_symbol: 1e-4})
+            )
+            # the slope f'(sigma) by a central difference of f, written independently
+            f = sp.lambdify(sp.Symbol("s", real=True), df.function.xreplace(reps))
+            slope = (f(sigma + 1e-6) - f(sigma - 1e-6)) / 2e-6
+            assert near == pytest.approx(limit, abs=1e-7)
+            assert limit == pytest.approx(slope, abs=1e-6)
+
+
+def test_an_oscillator_is_the_one_coordinate_case_of_hb1():
+    # hb1 balances x = A cos(tau - phi): a = A cos phi, b = A sin phi turn its two equations
+    # r1 = a_1(A) - Omega^2 A - F cos phi, r2 = mu Omega A - F sin phi into ours:
+    # cos = cos(phi) r1 + sin(phi) r2, sin = sin(phi) r1 - cos(phi) r2
+    from perturb import builtin_model
+    from perturb.methods.harmonic_balance import single_harmonic_balance
+
+    osc = builtin_model("nsd")
+    ours = system_single_harmonic_balance(osc)
+    theirs = single_harmonic_balance(osc)
+    A, phi = theirs.unknowns
+    values = {k: v for k, v in osc.params.items() if v is not None}
+    for Av, pv, Om in ((0.7, 0.3, 0.8), (2.5, -1.1, 1.4), (5.0, 2.0, 0.5)):
+        sub = {A: Av, phi: pv}
+        for s in set().union(*(r.free_symbols for r in theirs.residuals)) - {A, phi}:
+            sub[s] = Om if s.name == "Omega" else values[s.name]
+        r1, r2 = (float(r.xreplace(sub)) for r in theirs.residuals)
+        point = {"a_1": Av * np.cos(pv), "b_1": Av * np.sin(pv), "Omega": Om}
+        got = _numeric_residuals(ours, point)
+        want = [np.cos(pv) * r1 + np.sin(pv) * r2, np.sin(pv) * r1 - np.cos(pv) * r2]
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)

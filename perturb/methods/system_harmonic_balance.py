@@ -70,6 +70,7 @@ from perturb.fourier.symbols import closed_form, series_coefficient
 from perturb.fourier.trig import fold_mirror_angles
 from perturb.fourier.trig import harmonics as trig_harmonics
 from perturb.methods.applicability import is_odd
+from perturb.model.oscillator import Oscillator
 from perturb.model.parsing import real_symbol
 from perturb.model.pwl import to_pwl
 from perturb.model.system import S as ELEMENT_SYMBOL
@@ -115,6 +116,10 @@ class SystemDescribingFunction:
         ``(N_e S_c, N_e S_s)``: the cosine and sine coefficients of the force in the unknowns.
     odd
         Whether ``f(-s) = -f(s)``.
+    gain_at_rest
+        ``lim N_e`` as ``S_e -> 0``: the slope ``f'(sigma_e)`` (in ``sigma_e``; jumps of ``f``
+        dropped, they matter only when ``sigma_e`` sits on a jump). ``N_e = a_1/S_e`` is 0/0
+        there, so a numeric layer that starts from rest uses this value.
     """
 
     element: str
@@ -135,6 +140,7 @@ class SystemDescribingFunction:
     mean_force: sp.Expr
     first_harmonic: tuple[sp.Expr, sp.Expr]
     odd: bool
+    gain_at_rest: sp.Expr = sp.S.Zero
 
     def __str__(self) -> str:
         S, sig = self.amplitude_symbol, self.mean_symbol
@@ -323,6 +329,17 @@ def _function_tex(f: sp.Expr) -> str:
     return "\\begin{cases}" + " \\\\ ".join(rows) + "\\end{cases}"
 
 
+def _slope(f: sp.Expr, at: sp.Expr) -> sp.Expr:
+    """``f'(at)`` away from jumps: the derivative with its Dirac terms dropped."""
+    d = sp.diff(f, ELEMENT_SYMBOL)
+    d = d.replace(lambda e: isinstance(e, sp.DiracDelta), lambda e: sp.S.Zero)
+    return (
+        sp.simplify(d.xreplace({ELEMENT_SYMBOL: at}))
+        if d.is_polynomial()
+        else d.xreplace({ELEMENT_SYMBOL: at})
+    )
+
+
 def _matrix(mat: sp.MatrixBase) -> str:
     rows = [" & ".join(latex(v) for v in mat.row(i)) for i in range(mat.rows)]
     return "\\begin{bmatrix}" + " \\\\ ".join(rows) + "\\end{bmatrix}"
@@ -451,10 +468,11 @@ def system_single_harmonic_balance(
         higher harmonics, or ``bias=False`` where an element is not odd or there is a static
         load.
     """
+    if isinstance(system, Oscillator):
+        system = System.from_oscillator(system)
     if not isinstance(system, System):
         raise ModelError(
-            f"system = {system!r}: expected a perturb.model.system.System (for an Oscillator "
-            "use perturb.methods.harmonic_balance.single_harmonic_balance)"
+            f"system = {system!r}: expected a perturb.model.system.System (or an Oscillator)"
         )
     n2, n1 = len(system.coordinates), len(system.first_order)
     names = (*system.coordinates, *system.first_order)
@@ -560,6 +578,7 @@ def system_single_harmonic_balance(
                 mean_force=mean_force,
                 first_harmonic=(g * Sc, g * Ss),
                 odd=odd[idx - 1],
+                gain_at_rest=_slope(e.function, sig_sym if bias else sp.S.Zero),
             )
         )
 
@@ -636,10 +655,11 @@ def system_single_harmonic_balance(
         zb + ak * sp.cos(tau) + bk * sp.sin(tau) for zb, ak, bk in zip(zero_bias, a, b, strict=True)
     )
     notes = []
-    if any(not df.definitions for df in dfs) or dfs:
+    if dfs:
         notes.append(
             "the describing functions N_e = a_1(S_e)/S_e are written for S_e > 0; at S_e = 0 "
-            "the first harmonic N_e S_c, N_e S_s is zero (its limit)"
+            "(an element at rest) the first harmonic N_e S_c, N_e S_s is zero and N_e tends "
+            "to the slope f'(sigma_e) (gain_at_rest)"
         )
     if any(e.kind == "friction" for e in system.elements):
         notes.append(
