@@ -229,6 +229,7 @@ class Engine:
             scaled = getattr(family, "_scaled", None)
             self._nd_rates = None if scaled is None or self.affine0 is None else scaled[1]
             self._modal: dict[tuple[int, ...], tuple[np.ndarray, ...] | None] = {}
+            self._rate_cache: dict[tuple[Any, ...], tuple[Any, ...] | None] = {}
             return
         # own sensitivities from the trajectory pieces where saltation is the identity
         self._continuous = self.exact and bool(np.all(self.system0.continuous_at()))
@@ -558,6 +559,39 @@ class Engine:
         self._modal[key] = out
         return out
 
+    def _rate_terms(self, pas: Any, key: tuple[int, ...]) -> tuple[Any, ...] | None:
+        """``(lambda, V, V^-1, ((omega_k, w1_k, w2_k), ...))`` of region ``key`` at the input
+        frequencies of ``pas`` (:meth:`_nd_rate`: ``w1 = V c / (i omega - lambda)``, ``w2 =
+        V c / (i omega - lambda)^2``), None when the region is ill conditioned or resonant.
+
+        Cached per (region, frequencies): a Newton iterate visits each region once or twice
+        per node interval, at one frequency, so the sources are computed once per iterate
+        and region instead of once per piece (same arithmetic as per piece)."""
+        omegas = tuple(h.omega for h in pas.inputs)
+        ck = (key, omegas)
+        cache = self._rate_cache
+        if ck in cache:
+            return cache[ck]
+        modes = self._region_modes(pas, key)
+        out = None
+        if modes is not None:
+            _, lam, V, Vinv = modes
+            forced = []
+            for h, rk in zip(pas.inputs, self._nd_rates, strict=True):
+                w = h.omega
+                den = 1j * w - lam
+                if np.min(np.abs(den)) <= 1e-12 * max(1.0, w, float(np.max(np.abs(lam)))):
+                    forced = None  # undamped resonance in a region: no particular solution
+                    break
+                c = Vinv @ (1j * rk * (h.u - 1j * h.v))
+                forced.append((w, V @ (c / den), V @ (c / (den * den))))
+            if forced is not None:
+                out = (lam, V, Vinv, tuple(forced))
+        if len(cache) >= 64:
+            cache.clear()  # one continuation step needs a few entries
+        cache[ck] = out
+        return out
+
     def _nd_rate(self, pas: Any, traj: Any, tb: float, p: float) -> np.ndarray | None:
         r"""``d phi / dp`` at fixed times over one node interval of the exact affine flow, the
         parameter scaling the input frequencies (:math:`\omega_k = r_k p`): on each piece
@@ -575,24 +609,16 @@ class Engine:
             return None
         n = self.n
         zeta = np.zeros(n)
-        rates = self._nd_rates
         for k, key in enumerate(keys):
-            modes = self._region_modes(pas, key)
-            if modes is None:
+            terms = self._rate_terms(pas, key)
+            if terms is None:
                 return None
-            A, lam, V, Vinv = modes
+            lam, V, Vinv, forced = terms
             a = float(starts[k])
             b = float(starts[k + 1]) if k + 1 < len(keys) else tb
             E = ((V * np.exp(lam * (b - a))) @ Vinv).real
             inc = np.zeros(n)
-            for h, rk in zip(pas.inputs, rates, strict=True):
-                w = h.omega
-                den = 1j * w - lam
-                if np.min(np.abs(den)) <= 1e-12 * max(1.0, w, float(np.max(np.abs(lam)))):
-                    return None  # undamped resonance in a region: no particular solution
-                c = Vinv @ (1j * rk * (h.u - 1j * h.v))
-                w1 = V @ (c / den)
-                w2 = V @ (c / (den * den))
+            for w, w1, w2 in forced:
                 za = ((w1 * a - w2) * np.exp(1j * w * a)).real
                 zb = ((w1 * b - w2) * np.exp(1j * w * b)).real
                 inc += zb - E @ za
