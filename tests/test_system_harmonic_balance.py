@@ -399,3 +399,29 @@ def test_an_oscillator_is_the_one_coordinate_case_of_hb1():
         got = _numeric_residuals(ours, point)
         want = [np.cos(pv) * r1 + np.sin(pv) * r2, np.sin(pv) * r1 - np.cos(pv) * r2]
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("which", ["nsd2", "bias"])
+def test_jacobian_against_central_differences(which, bias_system):
+    system = bias_system if which == "bias" else builtin_system("nsd2")
+    res = system_single_harmonic_balance(system)
+    args = res.arguments
+    modules = [NUMERIC_IMPLEMENTATIONS, "numpy"]
+    R = sp.lambdify(args, list(res.residuals), modules=modules)
+    J = sp.lambdify(args, res.jacobian(frequency=True), modules=modules)
+    values = {k: v for k, v in res.values.items() if v is not None}
+    rng = np.random.default_rng(7)
+    wrt = res.unknowns + (res.frequency,)
+    for _ in range(3):
+        point = dict(zip([s.name for s in wrt], rng.uniform(-1.5, 1.5, len(wrt)), strict=True))
+        point[res.frequency.name] = rng.uniform(0.5, 1.8)
+        full = {**values, **point}
+        x = np.array([full[s.name] for s in args], dtype=float)
+        got = np.asarray(J(*x), dtype=float)
+        h = 1e-6
+        for j in range(len(wrt)):
+            up, dn = x.copy(), x.copy()
+            up[j] += h
+            dn[j] -= h
+            fd = (np.array(R(*up), dtype=float) - np.array(R(*dn), dtype=float)) / (2 * h)
+            np.testing.assert_allclose(got[:, j], fd, rtol=1e-6, atol=1e-6)

@@ -230,6 +230,15 @@ class SystemHarmonicBalance:
         opts = ", ".join(f"{k}={v}" for k, v in self.options.items())
         return f"{self.method}({opts})"
 
+    def jacobian(self, frequency: bool = False) -> sp.ImmutableMatrix:
+        """``d residuals / d unknowns`` (and a last column ``d / d frequency`` when
+        ``frequency``), exact: the coefficient functions differentiate in closed form (a ramp
+        coefficient's derivative is a step coefficient, a step's a Dirac coefficient)."""
+        wrt = self.unknowns + ((self.frequency,) if frequency else ())
+        return sp.ImmutableMatrix(
+            len(self.residuals), len(wrt), lambda i, j: sp.diff(self.residuals[i], wrt[j])
+        )
+
     def latex(self) -> str:
         """The derivation as a LaTeX body (sections and displayed equations)."""
         return self._latex
