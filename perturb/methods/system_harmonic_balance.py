@@ -256,9 +256,8 @@ class SystemHarmonicBalance:
         lines = [f"Single-harmonic balance ({self.label}) of system {self.system.name!r}"]
         lines.append("  unknowns: " + ", ".join(map(str, self.unknowns)))
         lines.append(f"  frequency: {self.frequency}" + (" (unknown)" if self.autonomous else ""))
-        for k, (name, wave) in enumerate(zip(self.coordinates, self.waveforms, strict=True)):
+        for name, wave in zip(self.coordinates, self.waveforms, strict=True):
             lines.append(f"  {name}({self.tau}) = {sp.sstr(wave)}")
-            del k
         for df in self.describing_functions:
             lines.append("  " + str(df))
         for lab, r in zip(self.labels, self.residuals, strict=True):
@@ -681,7 +680,7 @@ def system_single_harmonic_balance(
         (lab, sp.collect(sp.expand(lin), order) + nl - f)
         for lab, (lin, nl, f) in zip(labels, shown_0 + shown_c + shown_s, strict=True)
     ]
-    steps = _steps(system, Omega, autonomous, dfs, a, b, abar, forcing, tau)
+    steps = _steps(system, Omega, dfs, a, b, abar, tau, shown)
     result = SystemHarmonicBalance(
         system=system,
         method="hb1-system",
@@ -708,7 +707,7 @@ def system_single_harmonic_balance(
 
 
 # ---------------------------------------------------------------------------- derivation --
-def _steps(system, Omega, autonomous, dfs, a, b, abar, forcing, tau) -> tuple[Step, ...]:
+def _steps(system, Omega, dfs, a, b, abar, tau, shown) -> tuple[Step, ...]:
     """The derivation as :class:`~perturb.approximation.Step` objects (plain SymPy)."""
     names = (*system.coordinates, *system.first_order)
     z = [real_symbol(nm) for nm in names]
@@ -735,6 +734,13 @@ def _steps(system, Omega, autonomous, dfs, a, b, abar, forcing, tau) -> tuple[St
                 ),
             )
         )
+    out.append(
+        Step(
+            "Balance of the " + ("mean, " if abar else "") + "cosine and sine terms",
+            tuple(sp.Eq(sp.S.Zero, e, evaluate=False) for _, e in shown),
+            "; ".join(lab for lab, _ in shown),
+        )
+    )
     return tuple(out)
 
 
@@ -870,7 +876,6 @@ def _latex_body(system, Omega, autonomous, dfs, a, b, abar, forcing, bias, shown
 
     # 4. balance in matrix form
     add("\\subsection*{Balance of the harmonics}")
-    zero = sp.S.Zero
 
     def nl(i: int, key: str) -> str:
         terms = [
@@ -923,7 +928,6 @@ def _latex_body(system, Omega, autonomous, dfs, a, b, abar, forcing, bias, shown
             parts.append(f" + {_column(N0)}")
         rows.insert(0, "\\text{mean}:&\\quad " + "".join(parts).lstrip(" +") + f" = {vec(F0)}")
     add("\\begin{align*}\n" + " \\\\\n".join(rows) + "\n\\end{align*}")
-    del zero
     if dfs:
         add(
             "Each $N$ is evaluated at its element's own amplitude $S$"
