@@ -1008,8 +1008,7 @@ class System:
             Binv = np.linalg.inv(np.hstack([arr(self.M), arr(self.D)]))
         except np.linalg.LinAlgError:
             raise ModelError(
-                f"the mass matrix [M D] of {self.name!r} is singular: expected an invertible "
-                "matrix"
+                f"the mass matrix [M D] of {self.name!r} is singular: expected an invertible matrix"
             ) from None
         cols = [np.zeros((n, n))]
         cols[0][:n2, n2 : 2 * n2] = np.eye(n2)

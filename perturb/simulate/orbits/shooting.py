@@ -971,8 +971,8 @@ def _settled_start(
     """``(y*, P)`` of the attractor reached from ``y``: 50 guessed periods of transient, then
     two successive crossings of state ``k`` from + to - (for ``(x, v)``, ``k = 1``: maxima of
     ``x``; through ``value`` when given), located by linear interpolation on a 1/64-period
-    grid, give the state (state ``k`` set to ``value``) and the period; ``None`` when the transient diverges, stops at an equilibrium, or
-    shows no two crossings in 16 periods."""
+    grid, give the state (state ``k`` set to ``value``) and the period; ``None`` when the
+    transient diverges, stops at an equilibrium, or shows no two crossings in 16 periods."""
     try:
         z = np.asarray(flow(y, 0.0, 50.0 * T0).y, dtype=float)
         h = T0 / 64.0
