@@ -102,6 +102,7 @@ __all__ = [
     "SystemResponse",  # noqa: F822 - built on first access (module __getattr__)
     "SYSTEM_INTEGRATORS",
     "orbit_columns",
+    "system_errors",
     "limit_cycles",
     "LimitCycles",
     "Equilibrium",
@@ -583,7 +584,22 @@ def _hb_solutions_at(
 
 #: Methods a :class:`~perturb.model.system.System` takes (the approximations of several
 #: coordinates are the next issue's).
-SYSTEM_METHODS = ("exact",)
+SYSTEM_METHODS = ("exact", "hb")
+#: Options of method ``"hb"`` for a system (:func:`_system_hb`).
+SYSTEM_HB_OPTIONS = (
+    "harmonics",
+    "m",
+    "all_branches",
+    "stability",
+    "mirror",
+    "ds_max",
+    "max_points",
+    "max_branches",
+    "tol",
+    "projection",
+    "direction",
+    "interior",
+)
 #: Integrators of :func:`system_time_history`.
 SYSTEM_INTEGRATORS = ("auto", "exact", "ode", "events")
 #: Samples per forcing period for the orbit statistics of a system (as the orbit solvers'
@@ -1766,8 +1782,11 @@ def _system_response(
     if spec.name not in SYSTEM_METHODS:
         raise ParameterError(
             f"method {spec.name!r} ({spec.title}) is for one coordinate (an Oscillator); a "
-            f"system of several coordinates ({system.name!r}) takes method 'exact' for now"
+            f"system of several coordinates ({system.name!r}) takes method 'exact' or 'hb' "
+            "(numeric multi-harmonic balance)"
         )
+    if spec.name == "hb":
+        return _system_hb(system, Omega, frequencies, output, dict(options))
     options = spec.validate(dict(options))
     for key in ("approximation", "approximation_seeds"):
         if key in options:
@@ -1797,6 +1816,189 @@ def _system_response(
         coordinates=system_coordinates(system),
         columns=found.columns(),
     )
+
+
+def _system_hb(
+    system: Any,
+    Omega: Sequence[float],
+    frequencies: Sequence[float] | None,
+    output: str | None,
+    options: dict[str, Any],
+) -> Any:
+    """Method ``"hb"`` for a :class:`~perturb.model.system.System`: numeric multi-harmonic
+    balance (:mod:`perturb.numeric.system_balance`), every branch in the window
+    (:func:`~perturb.numeric.system_balance.system_balance_response`; one branch from the
+    high end with ``all_branches=False``), or one orbit per listed frequency (automatic
+    start), as a :class:`SystemResponse` with ``amplitude_<name>`` / ``mean_<name>`` per
+    coordinate (method ``"hb-system"``).
+
+    Raises
+    ------
+    ParameterError
+        An option the system's HB does not take (the message lists those it does), bad
+        values (``harmonics``, window, ``stability``).
+    """
+    from perturb.numeric.system_balance import (
+        SystemBalance,
+        system_balance_branch,
+        system_balance_response,
+        system_balance_solutions_at,
+    )
+
+    unknown = sorted(set(options) - set(SYSTEM_HB_OPTIONS))
+    if unknown:
+        raise ParameterError(
+            f"{', '.join(unknown)}: not options of harmonic balance for a system (expected: "
+            f"{', '.join(SYSTEM_HB_OPTIONS)})"
+        )
+    H = registry.check_harmonics(options.pop("harmonics", DEFAULT_HARMONICS))
+    m = options.pop("m", 1)
+    stability = options.pop("stability", True)
+    if stability in ("none", False, None):
+        stability = False
+    elif stability in (True, "hill", "floquet"):
+        stability = True
+    else:
+        raise ParameterError(
+            f"stability = {stability!r}: expected True/'floquet' (Floquet multipliers of the "
+            "linearisation about the HB orbit) or False/'none'"
+        )
+    projection = options.pop("projection", "exact")
+    all_branches = options.pop("all_branches", True)
+    system_output(system, output)  # a bad output is refused before any work
+    _check_frequency_response(system, frequencies is not None)
+    sb = SystemBalance(system, H, m=m, projection=projection)
+    _, out_text = system_output(system, output)
+    cls = _response_class()
+    if frequencies is not None:
+        for key in ("mirror", "ds_max", "max_points", "max_branches", "direction", "interior"):
+            if key in options:
+                raise ParameterError(f"{key}: an option of a traced window, not of frequencies=")
+        options.pop("tol", None)
+        found = system_balance_solutions_at(
+            system,
+            checks.frequencies(frequencies, MAX_FREQUENCIES),
+            output=output,
+            stability=stability,
+            balance=sb,
+        )
+        return cls(
+            tuple(b.to_branch() for b in found.branches),
+            "hb-system",
+            system.name,
+            notes=(
+                f"harmonic balance of a system, H = {H}, m = {m}: every solution found at "
+                "each frequency",
+            ),
+            output=out_text,
+            coordinates=system_coordinates(system),
+            columns=tuple({**b.columns(), "states": b.states()} for b in found.branches),
+        )
+    window = checks.window(Omega)
+    if all_branches:
+        options.pop("direction", None)
+        found = system_balance_response(
+            system, window, output=output, stability=stability, balance=sb, **options
+        )
+        resp, branches = found.to_response(), found.branches
+    else:
+        options.pop("interior", None)
+        options.pop("mirror", None)
+        options.pop("max_branches", None)
+        br = system_balance_branch(
+            system, window, output=output, stability=stability, balance=sb, **options
+        )
+        resp, branches = br.to_response(), (br,)
+    # each branch's columns also hold "states" (P, n): the HB orbits' states at t = 0, which
+    # system_errors shoots the exact orbits from (not written to the CSV)
+    cols = tuple({**b.columns(), "states": b.states()} for b in branches)
+    return cls(
+        resp.branches,
+        resp.method,
+        resp.model,
+        resp.params,
+        resp.folds,
+        resp.notes,
+        output=out_text,
+        coordinates=system_coordinates(system),
+        columns=cols,
+    )
+
+
+#: At most this many HB points of a response are checked against exact orbits
+#: (:func:`system_errors`; evenly spread, the others NaN).
+MAX_ERROR_POINTS = 200
+
+
+def system_errors(
+    system: Any, response: Any, output: str | None = None, *, max_points: int = MAX_ERROR_POINTS
+) -> tuple[dict[str, Any], str]:
+    """Errors of a system's HB response (``method="hb"``) against the exact orbits at its
+    points' frequencies.
+
+    At each point (at most ``max_points``, evenly spread; the others NaN) the exact periodic
+    orbit is shot (:func:`perturb.simulate.orbits.shooting.periodic_orbit` on the system's
+    exact piecewise-affine flow, or DOP853 for a smooth system) from the HB orbit's state at
+    ``t = 0``, and ``max |.|`` of the output and of every coordinate compared:
+    ``|A_hb - A_exact| / A_exact``. A point whose shooting fails (or lands on an orbit of a
+    different amplitude by more than half: another branch) is NaN.
+
+    Returns
+    -------
+    (dict, str)
+        The CSV columns ``rel_error`` (output) and ``rel_error_<name>`` per coordinate, one
+        value per row, and a one-line summary of the largest errors per coordinate.
+
+    Raises
+    ------
+    ParameterError
+        A response without the HB orbits' states (not from ``method="hb"``).
+    """
+    import numpy as np
+
+    from perturb.errors import ModelError
+    from perturb.simulate.orbits.shooting import periodic_orbit
+
+    cols = getattr(response, "columns", ())
+    if not cols or any("states" not in c for c in cols):
+        raise ParameterError(
+            "the errors against exact orbits need a system's HB response "
+            "(frequency_response(system, method='hb')), whose points carry their orbits"
+        )
+    c, _ = system_output(system, output)
+    names = system.state_names
+    coords = system_coordinates(system)
+    eye = np.eye(len(names))
+    rows = [(b, j) for b, br in enumerate(response.branches) for j in range(len(br))]
+    pick = set(np.unique(np.linspace(0, len(rows) - 1, min(len(rows), max_points)).round()))
+    keys = ["rel_error", *(f"rel_error_{n}" for n in coords)]
+    out = {k: np.full(len(rows), np.nan) for k in keys}
+    for r, (b, j) in enumerate(rows):
+        if r not in pick:
+            continue
+        W = float(response.branches[b].omega[j])
+        try:
+            flow = _system_flow(_system_at(system, W))
+            orbit = periodic_orbit(flow, cols[b]["states"][j])
+        except (PerturbError, ModelError, np.linalg.LinAlgError):
+            continue
+        hb = [float(response.branches[b].amplitude[j])]
+        hb += [float(cols[b][f"amplitude_{n}"][j]) for n in coords]
+        ex = [float(orbit.max_abs(c))]
+        ex += [float(orbit.max_abs(eye[names.index(n)])) for n in coords]
+        if abs(hb[0] - ex[0]) > 0.5 * max(abs(ex[0]), 1e-300):
+            continue  # shooting fell onto another orbit
+        for k, a, e in zip(keys, hb, ex, strict=True):
+            out[k][r] = abs(a - e) / e if e != 0 else np.inf
+    done = int(np.sum(np.isfinite(out["rel_error"])))
+    parts = [
+        f"{k.removeprefix('rel_error_') if k != 'rel_error' else 'output'} {np.nanmax(out[k]):.3g}"
+        if np.any(np.isfinite(out[k]))
+        else f"{k} -"
+        for k in keys
+    ]
+    summary = ", ".join(parts) + f" ({done} of {len(rows)} points checked)"
+    return out, summary
 
 
 def _check_frequency_response(system: Any, listed: bool) -> None:

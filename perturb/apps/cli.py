@@ -525,29 +525,45 @@ def _cmd_frc(args: argparse.Namespace) -> int:
 
 
 def _frc_system(args: argparse.Namespace) -> int:
-    """``perturb frc`` on a system of several coordinates: the exact response
-    (:func:`perturb.solve.frequency_response`), CSV with the SDOF columns of ``--output`` and
-    ``amplitude_<name>``, ``mean_<name>`` of every coordinate."""
+    """``perturb frc`` on a system of several coordinates: the exact response, or numeric
+    multi-harmonic balance with ``--method hb`` (:func:`perturb.solve.frequency_response`),
+    CSV with the SDOF columns of ``--output`` and ``amplitude_<name>``, ``mean_<name>`` of
+    every coordinate; ``--compare exact`` (hb only) adds ``rel_error`` (of ``--output``'s
+    max |.|) and ``rel_error_<name>`` per coordinate against the exact response."""
     from perturb.methods.registry import check_points, spec
+    from perturb.solve import SYSTEM_METHODS
 
     method = spec("exact" if args.method is None else args.method, what="--method")
-    if method.name != "exact":
+    if method.name not in SYSTEM_METHODS:
         raise ParameterError(
             f"--method {args.method}: {method.title} is a method for one coordinate; a system "
-            f"of several coordinates ({args.model!r}) takes --method exact (for now)"
+            f"of several coordinates ({args.model!r}) takes --method exact or hb (numeric "
+            "multi-harmonic balance)"
         )
-    given = {
-        "--harmonics": args.harmonics,
-        "--order": args.order,
-        "--one-branch": args.one_branch or None,
-        "--compare": args.compare,
-    }
-    for flag, value in given.items():
-        if value is not None:
-            raise ParameterError(
-                f"{flag}: an option of the approximations, which take one coordinate; a "
-                "system's exact response takes --omega, --output, --param, --out and --plot"
-            )
+    options: dict = {}
+    if method.name == "hb":
+        if args.order is not None:
+            raise ParameterError("--order: not an option of --method hb (give --harmonics H)")
+        if args.harmonics is not None:
+            options["harmonics"] = _harmonics_option("hb", args.harmonics)
+        if args.one_branch:
+            options["all_branches"] = False
+        if args.compare not in (None, "exact"):
+            raise PerturbError(f"--compare {args.compare!r}: expected exact")
+    else:
+        given = {
+            "--harmonics": args.harmonics,
+            "--order": args.order,
+            "--one-branch": args.one_branch or None,
+            "--compare": args.compare,
+        }
+        for flag, value in given.items():
+            if value is not None:
+                raise ParameterError(
+                    f"{flag}: not an option of a system's exact response (the approximations "
+                    "of one coordinate take it, and --method hb for a system); the exact "
+                    "response takes --omega, --output, --param, --out and --plot"
+                )
     check_points(args.points, "--points")
     kind, omegas = parse_omega(args.omega)
     params = dict(parse_param(p) for p in args.param or ())
@@ -561,10 +577,18 @@ def _frc_system(args: argparse.Namespace) -> int:
 
     _, output = system_output(system, args.output)  # refused before any work
     if kind == "range":
-        resp = frequency_response(system, "exact", omegas, output=args.output)
+        resp = frequency_response(system, method.name, omegas, output=args.output, **options)
     else:
-        resp = frequency_response(system, "exact", frequencies=omegas, output=args.output)
-    text = resp.to_csv(None)
+        resp = frequency_response(
+            system, method.name, frequencies=omegas, output=args.output, **options
+        )
+    extra = ref = summary = None
+    if args.compare == "exact":
+        from perturb.solve import system_errors
+
+        extra, summary = system_errors(system, resp, args.output)
+        ref = "exact orbits"
+    text = resp.to_csv(None, extra=extra)
     if args.out is not None:
         _write_text(args.out, text)
     if args.plot:
@@ -573,6 +597,10 @@ def _frc_system(args: argparse.Namespace) -> int:
 
         fig = plot_frequency_response([resp], None, title=system_title(system, ("Omega",)))
         fig.axes[0].set_ylabel(f"amplitude max |{output}|")
+        if summary is not None:
+            fig.axes[0].set_title(
+                fig.axes[0].get_title() + "\nmax rel. error vs exact: " + summary, fontsize=8
+            )
         with _atomic_figure(args.plot) as tmp:
             save_figure(fig, tmp)
     quiet_csv = args.out is None and args.plot
@@ -580,6 +608,8 @@ def _frc_system(args: argparse.Namespace) -> int:
         print(_describe(resp), file=sys.stderr)
         for note in resp.notes:
             print(f"note: {note}", file=sys.stderr)
+    if summary is not None:
+        print(f"compare with {ref}: max relative error {summary}", file=sys.stderr)
     if quiet_csv:
         sys.stdout.write(_frc_summary(resp, kind))
         print(f"wrote {args.plot} (add --out FILE.csv for the data)", file=sys.stdout)

@@ -134,6 +134,7 @@ __all__ = [
     "system_balance_branch",
     "SystemBalanceResponse",
     "system_balance_response",
+    "system_balance_solutions_at",
     "SystemBalanceError",
 ]
 
@@ -1202,13 +1203,16 @@ class SystemBalanceBranch:
     stable : numpy.ndarray or None
     folds : tuple of float
         Parameter values of the folds the continuation located.
-    curve : ContinuationCurve
-        The raw continuation result.
+    curve : ContinuationCurve or None
+        The raw continuation result (the downward run of a branch traced both ways; None for
+        a single solution at a listed frequency).
     output_coefficients : numpy.ndarray
         ``(P, size)`` coefficients of the output.
     m : int
     model : str
         The system's name.
+    n2 : int
+        Second-order coordinates (the first ``n2`` rows of each ``U[p]``).
     """
 
     Omega: np.ndarray
@@ -1220,10 +1224,11 @@ class SystemBalanceBranch:
     max_multiplier: np.ndarray | None
     stable: np.ndarray | None
     folds: tuple[float, ...]
-    curve: ContinuationCurve
+    curve: ContinuationCurve | None
     output_coefficients: np.ndarray
     m: int = 1
     model: str = ""
+    n2: int = 0
 
     def __len__(self) -> int:
         return int(self.Omega.size)
@@ -1238,6 +1243,22 @@ class SystemBalanceBranch:
     @property
     def output_mean(self) -> np.ndarray:
         return self.output_coefficients[:, 0].copy()
+
+    def states(self, t: float = 0.0) -> np.ndarray:
+        """``(P, n)``: the full state ``y = (q, q', p)`` of every point's orbit at time ``t``
+        (initial states for shooting the exact orbit)."""
+        n2 = int(self.n2)
+        size = self.U.shape[2]
+        basis = HarmonicBasis.make((size - 1) // 2)
+        out = np.empty((len(self), 2 * n2 + self.U.shape[1] - n2))
+        for p in range(len(self)):
+            w = float(self.Omega[p]) / self.m
+            th = np.array([float(t) * w])
+            ph, dph = basis.design(th)[0], basis.design(th, 1)[0]
+            out[p] = np.concatenate(
+                [self.U[p, :n2] @ ph, w * (self.U[p, :n2] @ dph), self.U[p, n2:] @ ph]
+            )
+        return out
 
     def columns(self) -> dict[str, np.ndarray]:
         """``amplitude_<name>`` (max |z_j|) and ``mean_<name>`` per coordinate, as the exact
@@ -1275,7 +1296,8 @@ class SystemBalanceBranch:
             notes=(
                 f"harmonic balance of {len(self.coordinates)} coordinates, H = "
                 f"{(self.U.shape[2] - 1) // 2}, m = {self.m}; output {self.output}; "
-                f"continuation stopped: {self.curve.stop_reason}",
+                "continuation stopped: "
+                + (self.curve.stop_reason if self.curve is not None else "-"),
             ),
         )
 
@@ -1415,7 +1437,7 @@ def _make_branch(
     Ws: np.ndarray,
     Us: np.ndarray,
     folds: tuple[float, ...],
-    curve: ContinuationCurve,
+    curve: ContinuationCurve | None,
     out_name: str,
     vec: np.ndarray,
     stability: bool,
@@ -1448,6 +1470,7 @@ def _make_branch(
         out_coef,
         sb.m,
         sb.system.name,
+        sb.n2,
     )
 
 
@@ -1633,7 +1656,10 @@ def _trace_through(
             skip = 1 if Ws_parts else 0  # the shared start point
             Ws_parts.append(lam[skip:])
             Us_parts.append(uu[skip:])
-        folds += [float(f.lam) for f in curve.folds]
+        for f in curve.folds:
+            # a closed loop passes its first fold again; a start on a fold is met by both runs
+            if all(abs(float(f.lam) - g) > 1e-9 * max(1.0, abs(g)) for g in folds):
+                folds.append(float(f.lam))
     return np.concatenate(Ws_parts), np.concatenate(Us_parts), tuple(folds), runs[0][1]
 
 
@@ -1677,16 +1703,18 @@ class SystemBalanceResponse:
 
     def closed(self) -> tuple[bool, ...]:
         """Per branch, whether it is a detached loop (its continuation closed on itself)."""
-        return tuple(b.curve.stop_reason == "closed" for b in self.branches)
+        return tuple(b.curve is not None and b.curve.stop_reason == "closed" for b in self.branches)
 
     def to_response(self) -> Response:
         """The standard :class:`~perturb.response.Response` (method ``"hb-system"``), one
         :class:`~perturb.response.Branch` per branch, folds of every branch."""
-        folds = []
+        folds: list[tuple[float, float]] = []
         for b in self.branches:
             for lam in b.folds:
                 i = int(np.argmin(np.abs(b.Omega - lam)))
-                folds.append((float(lam), float(b.output_amplitude[i])))
+                f = (float(lam), float(b.output_amplitude[i]))
+                if f not in folds:  # a mirror image's folds are its source's (same max|.|)
+                    folds.append(f)
         return Response(
             tuple(b.to_branch() for b in self.branches),
             "hb-system",
@@ -1854,5 +1882,58 @@ def system_balance_response(
         sb.m,
         out_name,
         Q is not None,
+        system.name,
+    )
+
+
+def system_balance_solutions_at(
+    system: System,
+    frequencies: Sequence[float],
+    *,
+    harmonics: int = 15,
+    m: int = 1,
+    output: str | ArrayLike | None = None,
+    stability: bool = True,
+    max_starts: int = 10,
+    balance: SystemBalance | None = None,
+) -> SystemBalanceResponse:
+    """Every HB solution found at each listed frequency (the starts of
+    :func:`system_balance_response`: frozen-segment orbits, the linearisation, the bounded
+    multi-start), each a one-point branch, frequencies in the order given.
+
+    Raises
+    ------
+    ParameterError, ModelError
+        Bad input.
+    SystemBalanceError
+        No solution at some frequency.
+    """
+    sb = balance if balance is not None else SystemBalance(system, harmonics, m=m)
+    out_name, vec = _output(sb, output)
+    found: list[SystemBalanceBranch] = []
+    for w in frequencies:
+        W = float(w)
+        if not (math.isfinite(W) and W > 0):
+            raise ParameterError(f"frequency {w!r}: expected a finite positive number")
+        sols = _solutions_at(sb, W, lambda g: False, max_starts)
+        if not sols:
+            raise SystemBalanceError(
+                f"harmonic balance of {system.name!r}: no solution at {sb.parameter} = {W:g} "
+                f"from {max_starts} starts"
+            )
+        for u in sols:
+            found.append(
+                _make_branch(sb, np.array([W]), u[None, :], (), None, out_name, vec, stability)
+            )
+    lo = min(float(w) for w in frequencies)
+    hi = max(float(w) for w in frequencies)
+    return SystemBalanceResponse(
+        tuple(found),
+        ("listed",) * len(found),
+        (lo, hi),
+        (sb.size - 1) // 2,
+        sb.m,
+        out_name,
+        False,
         system.name,
     )
