@@ -120,3 +120,30 @@ def test_cli_refuses_other_approximations_for_systems():
         frequency_response(builtin_system("nsd2"), "hb1", (1.0, 1.2))
     with pytest.raises(PerturbError, match="seeds"):
         frequency_response(builtin_system("nsd2"), "hb", (1.0, 1.2), seeds=3)
+
+
+def test_scene_hb_with_compare(tmp_path):
+    scene = tmp_path / "hb.toml"
+    scene.write_text(
+        '[model]\nsystem = "nsd2"\noutput = "x2"\n[ask]\nkind = "frequency_response"\n'
+        'omega = [1.1, 1.3]\n[method]\nname = "hb"\nharmonics = 7\n'
+        '[compare]\nreference = "exact"\n'
+    )
+    code, _, err = cli("run", str(scene), "--out", str(tmp_path / "out"))
+    assert code == 0, err
+    rows = list(csv.DictReader(io.StringIO((tmp_path / "out" / "frc.csv").read_text())))
+    assert {"amplitude_x1", "amplitude_x2", "rel_error_x1", "rel_error_x2"} <= set(rows[0])
+    assert all(r["method"] == "hb-system" for r in rows)
+    rel = np.array([float(r["rel_error_x2"]) for r in rows])
+    assert np.nanmax(rel) <= TOL["x2"]
+    # the same numbers as the API (H = 7 read from [method] harmonics)
+    api = frequency_response(builtin_system("nsd2"), "hb", WINDOW, harmonics=7, output="x2")
+    assert len(rows) == sum(len(b) for b in api.branches)
+    for bad, match in (
+        ('[method]\nname = "hb1"', "hb1"),
+        ('[method]\nname = "exact"\n[compare]\nreference = "exact"', "compare"),
+        ('[method]\nname = "exact"\nharmonics = 7', "harmonics"),
+    ):
+        scene.write_text('[model]\nsystem = "nsd2"\n' + bad)
+        code, _, err = cli("run", str(scene), "--out", str(tmp_path / "bad"))
+        assert code != 0 and match in err, err

@@ -598,9 +598,9 @@ def _frc_system(args: argparse.Namespace) -> int:
         fig = plot_frequency_response([resp], None, title=system_title(system, ("Omega",)))
         fig.axes[0].set_ylabel(f"amplitude max |{output}|")
         if summary is not None:
-            fig.axes[0].set_title(
-                fig.axes[0].get_title() + "\nmax rel. error vs exact: " + summary, fontsize=8
-            )
+            from perturb.apps.scene import label_errors
+
+            label_errors(fig, summary)
         with _atomic_figure(args.plot) as tmp:
             save_figure(fig, tmp)
     quiet_csv = args.out is None and args.plot

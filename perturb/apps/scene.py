@@ -1433,13 +1433,36 @@ def _parse_system_scene(source: str, data: dict, model: dict) -> Scene:
                 f"[ask] {key!r} does not apply to kind {kind!r} of a system: expected one of "
                 + ", ".join(sorted(_SYSTEM_KIND_KEYS[kind])),
             )
-    for table in ("compare", "plot", "accuracy"):
+    for table in ("plot", "accuracy"):
         if data.get(table):
             raise _scene_error(
                 source, f"[{table}] applies to oscillators; a system scene does not take it (yet)"
             )
     fields: dict = _system_ask_fields(source, ask, kind)
     fields["method"] = _system_method(source, data.get("method", {}), ask, kind)
+    if fields["method"] == "hb" and "harmonics" in data.get("method", {}):
+        from perturb.methods.registry import check_harmonics
+
+        try:
+            fields["harmonics"] = check_harmonics(data["method"]["harmonics"])
+        except PerturbError as exc:
+            raise _scene_error(source, f"[method] {exc}") from None
+    compare = data.get("compare", {})
+    if compare:
+        # a system's HB against the exact orbits at its points (rel_error per coordinate)
+        if set(compare) != {"reference"} or compare["reference"] != "exact":
+            raise _scene_error(
+                source,
+                f"[compare] {compare!r}: a system scene takes reference = 'exact' only "
+                "(with [method] name = 'hb')",
+            )
+        if kind != "frequency_response" or fields["method"] != "hb":
+            raise _scene_error(
+                source,
+                "[compare] reference = 'exact' compares a system's HB response with exact "
+                "orbits: it needs kind 'frequency_response' and [method] name = 'hb'",
+            )
+        fields["reference"] = "exact"
     outputs = _output_table(source, data.get("output", {}), kind)
     if "latex" in data.get("output", {}):
         raise _scene_error(
@@ -1544,25 +1567,28 @@ def _system_method(source: str, table: dict, ask: dict, kind: str) -> str:
     """``[method] name`` of a system scene: ``exact`` for a frequency response (the
     approximations take one coordinate), an integrator for a time history, a step-response
     solver (also as ``[ask] method``) for a step response."""
-    extra = sorted(set(table) - {"name"})
+    hb = kind == "frequency_response" and table.get("name") == "hb"
+    extra = sorted(set(table) - ({"name", "harmonics"} if hb else {"name"}))
     if extra:
         raise _scene_error(
             source,
             f"[method] {', '.join(extra)}: options of the approximations, which take one "
-            "coordinate; a system scene takes [method] name only",
+            "coordinate; a system scene takes [method] name only (and harmonics with "
+            "name = 'hb')",
         )
     if "method" in ask and "name" in table:
         raise _scene_error(source, "[ask] method and [method] name are one setting: give one")
     if kind == "frequency_response":
         name = table.get("name", "exact")
         spec = _method_spec(source, "[method] name =", name)
-        if spec.name != "exact":
+        if spec.name not in ("exact", "hb"):
             raise _scene_error(
                 source,
                 f"[method] name = {name!r} ({spec.title}) is a method for one coordinate; a "
-                "system of several coordinates takes 'exact' (for now)",
+                "system of several coordinates takes 'exact' or 'hb' (numeric multi-harmonic "
+                "balance)",
             )
-        return "exact"
+        return spec.name
     if kind == "time_history":
         from perturb.solve import SYSTEM_INTEGRATORS
 
@@ -1727,38 +1753,67 @@ def _plot_step_response(r, png: Path, title: str) -> None:
     _close(fig)
 
 
+def label_errors(fig, summary: str) -> None:
+    """Write a system's HB errors against exact orbits (:func:`perturb.solve.system_errors`'s
+    summary) into the legend entry of the response (the first label), or under the title
+    when the figure has no legend."""
+    ax = fig.axes[0]
+    legend = ax.get_legend()
+    import textwrap
+
+    text = "max rel. error vs exact: " + summary
+    if legend is not None and legend.texts:
+        first = legend.texts[0]
+        first.set_text(first.get_text() + "\n" + textwrap.fill(text, 60))
+    else:
+        ax.set_title(ax.get_title() + "\n" + text, fontsize=8)
+
+
 def _run_system_frequency_response(scene: Scene, system, out: Path, paths: dict, say) -> dict:
-    """A system's exact frequency response (:func:`perturb.solve.frequency_response`): the
-    CSV (the SDOF columns of ``[model] output``, then ``amplitude_<name>`` and ``mean_<name>``
-    of every coordinate) and the figure of the output's amplitude, stable solid."""
-    from perturb.solve import frequency_response, system_output
+    """A system's frequency response (:func:`perturb.solve.frequency_response`, method
+    ``exact`` or ``hb``): the CSV (the SDOF columns of ``[model] output``, then
+    ``amplitude_<name>`` and ``mean_<name>`` of every coordinate; with ``[compare] reference
+    = 'exact'`` also ``rel_error`` and ``rel_error_<name>`` against exact orbits at the HB
+    points) and the figure of the output's amplitude, stable solid (the largest errors in
+    its title)."""
+    from perturb.solve import frequency_response, system_errors, system_output
 
     _, output = system_output(system, scene.output)
-    say(
-        f"[perturb] tracing the exact frequency response of {system.name} over Omega in "
-        f"{scene.omega} ..."
-    )
-    resp = frequency_response(system, "exact", scene.omega, output=scene.output)
+    method = scene.method if scene.method in ("exact", "hb") else "exact"
+    what = "exact frequency response" if method == "exact" else "harmonic-balance response"
+    say(f"[perturb] tracing the {what} of {system.name} over Omega in {scene.omega} ...")
+    options = {"harmonics": scene.harmonics} if method == "hb" and scene.harmonics else {}
+    resp = frequency_response(system, method, scene.omega, output=scene.output, **options)
     say(f"[perturb] {resp!r}".replace("\n", "\n[perturb] "))
-    resp.to_csv(paths["csv"])  # the SDOF columns of the output, then every coordinate's
+    extra = summary = None
+    if scene.reference == "exact" and method == "hb":
+        say("[perturb] shooting the exact orbits at the HB points ...")
+        extra, summary = system_errors(system, resp, scene.output)
+        say(f"[perturb] max relative error against exact orbits: {summary}")
+    resp.to_csv(paths["csv"], extra=extra)  # the output's columns, then every coordinate's
     from perturb.report.figures import frequency_response_figure, save_figure
 
     fig = frequency_response_figure([resp], None, title=system_title(system, ("Omega",)))
     fig.axes[0].set_ylabel(f"amplitude max |{output}|")
+    if summary is not None:
+        label_errors(fig, summary)
     save_figure(fig, paths["png"])
     _close(fig)
     notes = [f"{resp.method}: {n}" for n in resp.notes]
     if not resp.branches:
         notes.append(
-            f"exact: no periodic solution found for Omega in [{scene.omega[0]:g}, "
+            f"{method}: no periodic solution found for Omega in [{scene.omega[0]:g}, "
             f"{scene.omega[1]:g}] (an empty answer, not a proof that none exists)"
         )
-    return {
+    report = {
         "omega": list(scene.omega),
-        "method": "exact",
+        "method": method,
         "output": output,
         "branches": len(resp.branches),
         "points": int(sum(len(b) for b in resp.branches)),
-        "columns": list(resp.extra_columns()),
+        "columns": list(resp.extra_columns()) + (list(extra) if extra else []),
         "notes": notes,
     }
+    if summary is not None:
+        report["compare"] = f"exact orbits: {summary}"
+    return report

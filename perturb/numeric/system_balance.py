@@ -1724,7 +1724,11 @@ class SystemBalanceResponse:
                 f"harmonic balance of {len(self.branches[0].coordinates) if self.branches else 0}"
                 f" coordinates, H = {self.harmonics}, m = {self.m}; output {self.output}; "
                 f"{len(self.branches)} branches ({', '.join(self.origins)})"
-                + ("; odd system: mirror images added" if self.odd else ""),
+                + (
+                    f"; odd system: {self.origins.count('mirror')} mirror images added"
+                    if self.odd
+                    else ""
+                ),
             ),
         )
 
