@@ -408,8 +408,14 @@ class _ModalRegion:
         om = model.omegas
         rho = max(float(np.max(np.abs(lam))) if n else 0.0, float(om.max()) if om.size else 0.0)
         self.rho = rho
+        # the data that do not depend on the input frequencies, shared by the models of a
+        # frequency family (see _Model.derive): computed once per region
+        core = model.region_core.get(key)
+        if core is None:
+            core = (Vinv @ b, [Vinv @ uvk for uvk in model.uv], model.C @ V)
+            model.region_core[key] = core
+        beta0, betas, CV = core
         # sources: sigma_0 = 0 with b, sigma_k = i omega_k with u_k - i v_k
-        beta0 = Vinv @ b
         res = []  # (lambda, sigma, V_j beta_jm)
         yconst = np.zeros(n, dtype=complex)
         for j in range(n):
@@ -423,7 +429,7 @@ class _ModalRegion:
         self.yconst = yconst.real.copy()
         Z = np.zeros((om.size, n), dtype=complex)
         for k, w in enumerate(om):
-            beta = Vinv @ model.uv[k]
+            beta = betas[k]
             s = 1j * w
             for j in range(n):
                 if beta[j] == 0.0:
@@ -435,7 +441,7 @@ class _ModalRegion:
         self.Z = Z
         self.res = res
         C = model.C
-        self.CV = C @ V  # (ns, n)
+        self.CV = CV  # (ns, n)
         self.Cconst = C @ self.yconst - model.d
         self.CZ = Z @ C.T  # (K, ns)
         self.mu = np.concatenate([lam.astype(complex), [0j], 1j * om])
@@ -456,7 +462,7 @@ class _ModalRegion:
         self.n = n
         self.sig = np.array(key, dtype=float)
         self.mupow_sig = self.mupow[:3, None, :] * self.sig[None, :, None]
-        self.absd = np.abs(model.d)
+        self.absd = model.absd
         self.amu1 = self.amupow[1]
         self.amu1_list = self.amu1.tolist()
         self.mu_re = self.mu.real.copy()
@@ -945,6 +951,8 @@ class _Model:
         self.representation = representation
         n = system.n
         self.n = n
+        # omega-independent data of each region (_ModalRegion), shared with derived models
+        self.region_core: dict[tuple[int, ...], tuple] = {}
         # the internal state is z = y / D (D a power-of-two diagonal, see _state_scale): every
         # array below is of the scaled system, and y = D z is exact in binary floating point
         D = _state_scale(system)
@@ -959,10 +967,23 @@ class _Model:
         self.v = np.array([h.v for h in system.inputs], dtype=float).reshape(-1, n) * self.Dinv
         self.uv = self.u - 1j * self.v
         self.continuous = tuple(system.continuous) or (False,) * len(system.surfaces)
+        self.absd = np.abs(self.d)
         self._regions: dict[tuple[int, ...], _ModalRegion | _ExpmRegion] = {}
         self._Ab: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
         self.eye = np.eye(n)  # (read-only: the start of every sensitivity product)
         self.eye.setflags(write=False)
+
+    def derive(self, system: PiecewiseAffineSystem) -> _Model:
+        """The model of ``system``, which differs from this model's system only by the input
+        frequencies and the period (:func:`_same_but_frequencies`): everything but the
+        frequencies and the regions built from them is shared (a frequency response builds
+        one system per parameter value, see ``SystemFlowFamily``)."""
+        out = object.__new__(_Model)
+        out.__dict__.update(self.__dict__)
+        out.system = system
+        out.omegas = np.array([h.omega for h in system.inputs], dtype=float)
+        out._regions = {}
+        return out
 
     def region_data(self, key: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
         """``(A, b)`` of the scaled system in region ``key`` (ModelError when missing)."""
@@ -1043,12 +1064,34 @@ class _Model:
 _MODEL_CACHE: list[tuple[PiecewiseAffineSystem, str, _Model]] = []
 
 
+def _same_but_frequencies(a: PiecewiseAffineSystem, b: PiecewiseAffineSystem) -> bool:
+    """Whether ``b`` is ``a`` with other input frequencies / period only: the same region
+    mapping and surfaces (by identity: ``dataclasses.replace`` shares them), the same input
+    vectors."""
+    if a.regions is not b.regions or a.surfaces is not b.surfaces:
+        return False
+    if a.state_names != b.state_names or a.continuous != b.continuous:
+        return False
+    if len(a.inputs) != len(b.inputs):
+        return False
+    return all(
+        (ha.u is hb.u or np.array_equal(ha.u, hb.u))
+        and (ha.v is hb.v or np.array_equal(ha.v, hb.v))
+        for ha, hb in zip(a.inputs, b.inputs, strict=True)
+    )
+
+
 def _model_of(system: PiecewiseAffineSystem, representation: str) -> _Model:
     """The cached model of ``system`` (the last few systems, by identity)."""
     for sys_, rep, model in _MODEL_CACHE:
         if sys_ is system and rep == representation:
             return model
-    model = _Model(system, representation)
+    for sys_, rep, model in reversed(_MODEL_CACHE):
+        if rep == representation and _same_but_frequencies(sys_, system):
+            model = model.derive(system)
+            break
+    else:
+        model = _Model(system, representation)
     _MODEL_CACHE.append((system, representation, model))
     if len(_MODEL_CACHE) > 8:
         _MODEL_CACHE.pop(0)
