@@ -394,6 +394,65 @@ def _E_bounds(lam: complex, sig: complex, ta: np.ndarray, tb: np.ndarray) -> np.
 # --------------------------------------------------------------------------------------------
 # regions (cached per system) and pieces (one visit of a region)
 # --------------------------------------------------------------------------------------------
+_ZERO1 = np.zeros(1, dtype=complex)
+
+
+class _RegionCore:
+    """The data of a modal region that do not depend on the input frequencies (shared by the
+    models of a frequency family, :meth:`_Model.derive`): ``V^-1 b``, ``V^-1 (u_k - i v_k)``,
+    ``C V``, the columns of ``V`` and the eigenvalues as numpy scalars (the arithmetic of
+    the per-frequency part is that of one loop over them), and the constant particular
+    solution per classification of the modes (zero band relative to ``rho``)."""
+
+    def __init__(self, model: _Model, key, b, lam, V, Vinv) -> None:
+        n = V.shape[0]
+        self.beta0 = Vinv @ b
+        self.betas = [Vinv @ uvk for uvk in model.uv]
+        # the modes each source excites (beta == 0 skipped, as the loops did)
+        self.nz = [[j for j in range(n) if beta[j] != 0.0] for beta in self.betas]
+        self.nz0 = [j for j in range(n) if self.beta0[j] != 0.0]
+        self.lamj = [lam[j] for j in range(n)]
+        self.Vcols = [V[:, j] for j in range(n)]
+        self.lam_max = float(np.max(np.abs(lam))) if n else 0.0
+        self.lamc = lam.astype(complex)
+        self.CV = model.C @ V
+        self.YWV = np.concatenate([V.astype(complex), self.CV.astype(complex)], axis=0)
+        self.sig = np.array(key, dtype=float)
+        self.sig3 = self.sig[None, :, None]
+        ns = model.C.shape[0]
+        self.no_res = (
+            np.zeros(0, dtype=complex),
+            np.zeros(0, dtype=complex),
+            np.zeros((n, 0), dtype=complex),
+            np.zeros((ns, 0), dtype=complex),
+        )
+        for arr in (*self.no_res, self.YWV, self.sig, self.CV):
+            arr.setflags(write=False)
+        self._constant: dict[tuple[bool, ...], tuple[tuple, np.ndarray]] = {}
+
+    def constant(self, rho: float) -> tuple[tuple, np.ndarray]:
+        """(resonant entries of the constant source, the constant particular solution) for
+        the zero band ``_ZERO_BAND rho`` (cached per classification of the modes)."""
+        lamj = self.lamj
+        zero = tuple(bool(abs(lamj[j]) <= _ZERO_BAND * rho or lamj[j] == 0.0) for j in self.nz0)
+        hit = self._constant.get(zero)
+        if hit is None:
+            beta0 = self.beta0
+            res = []
+            yconst = np.zeros(len(lamj), dtype=complex)
+            for j, z in zip(self.nz0, zero, strict=True):
+                if z:
+                    res.append((complex(lamj[j]), 0j, self.Vcols[j] * beta0[j]))
+                else:
+                    yconst -= self.Vcols[j] * (beta0[j] / lamj[j])
+            # the real part: conjugate modes are classified alike, so the imaginary parts
+            # cancel
+            yc = yconst.real.copy()
+            yc.setflags(write=False)
+            hit = self._constant[zero] = (tuple(res), yc)
+        return hit
+
+
 class _ModalRegion:
     """A region in the modal representation (see the module docstring)."""
 
@@ -406,62 +465,56 @@ class _ModalRegion:
         self.lam, self.V, self.Vinv = lam, V, Vinv
         n = A.shape[0]
         om = model.omegas
-        rho = max(float(np.max(np.abs(lam))) if n else 0.0, float(om.max()) if om.size else 0.0)
-        self.rho = rho
         # the data that do not depend on the input frequencies, shared by the models of a
         # frequency family (see _Model.derive): computed once per region
         core = model.region_core.get(key)
         if core is None:
-            core = (Vinv @ b, [Vinv @ uvk for uvk in model.uv], model.C @ V)
-            model.region_core[key] = core
-        beta0, betas, CV = core
+            core = model.region_core[key] = _RegionCore(model, key, b, lam, V, Vinv)
+        rho = max(core.lam_max, model.omega_max)
+        self.rho = rho
         # sources: sigma_0 = 0 with b, sigma_k = i omega_k with u_k - i v_k
-        res = []  # (lambda, sigma, V_j beta_jm)
-        yconst = np.zeros(n, dtype=complex)
-        for j in range(n):
-            if beta0[j] == 0.0:
-                continue
-            if abs(lam[j]) <= _ZERO_BAND * rho or lam[j] == 0.0:
-                res.append((complex(lam[j]), 0j, V[:, j] * beta0[j]))
-            else:
-                yconst -= V[:, j] * (beta0[j] / lam[j])
-        # the real part: conjugate modes are classified alike, so the imaginary parts cancel
-        self.yconst = yconst.real.copy()
+        res, yconst = core.constant(rho)
+        res = list(res)  # (lambda, sigma, V_j beta_jm)
+        lamj, Vcols = core.lamj, core.Vcols
         Z = np.zeros((om.size, n), dtype=complex)
         for k, w in enumerate(om):
-            beta = betas[k]
+            beta = core.betas[k]
             s = 1j * w
-            for j in range(n):
-                if beta[j] == 0.0:
-                    continue
-                if abs(lam[j] - s) < _RESONANCE_BAND * w:
-                    res.append((complex(lam[j]), s, V[:, j] * beta[j]))
+            for j in core.nz[k]:
+                if abs(lamj[j] - s) < _RESONANCE_BAND * w:
+                    res.append((complex(lamj[j]), s, Vcols[j] * beta[j]))
                 else:
-                    Z[k] += V[:, j] * (beta[j] / (s - lam[j]))
+                    Z[k] += Vcols[j] * (beta[j] / (s - lamj[j]))
+        self.yconst = yconst
         self.Z = Z
         self.res = res
         C = model.C
-        self.CV = CV  # (ns, n)
-        self.Cconst = C @ self.yconst - model.d
-        self.CZ = Z @ C.T  # (K, ns)
-        self.mu = np.concatenate([lam.astype(complex), [0j], 1j * om])
-        self.mupow = np.stack([np.ones_like(self.mu), self.mu, self.mu**2, self.mu**3])
+        self.CV = core.CV  # (ns, n)
+        Cconst = self.Cconst = C @ yconst - model.d
+        CZ = self.CZ = Z @ C.T  # (K, ns)
+        self.mu = np.concatenate([core.lamc, _ZERO1, 1j * om])
+        mu = self.mu
+        self.mupow = np.stack([np.ones_like(mu), mu, mu**2, mu**3])
         self.amupow = np.abs(self.mupow)
-        self.res_rho = max((max(abs(r[0]), abs(r[1])) for r in res), default=0.0)
-        self.res_lam = np.array([r[0] for r in res], dtype=complex)
-        self.res_sig = np.array([r[1] for r in res], dtype=complex)
-        self.res_vec = np.array([r[2] for r in res], dtype=complex).reshape(len(res), n).T
-        self.res_C = C @ self.res_vec  # (ns, nr)
-        # per-piece data are these columns times the piece's coefficients (alpha, 1, e^{i w t0})
-        K = om.size
-        self.Ybase = np.concatenate([V.astype(complex), self.yconst[:, None], Z.T], axis=1)
-        self.Wbase = np.concatenate(
-            [self.CV.astype(complex), self.Cconst[:, None].astype(complex), self.CZ.T], axis=1
-        ).reshape(C.shape[0], n + 1 + K)
-        self.YWbase = np.concatenate([self.Ybase, self.Wbase], axis=0)
+        if res:
+            self.res_rho = max(max(abs(r[0]), abs(r[1])) for r in res)
+            self.res_lam = np.array([r[0] for r in res], dtype=complex)
+            self.res_sig = np.array([r[1] for r in res], dtype=complex)
+            self.res_vec = np.array([r[2] for r in res], dtype=complex).reshape(len(res), n).T
+            self.res_C = C @ self.res_vec  # (ns, nr)
+        else:
+            self.res_rho = 0.0
+            self.res_lam, self.res_sig, self.res_vec, self.res_C = core.no_res
+        # per-piece data are these columns times the piece's coefficients (alpha, 1, e^{i w t0}):
+        # the state's rows (n), then the surfaces' (ns); Ybase and Wbase are views
+        self.YWbase = np.concatenate(
+            [core.YWV, np.concatenate([yconst, Cconst])[:, None], np.concatenate([Z.T, CZ.T])],
+            axis=1,
+        )
+        self.Ybase, self.Wbase = self.YWbase[:n], self.YWbase[n:]
         self.n = n
-        self.sig = np.array(key, dtype=float)
-        self.mupow_sig = self.mupow[:3, None, :] * self.sig[None, :, None]
+        self.sig = core.sig
+        self.mupow_sig = self.mupow[:3, None, :] * core.sig3
         self.absd = model.absd
         self.amu1 = self.amupow[1]
         self.amu1_list = self.amu1.tolist()
@@ -963,6 +1016,7 @@ class _Model:
         self.d = np.array([s.offset for s in system.surfaces], dtype=float)
         self.cc = np.einsum("ij,ij->i", self.C, self.C)
         self.omegas = np.array([h.omega for h in system.inputs], dtype=float)
+        self.omega_max = float(self.omegas.max()) if self.omegas.size else 0.0
         self.u = np.array([h.u for h in system.inputs], dtype=float).reshape(-1, n) * self.Dinv
         self.v = np.array([h.v for h in system.inputs], dtype=float).reshape(-1, n) * self.Dinv
         self.uv = self.u - 1j * self.v
@@ -982,6 +1036,7 @@ class _Model:
         out.__dict__.update(self.__dict__)
         out.system = system
         out.omegas = np.array([h.omega for h in system.inputs], dtype=float)
+        out.omega_max = float(out.omegas.max()) if out.omegas.size else 0.0
         out._regions = {}
         return out
 
