@@ -13,6 +13,11 @@ in part 1; minimum over ``--repeat`` runs; one BLAS thread):
    nsd2, k = -0.5, F = 2; and the hardening k = 0.3, F = 0.6 with its folds), Floquet
    multipliers at every point; the set-up (``SystemBalance``, SymPy once per system) apart.
    Target (issue 16): <= 0.5 s.
+1b. **nsd2, every branch**: ``system_balance_response(nsd2, window, harmonics=15)`` over
+   (0.5, 2.0) (4 branches: the connected one, two detached loops, one born at the high edge)
+   and (0.62, 0.75) (3 branches), multipliers at every point, beside the one-branch trace of
+   part 1 in the same process (the ratio is the price of seeding at 10 frequencies and
+   tracing the other branches). Target (issue 16): <= 0.5 s.
 2. **Accuracy at fixed Omega** (nsd2, Omega = 1.2): error of each coordinate's max|.| against
    the exact orbit (``periodic_orbit`` on ``AffineExactFlow``, 2^14 samples), exact
    projection and AFT with 4H + 1 samples (``projection="aft"``) beside the truncation floor
@@ -51,6 +56,7 @@ from perturb.numeric.system_balance import (  # noqa: E402
     SystemBalance,
     system_balance_branch,
     system_balance_orbit,
+    system_balance_response,
 )
 from perturb.simulate.flows.factory import make_flow  # noqa: E402
 from perturb.simulate.orbits.shooting import periodic_orbit  # noqa: E402
@@ -88,6 +94,30 @@ def nsd2_response(repeat: int) -> None:
                 f"CPU {c:.3f} s (wall {w:.3f} s) "
                 f"({br.curve.residual_evaluations} residual evaluations)"
             )
+
+
+def nsd2_every_branch(repeat: int) -> None:
+    print("== 1b. nsd2 every branch (system_balance_response), H = 15, multipliers everywhere")
+    system = builtin_system("nsd2")
+    sb = SystemBalance(system, 15)
+    _, c1, br = timed(
+        lambda: system_balance_branch(system, (0.5, 2.0), balance=sb, stability=True), repeat
+    )
+    print(f"  one branch (0.5, 2.0): {len(br)} points, CPU {c1:.3f} s")
+    for window in ((0.5, 2.0), (0.62, 0.75)):
+        w, c, r = timed(
+            lambda window=window: system_balance_response(system, window, balance=sb), repeat
+        )
+        pts = sum(len(b) for b in r.branches)
+        desc = ", ".join(
+            f"{o}{' loop' if cl else ''} {b.Omega.min():.4f}..{b.Omega.max():.4f}"
+            for o, cl, b in zip(r.origins, r.closed(), r.branches, strict=True)
+        )
+        ratio = f" = {c / c1:.2f}x the one-branch trace" if window == (0.5, 2.0) else ""
+        print(
+            f"  every branch {window}: {len(r)} branches, {pts} points, CPU {c:.3f} s "
+            f"(wall {w:.3f} s){ratio}\n    [{desc}]"
+        )
 
 
 def _peak(x):
@@ -218,6 +248,7 @@ def main(argv=None) -> int:
         f"{platform.machine()}, {os.cpu_count()} cpus"
     )
     nsd2_response(args.repeat)
+    nsd2_every_branch(args.repeat)
     accuracy((1, 3, 7, 15, 31) if args.quick else (1, 3, 7, 15, 31, 63))
     ns = (2, 4, 8) if args.quick else (2, 4, 8, 16, 32)
     chain_table(ns, (3, 7, 15), args.repeat, 300 if args.quick else 500)

@@ -818,15 +818,17 @@ class SystemBalance:
         max_iterations: int,
         abandon=None,
         abandon_after: int = 3,
+        halvings: int = 12,
     ) -> tuple[np.ndarray | None, int, float]:
         """Damped Newton from ``u``: ``(solution or None, last step index, best |R|)``;
-        ``abandon(u)`` (when given) is asked once after ``abandon_after`` steps whether to
-        give up (the iterate is heading for a solution already known)."""
+        ``abandon(u)`` (when given) is asked after each step from ``abandon_after`` on whether
+        to give up (the iterate is heading for a solution already known); at most
+        ``halvings`` Armijo halvings per step."""
         scale = max(1e-12, float(np.abs(u).max()))
         best = np.inf
         it = 0
         for it in range(int(max_iterations)):  # noqa: B007 -- reported by the caller
-            if abandon is not None and it == abandon_after and abandon(u):
+            if abandon is not None and it >= abandon_after and abandon(u):
                 return None, it, best
             r, J, _ = self.evaluate(u, Omega, True, sparse=True)
             nr = float(np.linalg.norm(r))
@@ -837,7 +839,7 @@ class SystemBalance:
             # Armijo halving: a poor guess may overshoot across a switching angle
             lam = 1.0
             decreased = False
-            for _ in range(12):
+            for _ in range(int(halvings)):
                 un = u + lam * du
                 rn = self.evaluate(un, Omega, False)[0]
                 if np.linalg.norm(rn) < (1 - 1e-4 * lam) * nr or nr == 0.0:
@@ -1058,8 +1060,18 @@ def _max_abs_many(basis: HarmonicBasis, S: np.ndarray) -> np.ndarray:
     ks = basis.k.astype(float)
     a, b = S[:, basis.a_index], S[:, basis.b_index]
     a0 = S[:, 0] if basis.bias else 0.0
+    # harmonics 1..K contiguous (the usual basis): cos/sin of k t by a running product of
+    # exp(i t) (rounding ~K eps) instead of P x K transcendental calls
+    contiguous = bool(np.array_equal(basis.k, np.arange(1, basis.kmax + 1)))
+
+    def trig(t):
+        if contiguous:
+            Z = np.cumprod(np.repeat(np.exp(1j * t)[:, None], ks.size, axis=1), axis=1)
+            return Z.real, Z.imag
+        return np.cos(np.outer(t, ks)), np.sin(np.outer(t, ks))
+
     for _ in range(8):
-        c, sn = np.cos(np.outer(t, ks)), np.sin(np.outer(t, ks))
+        c, sn = trig(t)
         d1 = np.sum((-a * sn + b * c) * ks, axis=1)
         d2 = np.sum((-a * c - b * sn) * ks**2, axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -1067,7 +1079,7 @@ def _max_abs_many(basis: HarmonicBasis, S: np.ndarray) -> np.ndarray:
         t = t - np.clip(step, -h, h)
         if np.all(np.abs(step) < 1e-14):
             break
-    c, sn = np.cos(np.outer(t, ks)), np.sin(np.outer(t, ks))
+    c, sn = trig(t)
     x = a0 + np.sum(a * c + b * sn, axis=1)
     return np.maximum(best, np.abs(x))
 
@@ -1447,7 +1459,14 @@ def _make_branch(
     multipliers' moduli ``mm`` when known (a mirror image has its source's)."""
     U3 = Us.reshape(Ws.size, sb.neq, sb.size)
     amps = {c: _max_abs_many(sb.basis, U3[:, j, :]) for j, c in enumerate(sb.coordinates)}
-    out_coef = np.array([sb.signal(U3[p], Ws[p], vec) for p in range(Ws.size)])
+    # the output's coefficients at every point at once (sb.signal vectorised over points)
+    n2 = sb.n2
+    alpha = np.concatenate([vec[:n2], vec[2 * n2 :]])
+    beta = np.concatenate([vec[n2 : 2 * n2], np.zeros(sb.n1)])
+    out_coef = np.einsum("j,pjk->pk", alpha, U3)
+    if np.any(beta):
+        w = np.array([sb._omega(W) for W in Ws])
+        out_coef = out_coef + w[:, None] * (np.einsum("j,pjk->pk", beta, U3) @ sb._Dtheta.T)
     out_amp = _max_abs_many(sb.basis, out_coef)
     st = None
     if stability and mm is None:
@@ -1484,11 +1503,12 @@ _MULTI_START_SCALES = (0.5, 2.0, 4.0)
 #: Point-on-curve tolerance (scaled distance: coefficients over the point's largest, Omega
 #: over the window width) below which a solution is taken to lie on a traced branch.
 _ON_CURVE = 0.02
-#: Scaled distance from a traced branch at which a seed's Newton iterate (after three steps)
-#: is abandoned as bound for that branch.
+#: Scaled distance from a traced branch at which a seed's Newton iterate (from its second
+#: step on) is abandoned as bound for that branch.
 _NEAR_CURVE = 0.05
-#: Newton steps per seed start.
-_SEED_NEWTON = 15
+#: Newton steps per seed start, and Armijo halvings per step.
+_SEED_NEWTON = 12
+_SEED_HALVINGS = 6
 
 
 def _mirror_operator(sb: SystemBalance) -> np.ndarray:
@@ -1558,13 +1578,12 @@ def _duplicate(br: SystemBalanceBranch, found, width: float, rtol: float) -> boo
     return all(_on_any(found, flat[i], float(br.Omega[i]), width, rtol) for i in idx)
 
 
-def _solutions_at(
-    sb: SystemBalance, W: float, skip, max_starts: int, near=None
-) -> list[np.ndarray]:
+def _solutions_at(sb: SystemBalance, W: float, skip, max_starts: int, near=None):
     """Distinct HB solutions at ``W`` from the frozen-segment orbits, the linearisation
     about zero and a bounded multi-start (the linear guess scaled), at most ``max_starts``
     capped Newton runs; guesses for which ``skip(u)`` holds (on a traced branch) are not
-    solved, and a run whose iterate satisfies ``near(u)`` after three steps is abandoned."""
+    solved, and a run whose iterate satisfies ``near(u)`` after two steps is abandoned.
+    A generator: each new solution is yielded as found."""
     seg = sb.segment_guesses(W, limit=64)
     lin = sb.linear_guess(W)
     starts = [u for u, inside in seg if inside] + [lin]
@@ -1592,15 +1611,24 @@ def _solutions_at(
             continue
         runs += 1
         # from these guesses Newton converges in a few steps or not at all (measured on nsd2:
-        # converged runs took <= 13 steps), so failing runs are cut short; after three steps
-        # an iterate already close to a traced branch is abandoned (it would land on it)
-        u = sb._newton(W, np.asarray(g, dtype=float).copy(), 1e-10, _SEED_NEWTON, abandon=near)[0]
+        # converged runs took <= 10 steps), so failing runs are cut short (and so are their
+        # Armijo halvings); from the second step on an iterate already close to a traced
+        # branch is abandoned (it would land on it)
+        u = sb._newton(
+            W,
+            np.asarray(g, dtype=float).copy(),
+            1e-10,
+            _SEED_NEWTON,
+            abandon=near,
+            abandon_after=1,
+            halvings=_SEED_HALVINGS,
+        )[0]
         if u is None:
             continue
         if any(np.abs(u - v).max() <= 1e-7 * max(1.0, np.abs(v).max()) for v in out):
             continue
         out.append(u)
-    return out
+        yield u  # the caller traces it before the next start: later starts bound for it stop
 
 
 def _trace_through(
@@ -1756,8 +1784,8 @@ def system_balance_response(
     HB solution that Newton reaches from the frozen-segment linear orbits of every region,
     the linearisation about zero and a bounded multi-start (the linear guess moved onto the
     mean of each frozen-segment orbit, then scaled by 0.5, 2, 4), at most ``max_starts``
-    Newton runs per frequency (a run whose iterate is within 0.05 of a traced branch after
-    three steps is abandoned). Each solution that lies on no branch traced so far
+    Newton runs per frequency (a run whose iterate is within 0.05 of a traced branch from
+    its second step on is abandoned). Each solution that lies on no branch traced so far
     (point-on-curve test: scaled distance to the branch's polyline at most 0.02) is
     continued both ways with the continuation core (one run when it closes on itself: a
     detached loop); a traced branch whose nine sample points all lie on known
@@ -1919,7 +1947,7 @@ def system_balance_solutions_at(
         W = float(w)
         if not (math.isfinite(W) and W > 0):
             raise ParameterError(f"frequency {w!r}: expected a finite positive number")
-        sols = _solutions_at(sb, W, lambda g: False, max_starts)
+        sols = list(_solutions_at(sb, W, lambda g: False, max_starts))
         if not sols:
             raise SystemBalanceError(
                 f"harmonic balance of {system.name!r}: no solution at {sb.parameter} = {W:g} "
