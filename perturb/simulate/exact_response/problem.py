@@ -559,15 +559,17 @@ class Engine:
         self._modal[key] = out
         return out
 
-    def _rate_terms(self, pas: Any, key: tuple[int, ...]) -> tuple[Any, ...] | None:
+    def _rate_terms(
+        self, pas: Any, key: tuple[int, ...], omegas: tuple[float, ...]
+    ) -> tuple[Any, ...] | None:
         """``(lambda, V, V^-1, ((omega_k, w1_k, w2_k), ...))`` of region ``key`` at the input
-        frequencies of ``pas`` (:meth:`_nd_rate`: ``w1 = V c / (i omega - lambda)``, ``w2 =
-        V c / (i omega - lambda)^2``), None when the region is ill conditioned or resonant.
+        frequencies ``omegas`` of ``pas`` (:meth:`_nd_rate`: ``w1 = V c / (i omega - lambda)``,
+        ``w2 = V c / (i omega - lambda)^2``), None when the region is ill conditioned or
+        resonant.
 
         Cached per (region, frequencies): a Newton iterate visits each region once or twice
         per node interval, at one frequency, so the sources are computed once per iterate
         and region instead of once per piece (same arithmetic as per piece)."""
-        omegas = tuple(h.omega for h in pas.inputs)
         ck = (key, omegas)
         cache = self._rate_cache
         if ck in cache:
@@ -609,8 +611,9 @@ class Engine:
             return None
         n = self.n
         zeta = np.zeros(n)
+        omegas = tuple(h.omega for h in pas.inputs)
         for k, key in enumerate(keys):
-            terms = self._rate_terms(pas, key)
+            terms = self._rate_terms(pas, key, omegas)
             if terms is None:
                 return None
             lam, V, Vinv, forced = terms
