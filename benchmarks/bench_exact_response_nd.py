@@ -14,22 +14,26 @@ resonance window W in [0.5, 2] (both modes of the structure, the device's wells)
   mirror images), exact multipliers, every coordinate's max |.| and mean.
 * brute force: what a user writes: the equations as a plain Python ``rhs``, ``solve_ivp``
   (DOP853, rtol = atol = 1e-8) at 100 frequencies swept up and then down (200 runs), each
-  starting from the previous end state; the transient is discarded in chunks of 10 forcing
-  periods until the stroboscopic state repeats to 1e-6 (relative) over one period (settled
-  on a period-1 orbit), at most 400 periods (the cap of
-  :class:`perturb.simulate.studies.SweepOptions`; where no stable period-1 orbit exists,
-  after a torus bifurcation, the sweep never settles), then 5 periods are sampled (200
-  samples per period) for max |x1|, max |x2|. ``--transient N`` discards a fixed N periods
-  instead (100 is too few here: many rows are still drifting). It finds stable orbits only
-  (one per frequency and direction).
+  starting from the previous end state; the transient is integrated period by period until
+  the stroboscopic points repeat with a period m <= 8 to ``--settle-tol`` (relative to
+  1 + max |y|), at most 400 periods: the settling rule and caps of the library's stepped-sine
+  sweep (:class:`perturb.simulate.studies.SweepOptions`; on a torus, after a Neimark-Sacker
+  bifurcation, the sweep never settles and runs the 400 periods), then 5 periods are sampled
+  (200 samples per period) for max |x1|, max |x2|. The default settling tolerance is 1e-8,
+  the library's own stepped-sine sweep (``SweepOptions.tol``, used by the SDOF benchmark
+  ``bench_exact_vs_sweep.py``); by default the brute force also runs with 1e-6 (a looser
+  user) and both ratios are printed (``--settle-tol 1e-8`` runs one).  ``--transient N``
+  discards a fixed N periods instead (100 is too few here: many rows are still drifting).
+  It finds stable orbits only (one per frequency and direction).
 * ``--sdof``: the same for the one-coordinate ``nsd`` at k = -0.5 over W in [0.3, 2] (the
   issue's ">= 100x serial" goal for the oscillator).
 
 Both are timed by CPU time of this process (``time.process_time``: the machine is shared, and
-the wall time of either is inflated by other jobs), interleaved: exact, brute force, exact
-(the ratio uses the mean of the two exact runs). ``--bf-stride n`` runs the brute force on
-every n-th frequency of each sweep and scales its time by n (an estimate: each frequency
-costs the same fixed number of periods whatever the previous state).
+the wall time of either is inflated by other jobs), interleaved: exact, brute force (each
+settling tolerance), exact (the ratios use the mean of the two exact runs).
+``--bf-stride n`` runs the brute force on every n-th frequency of each sweep and scales its
+time by n (an estimate: each frequency costs about the same number of periods whatever the
+previous state).
 """
 
 from __future__ import annotations
@@ -55,7 +59,8 @@ WINDOW_SDOF = (0.3, 2.0)
 RTOL = 1e-8
 MEASURE, SAMPLES = 5, 200
 #: settling test of the brute force: chunks of periods, relative repeat tolerance, cap
-CHUNK, SETTLE_TOL, MAX_TRANSIENT = 10, 1e-6, 400
+MAX_TRANSIENT, MAX_PERIOD = 400, 8
+SETTLE_TOLS = (1e-8, 1e-6)
 
 
 def rhs_nsd2(W, k, mu1, mu2, k2, m2, F):
@@ -78,26 +83,45 @@ def rhs_nsd(W, k, mu, F):
     return rhs
 
 
-def settle(rhs, y, T, transient=None):
-    """The state after the transient: a fixed number of periods, or chunks of CHUNK periods
-    until the stroboscopic state repeats to SETTLE_TOL (at most MAX_TRANSIENT periods).
-    Returns (state, periods integrated, settled)."""
+def period_of(strobe, tol):
+    """Smallest m <= MAX_PERIOD whose last 2m + 1 stroboscopic points repeat with period m
+    to ``tol`` relative to 1 + max |point| (the residual of the library's stepped-sine sweep,
+    ``perturb.simulate.studies``); 0 when none does."""
+    P = np.asarray(strobe)
+    w = min(2 * MAX_PERIOD + 1, len(P))
+    scale = 1.0 + float(np.max(np.abs(P[len(P) - w :])))
+    for m in range(1, MAX_PERIOD + 1):
+        if len(P) < 2 * m + 1:
+            break
+        tail = P[len(P) - 2 * m - 1 :]
+        if float(np.max(np.abs(tail[m:] - tail[:-m]))) <= tol * scale:
+            return m
+    return 0
+
+
+def settle(rhs, y, T, transient=None, tol=1e-8):
+    """The state after the transient: a fixed number of periods, or period by period until
+    the stroboscopic points repeat with some period m <= MAX_PERIOD to ``tol`` (at most
+    MAX_TRANSIENT periods), as the library's stepped-sine sweep settles (one integration per
+    forcing period, so every stroboscopic point is an integration end point: a dense-output
+    value would differ from it by the interpolation error, ~1e-8 at rtol 1e-8, and a 1e-8
+    test could never pass).  Returns (state, periods integrated, settled)."""
     if transient is not None:
         s = solve_ivp(rhs, (0, transient * T), y, method="DOP853", rtol=RTOL, atol=RTOL)
         return s.y[:, -1], transient, True
-    t, n = 0.0, 0
+    strobe = [y]
+    n = 0
     while n < MAX_TRANSIENT:
-        s = solve_ivp(
-            rhs, (t, t + CHUNK * T), y, method="DOP853", rtol=RTOL, atol=RTOL, dense_output=True
-        )
-        last = s.sol(t + T * (CHUNK - 1))
-        y, t, n = s.y[:, -1], t + CHUNK * T, n + CHUNK
-        if np.max(np.abs(y - last)) < SETTLE_TOL * max(1.0, float(np.max(np.abs(y)))):
+        s = solve_ivp(rhs, (n * T, (n + 1) * T), y, method="DOP853", rtol=RTOL, atol=RTOL)
+        y, n = s.y[:, -1], n + 1
+        strobe.append(y)
+        del strobe[: max(0, len(strobe) - (2 * MAX_PERIOD + 1))]
+        if period_of(strobe, tol):
             return y, n, True
     return y, n, False
 
 
-def brute_sweep(make_rhs, params, window, n_states, stride=1, n=100, transient=None):
+def brute_sweep(make_rhs, params, window, n_states, stride=1, transient=None, n=100, tol=1e-8):
     """Up and down sweep of ``n`` frequencies (every ``stride``-th): (CPU seconds scaled by
     ``stride``, rows (W, max|x1|, ...), periods integrated (scaled), rows not settled)."""
     grid = np.linspace(window[0], window[1], n)
@@ -109,7 +133,7 @@ def brute_sweep(make_rhs, params, window, n_states, stride=1, n=100, transient=N
         for W in sweep[::stride]:
             T = 2 * math.pi / W
             rhs = make_rhs(W, **params)
-            y, k, ok = settle(rhs, y, T, transient)
+            y, k, ok = settle(rhs, y, T, transient, tol)
             periods += k + MEASURE
             unsettled += not ok
             s = solve_ivp(
@@ -127,11 +151,12 @@ def exact_run(model, window, ds_max):
     return time.process_time() - c0, res
 
 
-def compare(name, model, window, make_rhs, params, n_states, stride, transient, ds_max):
+def compare(name, model, window, make_rhs, params, n_states, stride, transient, ds_max, tols):
     c1, res = exact_run(model, window, ds_max)
-    cb, rows, periods, unsettled = brute_sweep(
-        make_rhs, params, window, n_states, stride, transient=transient
-    )
+    brute = [
+        (tol, *brute_sweep(make_rhs, params, window, n_states, stride, transient, tol=tol))
+        for tol in (tols if transient is None else (None,))
+    ]
     c2, _ = exact_run(model, window, ds_max)
     ce = 0.5 * (c1 + c2)
     pts = sum(len(b) for b in res.branches)
@@ -142,23 +167,31 @@ def compare(name, model, window, make_rhs, params, n_states, stride, transient, 
         f"points, {stable} stable"
     )
     print(f"    CPU {c1:.2f} s and {c2:.2f} s (interleaved runs), {res.periods:.0f} periods")
-    how = f"{transient} periods" if transient is not None else "until settled (cap 400)"
-    print(
-        f"  brute force DOP853 rtol {RTOL:g} up/down sweep of 100 W ({len(rows)} runs, stride "
-        f"{stride}, transient {how} + {MEASURE} periods): CPU {cb:.2f} s, {periods} periods, "
-        f"{unsettled} runs unsettled" + (" (scaled by the stride)" if stride > 1 else "")
-    )
-    print(f"  ratio brute force / exact (CPU, serial): {cb / ce:.1f}x")
-    # the brute force's settled stable orbits lie on the exact branches (a check of both)
     amps = np.array([q.amplitude for b in res.branches for q in b.points if q.stable])
     ws = np.array([q.parameter for b in res.branches for q in b.points if q.stable])
-    off = 0
-    for W, a1, *_ in rows:
-        near = np.abs(ws - W) < 0.01 * (window[1] - window[0])
-        if not np.any(np.abs(amps[near] - a1) < 0.02 * max(1.0, a1)):
-            off += 1
-    print(f"  brute-force rows without a stable exact point within 1 % (W), 2 % (amp): {off}")
-    return cb / ce
+    ratios = []
+    for tol, cb, rows, periods, unsettled in brute:
+        how = (
+            f"{transient} periods"
+            if transient is not None
+            else f"until settled to {tol:g} (cap {MAX_TRANSIENT})"
+        )
+        print(
+            f"  brute force DOP853 rtol {RTOL:g} up/down sweep of 100 W ({len(rows)} runs, "
+            f"stride {stride}, transient {how} + {MEASURE} periods): CPU {cb:.2f} s, "
+            f"{periods} periods, {unsettled} runs unsettled"
+            + (" (scaled by the stride)" if stride > 1 else "")
+        )
+        print(f"  ratio brute force / exact (CPU, serial): {cb / ce:.1f}x")
+        # the brute force's settled stable orbits lie on the exact branches (a check of both)
+        off = 0
+        for W, a1, *_ in rows:
+            near = np.abs(ws - W) < 0.01 * (window[1] - window[0])
+            if not np.any(np.abs(amps[near] - a1) < 0.02 * max(1.0, a1)):
+                off += 1
+        print(f"  brute-force rows without a stable exact point within 1 % (W), 2 % (amp): {off}")
+        ratios.append(cb / ce)
+    return ratios
 
 
 def main() -> None:
@@ -167,6 +200,13 @@ def main() -> None:
     ap.add_argument("--sdof", action="store_true", help="also the SDOF nsd at k = -0.5")
     ap.add_argument("--transient", type=int, default=None, help="fixed transient periods")
     ap.add_argument("--ds-max", type=float, default=0.005, help="exact output spacing")
+    ap.add_argument(
+        "--settle-tol",
+        type=float,
+        nargs="+",
+        default=list(SETTLE_TOLS),
+        help="brute-force settling tolerance(s) (default 1e-8 = the library sweep, and 1e-6)",
+    )
     ap.add_argument(
         "--window", type=float, nargs=2, default=WINDOW_2DOF, help="nsd2 frequency window"
     )
@@ -180,6 +220,8 @@ def main() -> None:
         extra += f" --transient {args.transient}"
     if args.ds_max != 0.005:
         extra += f" --ds-max {args.ds_max:g}"
+    if tuple(args.settle_tol) != SETTLE_TOLS:
+        extra += " --settle-tol " + " ".join(f"{v:g}" for v in args.settle_tol)
     if tuple(args.window) != WINDOW_2DOF:
         extra += f" --window {args.window[0]:g} {args.window[1]:g}"
     print(f"command: {cmd}{extra}")
@@ -197,6 +239,7 @@ def main() -> None:
         args.bf_stride,
         args.transient,
         args.ds_max,
+        tuple(args.settle_tol),
     )
     if args.sdof:
         compare(
@@ -209,6 +252,7 @@ def main() -> None:
             args.bf_stride,
             args.transient,
             args.ds_max,
+            tuple(args.settle_tol),
         )
     print(f"\nload average at the end {os.getloadavg()[0]:.2f} (1 min)")
 
