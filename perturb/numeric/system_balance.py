@@ -72,10 +72,10 @@ so within the truncation error of the fold (the HB fold and the orbit's differ b
 Frequency continuation uses THE continuation core (:func:`perturb.numeric.continuation.
 continue_curve`, Hermite predictor, early acceptance, folds located), as the SDOF
 :mod:`perturb.numeric.harmonic_balance` does: :func:`system_balance_branch` one branch from
-the start; :func:`system_balance_response` every branch it can seed in a window (both edges
-and interior frequencies, every HB solution there from segment orbits, the linearisation and
-a bounded multi-start; retraces dropped by a point-on-curve test; odd-symmetry mirrors added;
-detached loops closed). No branch switching at branch points yet.
+the start; :func:`system_balance_response` every branch it can reach in a window (seeds at
+both edges, interior and fold frequencies, every HB solution there from segment orbits, the
+linearisation and a bounded multi-start; branch switching at branch points; retraces dropped
+by a point-on-curve test; odd-symmetry mirrors added; detached loops closed).
 
 Starting without a guess
 ------------------------
@@ -99,7 +99,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -120,8 +120,10 @@ from perturb.model.pwl import NumericPWL, to_pwl
 from perturb.model.system import S as _S_SYMBOL
 from perturb.model.system import System
 from perturb.numeric.continuation import (
+    BranchPoint,
     ContinuationCurve,
     ContinuationError,
+    branch_off,
     continue_curve,
 )
 from perturb.response import Branch, Response
@@ -1497,7 +1499,7 @@ def _make_branch(
 # every branch in a window
 # =============================================================================================
 #: Interior seed frequencies of :func:`system_balance_response` (besides the two edges).
-_INTERIOR_SEEDS = 8
+_INTERIOR_SEEDS = 3
 #: Scale factors of the linear guess in the bounded multi-start at one frequency.
 _MULTI_START_SCALES = (0.5, 2.0, 4.0)
 #: Point-on-curve tolerance (scaled distance: coefficients over the point's largest, Omega
@@ -1506,6 +1508,8 @@ _ON_CURVE = 0.02
 #: Scaled distance from a traced branch at which a seed's Newton iterate (from its second
 #: step on) is abandoned as bound for that branch.
 _NEAR_CURVE = 0.05
+#: Fold frequencies of traced branches seeded again (at most).
+_FOLD_SEEDS = 6
 #: Newton steps per seed start, and Armijo halvings per step.
 _SEED_NEWTON = 12
 _SEED_HALVINGS = 6
@@ -1639,10 +1643,12 @@ def _trace_through(
     ds_max: float,
     tol: float,
     max_points: int,
+    branch_points: list | None = None,
 ) -> tuple[np.ndarray, np.ndarray, tuple[float, ...], ContinuationCurve] | None:
     """The branch through the solution ``(u, W)``: traced down, then up unless the first run
     closed on itself (a detached loop). Points in order from the low-frequency end of the
-    downward run; None when the continuation fails at once."""
+    downward run; None when the continuation fails at once. With a list ``branch_points``
+    the runs watch for branch points and append them to it."""
     lo, hi = window
     scale = max(1e-10, float(np.abs(u).max()))
     runs = []
@@ -1665,9 +1671,12 @@ def _trace_through(
                 max_points=max_points,
                 predictor="hermite",
                 early_accept=True,
+                detect_branch_points=branch_points is not None,
             )
         except (ContinuationError, ParameterError):
             continue
+        if branch_points is not None:
+            branch_points.extend(curve.branch_points)
         runs.append((direction, curve))
         if curve.stop_reason == "closed":
             break
@@ -1701,7 +1710,9 @@ class SystemBalanceResponse:
     branches : tuple of SystemBalanceBranch
     origins : tuple of str
         Per branch: ``'edge'`` (seeded at a window edge), ``'interior'`` (seeded inside),
-        ``'mirror'`` (odd-symmetry image of another branch, not traced).
+        ``'fold'`` (seeded at another branch's fold), ``'branch point'`` (switched onto),
+        ``'mirror'`` (odd-symmetry image of another branch, not traced), ``'listed'`` (a
+        solution at a listed frequency).
     window : (float, float)
     harmonics, m : int
     output : str
@@ -1776,28 +1787,39 @@ def system_balance_response(
     max_points: int = 2000,
     max_branches: int = 16,
     max_starts: int = 10,
+    branch_points: bool = True,
     balance: SystemBalance | None = None,
 ) -> SystemBalanceResponse:
     """Every harmonic-balance branch of ``system`` in a frequency window.
 
-    Seeds at both window edges and at ``interior`` frequencies evenly inside: at each, every
-    HB solution that Newton reaches from the frozen-segment linear orbits of every region,
-    the linearisation about zero and a bounded multi-start (the linear guess moved onto the
-    mean of each frozen-segment orbit, then scaled by 0.5, 2, 4), at most ``max_starts``
-    Newton runs per frequency (a run whose iterate is within 0.05 of a traced branch from
-    its second step on is abandoned). Each solution that lies on no branch traced so far
-    (point-on-curve test: scaled distance to the branch's polyline at most 0.02) is
-    continued both ways with the continuation core (one run when it closes on itself: a
-    detached loop); a traced branch whose nine sample points all lie on known
-    branches is dropped (a retrace). For an odd system (checked on the residual:
-    ``R(M u) = M R(u)`` with ``M`` the image ``y -> -y``, ``t -> t + T/2``) the mirror
-    image of every branch is added, without continuation, unless it is a known branch.
-    Branch points are not switched at: an asymmetric branch born at a pitchfork inside the
-    window is found when a seed frequency meets it (or as the mirror of one that is); a
-    detached loop narrower than the seed spacing ``(high - low) / (interior + 1)`` can be
-    missed (raise ``interior``). Measured on nsd2 (tests/test_system_balance_branches.py):
-    every branch of the exact response over (0.62, 0.75) and (0.5, 2.0) (4 branches, two
-    closed loops) has an HB branch within the polyline's chord error, stability agreeing.
+    1. Seeds at both window edges and at ``interior`` frequencies evenly inside: at each,
+       every HB solution that Newton reaches from the frozen-segment linear orbits of every
+       region, the linearisation about zero and a bounded multi-start (the linear guess moved
+       onto the mean of each frozen-segment orbit, then scaled by 0.5, 2, 4), at most
+       ``max_starts`` Newton runs per frequency (a run whose iterate comes within 0.05 of a
+       traced branch from its second step on is abandoned). Each solution that lies on no
+       branch traced so far (point-on-curve test: scaled distance to the branch's polyline,
+       coefficients over their largest and Omega over the window width, at most 0.02) is
+       continued both ways with the continuation core (one run when it closes on itself: a
+       detached loop); a branch whose nine sample points all lie on known branches is
+       dropped (a retrace). The fold frequencies of every branch kept are seeded again (at
+       most 6, half the starts): detached loops cluster where other branches turn.
+    2. Branch switching (``branch_points``): every branch is traced with the branch-point
+       test of the continuation core; at each branch point a point on the other curve on
+       each side (:func:`perturb.numeric.continuation.branch_off`) is traced unless it lies
+       on another known branch or the mirror image of one. This reaches the asymmetric
+       branches born at symmetry-breaking pitchforks, also those that leave the window at an
+       edge (on nsd2, Omega in 0.3..0.3077) and loops joined to them.
+    3. For an odd system (checked on the residual: ``R(M u) = M R(u)`` with ``M`` the image
+       ``y -> -y``, ``t -> t + T/2``) the mirror image of every branch is added, without
+       continuation, unless it is a known branch.
+
+    A detached loop that no seed frequency meets and no branch point reaches is missed (raise
+    ``interior``). Measured on nsd2 (H = 15, tests/test_system_balance_branches.py and
+    bench_system_balance.py): every branch of the exact response over (0.62, 0.75) (3),
+    (0.5, 2.0) (4: two closed loops, one born at the high edge) and (0.3, 1.5) (4: one born
+    at the low edge) has an HB branch within the polyline's chord error, stability agreeing;
+    over (0.2, 2.0) 6 of 6.
 
     Parameters
     ----------
@@ -1814,6 +1836,8 @@ def system_balance_response(
         Floquet multipliers at every point.
     mirror : bool
         Add the odd-symmetry images.
+    branch_points : bool
+        Switch branches at the branch points met.
     ds_max, tol, max_points
         Continuation settings (per run).
     max_branches : int
@@ -1854,7 +1878,82 @@ def system_balance_response(
     found: list[SystemBalanceBranch] = []
     origins: list[str] = []
     freqs = [hi, lo] + [float(v) for v in np.linspace(lo, hi, interior + 2)[1:-1]]
-    for idx, W in enumerate(freqs):
+    kinds = ["edge", "edge"] + ["interior"] * interior
+    fold_seeds = 0
+    pending: list[tuple[BranchPoint, int]] = []  # (branch point met, its branch's index)
+    switched: list[BranchPoint] = []
+    Q = _odd_symmetry(sb, (lo, hi)) if mirror else None
+    images: dict[int, SystemBalanceBranch] = {}
+
+    def image(i: int) -> SystemBalanceBranch:
+        """The mirror image of ``found[i]`` (points only: for the point-on-curve tests)."""
+        if i not in images:
+            b = found[i]
+            images[i] = replace(b, U=-(b.U @ Q.T))
+        return images[i]
+
+    def known(u: np.ndarray, W: float, parent: int) -> bool:
+        """Whether a point stepped off the branch ``parent`` lies on another known branch or
+        on the mirror image of one (the other side of a symmetry-breaking pitchfork is the
+        image of the first). The parent itself is left out: the point is one step from it."""
+        others = [b for i, b in enumerate(found) if i != parent]
+        if Q is not None:
+            others += [image(i) for i in range(len(found)) if i != parent]
+        return _on_any(others, u, W, width, _ON_CURVE)
+
+    def add(u: np.ndarray, W: float, kind: str) -> bool:
+        """Trace the branch through (u, W); keep it unless it retraces a known one."""
+        nonlocal fold_seeds
+        bps: list[BranchPoint] = []
+        traced = _trace_through(
+            sb, u, W, (lo, hi), ds_max, tol, max_points, bps if branch_points else None
+        )
+        if traced is None:
+            return False
+        Ws, Us, folds, curve = traced
+        br = _make_branch(sb, Ws, Us, folds, curve, out_name, vec, stability)
+        if found and _duplicate(br, found, width, _ON_CURVE):
+            return False
+        found.append(br)
+        origins.append(kind)
+        pending.extend((bp, len(found) - 1) for bp in bps)
+        # detached branches cluster where others turn: seed again at this branch's folds
+        # (on nsd2 the loop on 0.6447..0.7199 holds the fold 0.7031 of the loop on
+        # 0.7031..1.2147, and no grid frequency of a wide window falls inside it)
+        for f in br.folds:
+            if fold_seeds < _FOLD_SEEDS and all(abs(f - g) > 1e-3 * width for g in freqs):
+                freqs.append(float(f))
+                kinds.append("fold")
+                fold_seeds += 1
+        return True
+
+    def switch() -> None:
+        """Branch switching at every branch point met (each once: it is met from both
+        branches through it): a point on the other curve on each side, traced."""
+        while pending and len(found) < max_branches:
+            bp, parent = pending.pop(0)
+            scale = max(1e-12, float(np.abs(bp.u).max()))
+            if any(
+                abs(d.lam - bp.lam) <= 1e-6 * width
+                and float(np.abs(d.u - bp.u).max()) <= 1e-4 * scale
+                for d in switched
+            ):
+                continue
+            switched.append(bp)
+            try:
+                sides = branch_off(sb.residual, sb.jacobian, bp, step=ds_max, tol=tol)
+            except (ContinuationError, ParameterError):
+                continue
+            for u, W in sides:
+                u = np.asarray(u, dtype=float)
+                if len(found) >= max_branches or not lo <= W <= hi or known(u, W, parent):
+                    continue
+                add(u, float(W), "branch point")
+
+    idx = 0
+    while idx < len(freqs):  # grows by the folds found (at most _FOLD_SEEDS of them)
+        W, kind = freqs[idx], kinds[idx]
+        idx += 1
         if len(found) >= max_branches:
             break
 
@@ -1864,26 +1963,20 @@ def system_balance_response(
         def near(g, W=W):
             return _on_any(found, g, W, width, _NEAR_CURVE)
 
-        for u in _solutions_at(sb, W, skip, max_starts, near):
+        # a fold seed looks for a neighbour of a known branch: half the starts
+        starts = max_starts if kind != "fold" else (max_starts + 1) // 2
+        for u in _solutions_at(sb, W, skip, starts, near):
             if len(found) >= max_branches:
                 break
             if _on_any(found, u, W, width, _ON_CURVE):
                 continue
-            traced = _trace_through(sb, u, W, (lo, hi), ds_max, tol, max_points)
-            if traced is None:
-                continue
-            Ws, Us, folds, curve = traced
-            br = _make_branch(sb, Ws, Us, folds, curve, out_name, vec, stability)
-            if found and _duplicate(br, found, width, _ON_CURVE):
-                continue
-            found.append(br)
-            origins.append("edge" if idx < 2 else "interior")
+            add(u, W, kind)
+        switch()
     if not found:
         raise SystemBalanceError(
             f"harmonic balance of {system.name!r}: no solution at any of the seed frequencies "
             f"{', '.join(f'{w:g}' for w in freqs)}"
         )
-    Q = _odd_symmetry(sb, (lo, hi)) if mirror else None
     if Q is not None:
         for br in list(found):
             if len(found) >= max_branches:
