@@ -14,10 +14,11 @@ in part 1; minimum over ``--repeat`` runs; one BLAS thread):
    multipliers at every point; the set-up (``SystemBalance``, SymPy once per system) apart.
    Target (issue 16): <= 0.5 s.
 1b. **nsd2, every branch**: ``system_balance_response(nsd2, window, harmonics=15)`` over
-   (0.5, 2.0) (4 branches: the connected one, two detached loops, one born at the high edge)
-   and (0.62, 0.75) (3 branches), multipliers at every point, beside the one-branch trace of
-   part 1 in the same process (the ratio is the price of seeding at 10 frequencies and
-   tracing the other branches). Target (issue 16): <= 0.5 s.
+   (0.5, 2.0) (the exact solver's 4 branches: the connected one, two closed loops, one born
+   at the high edge), (0.62, 0.75) (3), (0.3, 1.5) (4: one born at the low edge) and
+   (0.2, 2.0) (6), multipliers at every point, beside the one-branch trace of part 1 in the
+   same process (the ratio is the price of the seeds, the branch-point test and switching,
+   and tracing the other branches). Target (issue 16): <= 0.5 s.
 2. **Accuracy at fixed Omega** (nsd2, Omega = 1.2): error of each coordinate's max|.| against
    the exact orbit (``periodic_orbit`` on ``AffineExactFlow``, 2^14 samples), exact
    projection and AFT with 4H + 1 samples (``projection="aft"``) beside the truncation floor
@@ -104,7 +105,7 @@ def nsd2_every_branch(repeat: int) -> None:
         lambda: system_balance_branch(system, (0.5, 2.0), balance=sb, stability=True), repeat
     )
     print(f"  one branch (0.5, 2.0): {len(br)} points, CPU {c1:.3f} s")
-    for window in ((0.5, 2.0), (0.62, 0.75)):
+    for window in ((0.5, 2.0), (0.62, 0.75), (0.3, 1.5), (0.2, 2.0)):
         w, c, r = timed(
             lambda window=window: system_balance_response(system, window, balance=sb), repeat
         )

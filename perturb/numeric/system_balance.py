@@ -89,8 +89,10 @@ Known limit: a clearance that leaves a coordinate without stiffness away from co
 free mass in the gap): the HB Jacobian is singular, and neither the start nor the continuation
 works in that regime; give a guess of the impacting orbit.
 
-Measured (``benchmarks/bench_system_balance.py``): nsd2, H = 15, the whole response over
-(0.5, 2) with multipliers at every point, ~0.22 s CPU; the error of the max of the coordinate
+Measured (``benchmarks/bench_system_balance.py``): nsd2, H = 15, the branch from the high end
+over (0.5, 2) with multipliers at every point, ~0.21 s CPU; every branch
+(:func:`system_balance_response`: 4 branches, 702 points) 0.79 s CPU (3.8x), (0.2, 2) (6
+branches) 1.4 s; the error of the max of the coordinate
 carrying the PWL force equals the truncation floor (exact orbit's series cut at H) within
 a few per cent for H = 3..63, the other coordinate's error stays below that floor.
 """
