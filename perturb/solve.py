@@ -846,17 +846,7 @@ def _system_periodic_orbits(
     flow = _system_flow(system)
     T = _forcing_period(flow, system)
     n = system.n
-    given = []
-    for g in guesses:
-        try:
-            y = np.array(g, dtype=float).reshape(-1)
-        except (TypeError, ValueError):
-            y = np.array([])
-        if y.size != n or not np.all(np.isfinite(y)):
-            raise ParameterError(
-                f"guess {g!r}: expected {n} finite numbers ({', '.join(system.state_names)})"
-            )
-        given.append(y)
+    given = _state_guesses(guesses, system)
     linear = _linear_guesses(system, flow)
     # the start box: each state's size in the linear responses (1 where they all vanish)
     size = np.max(np.abs(np.array(linear)), axis=0) if linear else np.ones(n)
@@ -1378,17 +1368,7 @@ def limit_cycles(
         raise ParameterError(f"extent = {extent!r}: expected a positive number")
     c_out, _ = system_output(system, output)
     n = system.n
-    given = []
-    for g in guesses:
-        try:
-            y = np.array(g, dtype=float).reshape(-1)
-        except (TypeError, ValueError):
-            y = np.array([])
-        if y.size != n or not np.all(np.isfinite(y)):
-            raise ParameterError(
-                f"guess {g!r}: expected {n} finite numbers ({', '.join(system.state_names)})"
-            )
-        given.append(y)
+    given = _state_guesses(guesses, system)
     flow = _autonomous_flow(system)
     if not hasattr(flow, "jacobian"):  # the exact piecewise-affine flow: DOP853's field has it
         from perturb.simulate.flows.factory import make_flow
@@ -1692,6 +1672,25 @@ def system_time_history(
     ys = np.array(flow(y, t0, t1, t_eval=t).ys, dtype=float)
     ys[0] = y  # the initial state as given (a dense output rounds it)
     return SystemHistory(t, ys, system.state_names, ys @ c, name, label, system.name)
+
+
+def _state_guesses(guesses: Any, system: Any) -> list:
+    """The user's starting states of a system, each checked: ``n`` finite numbers."""
+    import numpy as np
+
+    n = system.n
+    out = []
+    for g in guesses:
+        try:
+            y = np.array(g, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            y = np.array([])
+        if y.size != n or not np.all(np.isfinite(y)):
+            raise ParameterError(
+                f"guess {g!r}: expected {n} finite numbers ({', '.join(system.state_names)})"
+            )
+        out.append(y)
+    return out
 
 
 def _event_flow(system: Any, y0: Any) -> Any:

@@ -1405,24 +1405,8 @@ def system_balance_branch(
         u0 = _stable_start(sb, W0)
     else:
         u0 = sb.solve(W0, np.asarray(start, dtype=float).reshape(-1))
-    scale = max(1e-10, float(np.abs(u0).max()))
     try:
-        curve = continue_curve(
-            sb.residual,
-            sb.jacobian,
-            u0,
-            W0,
-            (lo, hi),
-            direction=direction,
-            u_scale=1e-2 * scale,
-            lam_scale=hi - lo,
-            adaptive_scale=True,
-            ds_max=ds_max,
-            tol=tol,
-            max_points=max_points,
-            predictor="hermite",
-            early_accept=True,
-        )
+        curve = _frequency_run(sb, u0, W0, (lo, hi), direction, ds_max, tol, max_points)
     except ContinuationError as exc:
         raise SystemBalanceError(f"continuation of {system.name!r} failed: {exc}") from None
     return _make_branch(
@@ -1637,6 +1621,39 @@ def _solutions_at(sb: SystemBalance, W: float, skip, max_starts: int, near=None)
         yield u  # the caller traces it before the next start: later starts bound for it stop
 
 
+def _frequency_run(
+    sb: SystemBalance,
+    u: np.ndarray,
+    W: float,
+    window: tuple[float, float],
+    direction: int,
+    ds_max: float,
+    tol: float,
+    max_points: int,
+    branch_points: bool = False,
+) -> ContinuationCurve:
+    """One run of the continuation core in the forcing frequency from the solution ``(u, W)``
+    (the harmonics scaled by the solution's size, the frequency by the window's width)."""
+    lo, hi = window
+    return continue_curve(
+        sb.residual,
+        sb.jacobian,
+        u,
+        W,
+        (lo, hi),
+        direction=direction,
+        u_scale=1e-2 * max(1e-10, float(np.abs(u).max())),
+        lam_scale=hi - lo,
+        adaptive_scale=True,
+        ds_max=ds_max,
+        tol=tol,
+        max_points=max_points,
+        predictor="hermite",
+        early_accept=True,
+        detect_branch_points=branch_points,
+    )
+
+
 def _trace_through(
     sb: SystemBalance,
     u: np.ndarray,
@@ -1652,28 +1669,13 @@ def _trace_through(
     downward run; None when the continuation fails at once. With a list ``branch_points``
     the runs watch for branch points and append them to it."""
     lo, hi = window
-    scale = max(1e-10, float(np.abs(u).max()))
     runs = []
     for direction in (-1, 1):
         if (direction == -1 and W <= lo) or (direction == 1 and W >= hi):
             continue
         try:
-            curve = continue_curve(
-                sb.residual,
-                sb.jacobian,
-                u,
-                W,
-                (lo, hi),
-                direction=direction,
-                u_scale=1e-2 * scale,
-                lam_scale=hi - lo,
-                adaptive_scale=True,
-                ds_max=ds_max,
-                tol=tol,
-                max_points=max_points,
-                predictor="hermite",
-                early_accept=True,
-                detect_branch_points=branch_points is not None,
+            curve = _frequency_run(
+                sb, u, W, (lo, hi), direction, ds_max, tol, max_points, branch_points is not None
             )
         except (ContinuationError, ParameterError):
             continue
