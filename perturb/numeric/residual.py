@@ -480,7 +480,9 @@ def _trace_seeds(
         k0 = key(u0[None, :], np.array([w0]))[0]
         if any(np.min(np.linalg.norm(t - k0, axis=1)) < 2 * ds_max for t in traced):
             continue  # on a branch traced already
-        curve = _continue_both_ways(residual, jacobian, u0, w0, amp, lo, hi, ds_max * refine)
+        a_scale = np.ones(u0.size)
+        a_scale[amp] = max(1.0, abs(u0[amp]))
+        curve = _continue_both_ways(residual, jacobian, u0, w0, a_scale, lo, hi, ds_max * refine)
         if curve is None:
             continue
         u_c, w_c, folds = curve
@@ -493,12 +495,11 @@ def _trace_seeds(
     return curves
 
 
-def _continue_both_ways(residual, jacobian, u0, w0, amp, lo, hi, ds):
+def _continue_both_ways(residual, jacobian, u0, w0, u_scale, lo, hi, ds):
     """Step 2a of :func:`residual_response`: the curve through the seed ``(u0, w0)``,
-    continued down and up in frequency (steps up to ``ds``) and joined into one polyline
-    ``(u, Omega, folds)`` (a closed loop as traced once); None if both directions fail."""
-    a_scale = np.ones(u0.size)
-    a_scale[amp] = max(1.0, abs(u0[amp]))
+    continued down and up in frequency (steps up to ``ds``, unknowns scaled by ``u_scale``)
+    and joined into one polyline ``(u, Omega, folds)`` (a closed loop as traced once); None if
+    both directions fail."""
     parts = []
     for direction in (-1, 1):
         try:
@@ -510,7 +511,7 @@ def _continue_both_ways(residual, jacobian, u0, w0, amp, lo, hi, ds):
                     float(w0),
                     (lo, hi),
                     direction=direction,
-                    u_scale=a_scale,
+                    u_scale=u_scale,
                     # steps relative to the amplitude: a branch growing by decades is
                     # traced in a few hundred points, not cut off by max_points
                     adaptive_scale=True,
@@ -1036,43 +1037,19 @@ class _BalanceCurves:
             k0 = key(u0[None, :], np.array([w0]))[0]
             if any(np.min(np.linalg.norm(t - k0, axis=1)) < 2 * ds_max for t in traced):
                 continue  # on a curve traced already
-            parts = []
-            for direction in (-1, 1):
-                try:
-                    parts.append(
-                        continue_curve(
-                            residual,
-                            jacobian,
-                            u0,
-                            float(w0),
-                            (lo, hi),
-                            direction=direction,
-                            u_scale=np.full(n, max(1.0, float(np.max(np.abs(u0))))),
-                            adaptive_scale=True,
-                            ds_max=ds_max * refine,
-                            max_points=4000,
-                            **_FAST_CONTINUATION,
-                        )
-                    )
-                except ContinuationError:
-                    parts.append(None)
-            back, fwd = parts
-            if back is None and fwd is None:
+            curve = _continue_both_ways(
+                residual,
+                jacobian,
+                u0,
+                w0,
+                np.full(n, max(1.0, float(np.max(np.abs(u0))))),
+                lo,
+                hi,
+                ds_max * refine,
+            )
+            if curve is None:
                 continue
-            if back is not None and back.stop_reason == "closed":
-                u_c, w_c, folds = back.u, back.lam, list(back.folds)
-            else:
-                us, ls, folds = [], [], []
-                if back is not None:
-                    us.append(back.u[::-1])
-                    ls.append(back.lam[::-1])
-                    folds += list(back.folds)
-                if fwd is not None:
-                    start = 1 if back is not None else 0
-                    us.append(fwd.u[start:])
-                    ls.append(fwd.lam[start:])
-                    folds += list(fwd.folds)
-                u_c, w_c = np.concatenate(us), np.concatenate(ls)
+            u_c, w_c, folds = curve
             good = np.all(np.isfinite(u_c), axis=1)
             if sys_.positive_index is not None:
                 good &= u_c[:, sys_.positive_index] > 0
