@@ -29,6 +29,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from perturb.apps.cli import main
+from perturb.errors import PerturbError
 
 RTOL = ATOL = 1e-12
 
@@ -288,7 +289,7 @@ def test_python_api_returns_the_cycles():
     assert float(orbits[0].max_abs(belt.output("x"))) == pytest.approx(amp, rel=0, abs=1e-8)
     found = limit_cycles(belt, grid=0)
     assert found.drift is None and len(found.cycles) == 1 and len(found.equilibria) == 1
-    with pytest.raises(Exception, match="autonomous.*m = 1"):
+    with pytest.raises(PerturbError, match="autonomous.*m = 1"):
         periodic_orbits(belt, m=2)
 
 

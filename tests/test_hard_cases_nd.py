@@ -383,15 +383,9 @@ def test_near_singular_mass_flow_is_bounded():
         pytest.fail("the exact flow neither answered nor raised within 60 s")
     out = proc.stdout.strip()
     assert proc.returncode == 0 and not out.startswith("MEMORY"), (proc.returncode, out[-300:])
-    if out.startswith("RESULT"):
-        y = np.array([float(v) for v in out.split()[1:5]])
-        Minv = np.linalg.inv(np.array([[1.0, 1.0], [1.0, 1.0 + EPS_M]]))
-        A = np.block([[np.zeros((2, 2)), np.eye(2)], [-Minv, -0.1 * Minv]])
-        # the gap (|x1| <= 0.5) is not reached from this start: the linear solution holds
-        np.testing.assert_allclose(y, expm(2.0 * A) @ [0.1, -0.05, 0.3, 0.2], atol=1e-5)
-    else:
-        # refused at once, naming the cause (a stiff region) and the budget
-        assert out.startswith("PERTURBERROR") and "max_steps" in out and "stiff" in out
+    # refused at once, naming the cause (a stiff region) and the budget: the grid of the
+    # fast mode (5e10) cannot reach t = 2 within 5e7 intervals
+    assert out.startswith("PERTURBERROR") and "max_steps" in out and "stiff" in out, out[-300:]
 
 
 def test_near_singular_mass_by_lcp_stepper():

@@ -327,7 +327,9 @@ def test_energy_elastic_and_dissipative():
     assert np.diff(E).max() < 1e-12 * E[0]
     hit = traj.impulses.sum(axis=1) > 0
     U = np.abs(traj.y[:-1, 2:]).max(axis=1)  # |U_k| of a wall contact is |x1'| or |x2'|
-    assert np.all(np.diff(E)[hit[1:] & (U > 1e-3)] < -1e-6)
+    impacts = hit[1:] & (U > 1e-3)
+    assert np.count_nonzero(impacts) >= 3  # the check below must see the run's impacts
+    assert np.all(np.diff(E)[impacts] < -1e-6)
     assert E[-1] < 0.9 * E[0]
     traj = simulate_system_lcp(oscillator_with_walls(1.0), y0, (0.0, 20.0), 2e-3, theta=1.0)
     E = energy(traj.y)

@@ -111,6 +111,7 @@ import scipy.sparse.linalg as spla
 import sympy as sp
 from numpy.typing import ArrayLike
 
+from perturb import checks
 from perturb.errors import ModelError, NonsmoothError, ParameterError, PerturbError
 from perturb.fourier.projection import (
     ExactProjector,
@@ -475,8 +476,8 @@ class SystemBalance:
 
     # ---------------------------------------------------------------- helpers ---------
     def _omega(self, Omega: float) -> float:
-        W = float(Omega)
-        if not math.isfinite(W) or W <= 0:
+        W = checks.finite(Omega, self.parameter)
+        if W <= 0:
             raise ParameterError(f"{self.parameter} = {Omega!r}: expected a positive number")
         return W / self.m
 
@@ -2040,9 +2041,15 @@ def system_balance_solutions_at(
     sb = balance if balance is not None else SystemBalance(system, harmonics, m=m)
     out_name, vec = _output(sb, output)
     found: list[SystemBalanceBranch] = []
-    for w in frequencies:
-        W = float(w)
-        if not (math.isfinite(W) and W > 0):
+    try:
+        given = list(frequencies)
+    except TypeError:
+        raise ParameterError(f"frequencies = {frequencies!r}: expected a list of numbers") from None
+    if not given:
+        raise ParameterError("frequencies = []: expected at least one frequency")
+    for w in given:
+        W = checks.finite(w, "frequency")
+        if W <= 0:
             raise ParameterError(f"frequency {w!r}: expected a finite positive number")
         sols = list(_solutions_at(sb, W, lambda g: False, max_starts))
         if not sols:
@@ -2054,8 +2061,8 @@ def system_balance_solutions_at(
             found.append(
                 _make_branch(sb, np.array([W]), u[None, :], (), None, out_name, vec, stability)
             )
-    lo = min(float(w) for w in frequencies)
-    hi = max(float(w) for w in frequencies)
+    lo = min(float(w) for w in given)
+    hi = max(float(w) for w in given)
     return SystemBalanceResponse(
         tuple(found),
         ("listed",) * len(found),

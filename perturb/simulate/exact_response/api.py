@@ -13,6 +13,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
+from perturb import checks
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
 from perturb.model.system import System
@@ -104,7 +105,7 @@ def continue_orbits(
     max_periods = 1e6 if o.max_periods is None else o.max_periods
     family = flow_family(oscillator, parameter)
     lo, hi = parameter_window(window)
-    start = float(start)
+    start = checks.finite(start, "start")
     if not lo <= start <= hi:
         raise ParameterError(f"start = {start} is outside the window ({lo}, {hi})")
     if isinstance(m, bool) or not isinstance(m, int) or m < 1:
@@ -120,9 +121,19 @@ def continue_orbits(
         raise ParameterError(
             f"output = {output!r}: an oscillator's amplitude is max |x|; output is for systems"
         )
-    tracer = Tracer(family, m, float(t0), (lo, hi), st, closed_form=o.closed_form, output=out_vec)
+    names = system.state_names if system is not None else ("x", "v")
+    try:
+        guess = np.asarray(y_guess, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        guess = np.array([])
+    if guess.size != len(names) or not np.all(np.isfinite(guess)):
+        raise ParameterError(
+            f"y_guess = {y_guess!r}: expected {len(names)} finite numbers ({', '.join(names)})"
+        )
+    t0 = checks.finite(t0, "t0")
+    tracer = Tracer(family, m, t0, (lo, hi), st, closed_form=o.closed_form, output=out_vec)
     tracer.output_label = out_label
-    pt = tracer.start_point(start, y_guess)
+    pt = tracer.start_point(start, guess)
     return tracer.trace(pt, directions)[0]
 
 

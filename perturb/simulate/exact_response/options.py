@@ -137,6 +137,7 @@ def settings(ds_max: float, ds_min: float, tol: float, max_points: int, max_peri
         raise ParameterError(f"ds_min = {ds_min} > ds_max = {ds_max}")
     if isinstance(max_points, bool) or not isinstance(max_points, int) or max_points < 2:
         raise ParameterError(f"max_points = {max_points!r}: expected an integer >= 2")
+    max_periods = checks.finite(max_periods, "max_periods")
     if not max_periods > 0:
         raise ParameterError(f"max_periods = {max_periods!r}: expected a positive number")
     return Settings(float(ds_max), float(ds_min), float(tol), int(max_points), float(max_periods))
