@@ -390,3 +390,10 @@ def test_bouncing_ball_accumulation_ends_at_rest():
     assert len(kinds) < 60
     assert flow.events[-1].t == pytest.approx(3 * math.sqrt(2), abs=1e-9)
     assert res.y == pytest.approx([0.0, 0.0], abs=1e-12)
+
+
+def test_a_span_beyond_the_budget_rule_is_refused_at_once():
+    """A span of 1e300 would give a step budget of ~1e10 (hours): refused with its size."""
+    flow = SystemEventFlow(builtin_system("mount"))
+    with pytest.raises(ParameterError, match="t1 - t0 = 1e"):
+        flow(np.zeros(4), 0.0, 1e300)

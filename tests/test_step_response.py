@@ -442,3 +442,9 @@ def test_event_driven_zeros_do_not_depend_on_the_sampling():
         assert len(a.crossings["flow"]) == len(b.crossings["flow"]) == 3
         assert np.abs(a.crossings["flow"] - b.crossings["flow"]).max() < 1e-10
         assert any(abs(e.time - rise) < 1e-15 for e in a.events)
+
+
+def test_an_overflowing_closed_form_is_an_error_not_nan():
+    system = builtin_system("mount_fixed_linear")
+    with np.errstate(all="ignore"), pytest.raises(PerturbError, match="overflows at t = "):
+        step_response(system, np.linspace(0.0, 0.1, 11), y0=[1e308] * system.n)

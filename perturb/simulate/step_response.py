@@ -763,6 +763,12 @@ def step_response(
         Y = np.asarray(traj(t), dtype=float).T
     else:
         traj, events, Y = _events(system, t, y, active, max_events, options, int(refine))
+    if not np.all(np.isfinite(Y)):
+        bad = float(t[int(np.argmax(~np.all(np.isfinite(Y), axis=1)))])
+        raise PerturbError(
+            f"the step response of {system.name!r} overflows at t = {bad!r} (from y0 = "
+            f"{y.tolist()}): no finite states to return"
+        )
     out_values = {k: _frozen(funcs[k](Y)) for k in table}
     zeros = {}
     for c in cross:

@@ -121,10 +121,10 @@ def make_flow(
         raise ParameterError(
             f"method = {method!r}: expected one of {', '.join(map(repr, _METHODS))}"
         )
-    if (h is None) != (method != "lcp"):
-        raise ParameterError(
-            f"h = {h!r}: the step is for method='lcp' (required there), not method={method!r}"
-        )
+    if method == "lcp" and h is None:
+        raise ParameterError("h = None: method='lcp' needs its step h (a positive number)")
+    if method != "lcp" and h is not None:
+        raise ParameterError(f"h = {h!r}: the step is for method='lcp', not method={method!r}")
     if isinstance(osc, System | PiecewiseAffineSystem):
         return _make_system_flow(osc, Omega, method, rtol, atol, active, h)
     if not isinstance(osc, Oscillator):

@@ -88,6 +88,7 @@ _SWITCHES = (sp.Heaviside, sp.Max, sp.Min, sp.Abs, sp.sign, sp.Piecewise)
 _MAX_DEPTH = 6
 #: steps per forcing period (per 2 pi when autonomous) of the default step budget, and its base
 _STEPS_PER_PERIOD, _STEPS_BASE = 20_000, 50_000
+_MAX_SPAN = 1e6  # forcing periods (or 2 pi time units) per call without an explicit max_steps
 #: relative size of the band around a surface inside which a state counts as on it
 _ON_SURFACE = 1e-10
 
@@ -711,7 +712,14 @@ class SystemEventFlow(Flow):
         if self.max_steps is not None:
             return self.max_steps
         span = (t1 - t0) / (self.period if self.period else 2.0 * math.pi)
-        return int(_STEPS_BASE + _STEPS_PER_PERIOD * min(span, 1e6))
+        if span > _MAX_SPAN:
+            # the budget would allow ~1e10 steps: hours of work, not a bound
+            unit = "forcing periods" if self.period else "time units of 2 pi"
+            raise ParameterError(
+                f"t1 - t0 = {t1 - t0!r}: at most {_MAX_SPAN:g} {unit} per call (pass "
+                "max_steps= to take longer spans on purpose)"
+            )
+        return int(_STEPS_BASE + _STEPS_PER_PERIOD * span)
 
     def _run(self, y, t0, t1, sens, te) -> FlowResult:
         n = self.n_states
