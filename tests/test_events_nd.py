@@ -397,3 +397,13 @@ def test_a_span_beyond_the_budget_rule_is_refused_at_once():
     flow = SystemEventFlow(builtin_system("mount"))
     with pytest.raises(ParameterError, match="t1 - t0 = 1e"):
         flow(np.zeros(4), 0.0, 1e300)
+
+
+def test_bad_contact_modes_tolerances_and_sample_times_are_named():
+    mount = builtin_system("mount")
+    with pytest.raises(ParameterError, match="active = 5: expected a mapping"):
+        make_flow(mount, active=5)
+    with pytest.raises(ParameterError, match="rest_velocity = 'a'"):
+        SystemEventFlow(mount, rest_velocity="a")
+    with pytest.raises(ParameterError, match="t_eval = 'ab'"):
+        SystemEventFlow(mount)(np.zeros(4), 0.0, 0.01, t_eval="ab")

@@ -255,6 +255,8 @@ def _affine(system: System | PiecewiseAffineSystem, active, method: str):
     """``system.piecewise_affine(active)`` with the error a step-response user needs."""
     if isinstance(system, PiecewiseAffineSystem):
         return system
+    if active is not None and not isinstance(active, Mapping):
+        raise ParameterError(f"active = {active!r}: expected a mapping name -> None, -1 or +1")
     act = dict(active or {})
     contacts = _stops(system)
     for key in act:
@@ -794,6 +796,8 @@ def _name(system) -> str:
 
 
 def _choose(system, active) -> str:
+    if active is not None and not isinstance(active, Mapping):
+        raise ParameterError(f"active = {active!r}: expected a mapping name -> None, -1 or +1")
     act = dict(active or {})
     if isinstance(system, System):
         if any(act.get(s) is None for s in _stops(system)) or not system.is_piecewise_linear:

@@ -125,6 +125,8 @@ def make_flow(
         raise ParameterError("h = None: method='lcp' needs its step h (a positive number)")
     if method != "lcp" and h is not None:
         raise ParameterError(f"h = {h!r}: the step is for method='lcp', not method={method!r}")
+    if active is not None and not isinstance(active, Mapping):
+        raise ParameterError(f"active = {active!r}: expected a mapping stop name -> None, -1 or +1")
     if isinstance(osc, System | PiecewiseAffineSystem):
         return _make_system_flow(osc, Omega, method, rtol, atol, active, h)
     if not isinstance(osc, Oscillator):

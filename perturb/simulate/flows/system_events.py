@@ -77,6 +77,7 @@ from numpy.typing import ArrayLike
 from scipy.integrate import DOP853
 from scipy.optimize import brentq
 
+from perturb.checks import finite
 from perturb.errors import ModelError, ParameterError, PerturbError
 from perturb.model.system import S, System, common_period
 from perturb.simulate.flows.base import Flow, FlowResult
@@ -343,7 +344,9 @@ class SystemEventFlow(Flow):
         self.system_model = system
         self.rtol, self.atol = float(rtol), float(atol)
         self.max_events, self.max_steps = max_events, max_steps
-        self.rest_velocity = 100.0 * self.atol if rest_velocity is None else float(rest_velocity)
+        self.rest_velocity = (
+            100.0 * self.atol if rest_velocity is None else finite(rest_velocity, "rest_velocity")
+        )
         if not (math.isfinite(self.rest_velocity) and self.rest_velocity >= 0):
             raise ParameterError(f"rest_velocity = {rest_velocity!r}: expected a number >= 0")
         num = system.numeric_form()
@@ -700,7 +703,10 @@ class SystemEventFlow(Flow):
             raise ParameterError(f"(t0, t1) = ({t0}, {t1}): expected finite t1 > t0")
         te = None
         if t_eval is not None:
-            te = np.asarray(t_eval, dtype=float).reshape(-1)
+            try:
+                te = np.asarray(t_eval, dtype=float).reshape(-1)
+            except (TypeError, ValueError):
+                raise ParameterError(f"t_eval = {t_eval!r}: expected numbers") from None
             if te.size and (
                 not np.all(np.isfinite(te)) or np.any(np.diff(te) < 0) or te[0] < t0 or te[-1] > t1
             ):
