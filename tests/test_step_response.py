@@ -397,6 +397,7 @@ def test_bad_input_is_a_clear_error():
     _raises(ModelError, r"unknown name\(s\) \['y'\]", lin, t, outputs=["y + x"])
     _raises(ParameterError, "only method='events' takes", lin, t, rtol=1e-9)
     _raises(ParameterError, "refine", lin, t, crossings=["x"], refine=0)
+    _raises(ParameterError, r"crossings = 5: expected output names", lin, t, crossings=5)
     # a system that is not piecewise linear, for "exact" (and "closed_form")
     duff = System.parse(["x'' + 0.1*x' + x + x**3 = 0"])
     _raises(ModelError, "needs a piecewise-linear system", duff, t, method="exact")

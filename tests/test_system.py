@@ -442,6 +442,9 @@ def test_bad_input_each_a_clear_perturb_error():
         ParameterError, r"needs values for .*k", System.parse(["x'' + k*x = 0"]).piecewise_affine
     )
     _raises(ParameterError, r"unknown parameter 'zz'", builtin_system, "nsd2", zz=1.0)
+    # the field at a state of the wrong length names it (was a matmul ValueError)
+    _raises(ParameterError, r"y = \[0.0, 0.0, 0.0\]: expected 4 numbers",
+            builtin_system("nsd2").field, 0.0, [0.0, 0.0, 0.0])  # fmt: skip
     _raises(ParameterError, r"'k'.*finite", builtin_system, "nsd2", k=float("nan"))
     # stops: bad restitution; active element that is no constraint
     _raises(ParameterError, r"restitution", stop, "x1", 0, 1, restitution=2.0)

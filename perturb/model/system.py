@@ -1044,7 +1044,7 @@ class System:
         its stop), and a resting stop's combination rate is projected out.
         """
         num = self.numeric_form()
-        y = np.asarray(y, dtype=float)
+        y = _state_vector(y, self.n, "y")
         n2 = num["n2"]
         rhs = -num["L"] @ y
         for t0, (om, cu, cv) in enumerate(num["harmonics"]):
@@ -1245,6 +1245,19 @@ class System:
 
 
 # ------------------------------------------------------------------------------ helpers --
+def _state_vector(y: Any, n: int, what: str) -> np.ndarray:
+    """``y`` as ``n`` floats, or a ParameterError naming it (field evaluations are called with
+    user states: a wrong length must not surface as a matmul error).  Non-finite values pass:
+    an integrator that diverges reports that itself, with its time."""
+    try:
+        arr = np.asarray(y, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{what} = {y!r}: expected {n} numbers") from None
+    if arr.size != n:
+        raise ParameterError(f"{what} = {arr.tolist()!r}: expected {n} numbers")
+    return arr
+
+
 def _replace(obj: System, **changes: Any) -> System:
     from dataclasses import replace
 

@@ -721,7 +721,16 @@ def step_response(
         raise ParameterError(f"max_events = {max_events!r}: expected a non-negative integer")
     table = _outputs_table(outputs)
     funcs = {k: _output_function(system, k, v) for k, v in table.items()}
-    cross = list(crossings) if not isinstance(crossings, str) else [crossings]
+    if isinstance(crossings, str):
+        cross = [crossings]
+    else:
+        try:
+            cross = list(crossings)
+        except TypeError:
+            raise ParameterError(
+                f"crossings = {crossings!r}: expected output names (a string or a sequence "
+                "of strings)"
+            ) from None
     for c in cross:
         if c not in funcs:
             if not isinstance(c, str):
