@@ -26,6 +26,7 @@ import dataclasses
 import math
 import re
 import sys
+from collections.abc import Sequence
 from typing import Any
 
 from perturb.errors import ParameterError
@@ -157,6 +158,38 @@ def frequencies(values: Any, limit: int, what: str = "frequencies") -> list[floa
     if len(out) > limit:
         raise ParameterError(f"{what}: {len(out)} values, expected at most {limit}")
     return out
+
+
+def state(
+    value: Any,
+    n: int,
+    what: str = "y0",
+    names: Sequence[str] | None = None,
+    *,
+    require_finite: bool = True,
+) -> Any:
+    """``value`` as a float array of ``n`` entries (a state of ``n`` states).
+
+    ``names`` (the states' names) are quoted in the message; ``require_finite=False`` lets
+    non-finite entries pass (a vector field evaluated by an integrator that diverges: the
+    integrator reports that, with its time).
+
+    Raises
+    ------
+    ParameterError
+        Naming ``what`` and the number expected.
+    """
+    import numpy as np  # here, not at the top: the command line imports this module early
+
+    kind = "finite numbers" if require_finite else "numbers"
+    listed = f" ({', '.join(names)})" if names else ""
+    try:
+        y = np.array(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{what} = {value!r}: expected {n} {kind}{listed}") from None
+    if y.size != n or (require_finite and not np.all(np.isfinite(y))):
+        raise ParameterError(f"{what} = {y.tolist()!r}: expected {n} {kind}{listed}")
+    return y
 
 
 def _is_real(value: Any) -> bool:

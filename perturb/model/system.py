@@ -67,6 +67,7 @@ from typing import Any
 import numpy as np
 import sympy as sp
 
+from perturb.checks import state
 from perturb.errors import ModelError, NonsmoothError, ParameterError, ParseError
 from perturb.model.affine import PiecewiseAffineSystem
 from perturb.model.oscillator import Oscillator, validate_parameter_value
@@ -1044,7 +1045,7 @@ class System:
         its stop), and a resting stop's combination rate is projected out.
         """
         num = self.numeric_form()
-        y = _state_vector(y, self.n, "y")
+        y = state(y, self.n, "y", require_finite=False)
         n2 = num["n2"]
         rhs = -num["L"] @ y
         for t0, (om, cu, cv) in enumerate(num["harmonics"]):
@@ -1245,19 +1246,6 @@ class System:
 
 
 # ------------------------------------------------------------------------------ helpers --
-def _state_vector(y: Any, n: int, what: str) -> np.ndarray:
-    """``y`` as ``n`` floats, or a ParameterError naming it (field evaluations are called with
-    user states: a wrong length must not surface as a matmul error).  Non-finite values pass:
-    an integrator that diverges reports that itself, with its time."""
-    try:
-        arr = np.asarray(y, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
-        raise ParameterError(f"{what} = {y!r}: expected {n} numbers") from None
-    if arr.size != n:
-        raise ParameterError(f"{what} = {arr.tolist()!r}: expected {n} numbers")
-    return arr
-
-
 def _replace(obj: System, **changes: Any) -> System:
     from dataclasses import replace
 

@@ -51,6 +51,7 @@ from numpy.typing import ArrayLike
 from scipy.linalg import expm, matrix_balance
 from scipy.optimize import brentq
 
+from perturb.checks import state
 from perturb.errors import ModelError, ParameterError, PerturbError
 from perturb.model.affine import PiecewiseAffineSystem
 from perturb.model.parsing import parse_expression
@@ -223,18 +224,7 @@ def _check_times(times: Any) -> np.ndarray:
 
 
 def _check_y0(y0: Any, names: Sequence[str]) -> np.ndarray:
-    n = len(names)
-    if y0 is None:
-        return np.zeros(n)
-    try:
-        y = np.array(y0, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
-        raise ParameterError(f"y0 = {y0!r}: expected {n} finite numbers") from None
-    if y.size != n or not np.all(np.isfinite(y)):
-        raise ParameterError(
-            f"y0 = {np.asarray(y0).tolist()!r}: expected {n} finite numbers ({', '.join(names)})"
-        )
-    return y
+    return np.zeros(len(names)) if y0 is None else state(y0, len(names), names=names)
 
 
 def _check_system(system: Any) -> None:

@@ -77,7 +77,7 @@ from numpy.typing import ArrayLike
 from scipy.integrate import DOP853
 from scipy.optimize import brentq
 
-from perturb.checks import finite
+from perturb.checks import finite, state
 from perturb.errors import ModelError, ParameterError, PerturbError
 from perturb.model.system import S, System, common_period
 from perturb.simulate.flows.base import Flow, FlowResult
@@ -688,13 +688,7 @@ class SystemEventFlow(Flow):
             The step or event budget ran out, an unsupported sliding mode, a state violating a
             stop, a failed integration.
         """
-        n = self.n_states
-        try:
-            y = np.array(y0, dtype=float).reshape(-1)
-        except (TypeError, ValueError):
-            raise ParameterError(f"y0 = {y0!r}: expected {n} finite numbers") from None
-        if y.size != n or not np.all(np.isfinite(y)):
-            raise ParameterError(f"y0 = {y.tolist()!r}: expected {n} finite numbers")
+        y = state(y0, self.n_states)
         try:
             t0, t1 = float(t0), float(t1)
         except (TypeError, ValueError):

@@ -99,7 +99,7 @@ import numpy as np
 import sympy as sp
 from numpy.typing import ArrayLike
 
-from perturb.checks import finite
+from perturb.checks import finite, state
 from perturb.errors import ModelError, ParameterError, PerturbError
 from perturb.model.system import S, System, common_period
 from perturb.simulate.flows.base import Flow, FlowResult
@@ -531,16 +531,7 @@ class SystemLCPTrajectory:
 
 
 def _check_y0(model: _Model, y0: ArrayLike) -> np.ndarray:
-    try:
-        y = np.array(y0, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
-        raise ParameterError(f"y0 = {y0!r}: expected {model.n} finite numbers") from None
-    if y.size != model.n or not np.all(np.isfinite(y)):
-        raise ParameterError(
-            f"y0 = {y.tolist()!r}: expected {model.n} finite numbers "
-            f"({', '.join(model.system.state_names)})"
-        )
-    return y
+    return state(y0, model.n, names=model.system.state_names)
 
 
 def _check_options(h: Any, theta: Any, gamma: Any, max_steps: Any) -> tuple[float, float, float]:
