@@ -243,7 +243,12 @@ def _numeric_matrix(system: System, mat: sp.MatrixBase, label: str) -> sp.Matrix
 
 
 def _short(expr: sp.Expr) -> bool:
-    return sp.count_ops(expr) <= 24
+    """Short enough to print exactly: a few operations and no nested radicals (which
+    multiply through every secular term)."""
+    nested = any(
+        p.exp.q == 2 and p.base.has(sp.Pow) for p in expr.atoms(sp.Pow) if p.exp.is_Rational
+    )
+    return sp.count_ops(expr) <= 8 and not nested
 
 
 def _modal(M: sp.Matrix, K: sp.Matrix, name: str) -> tuple[sp.Matrix, list[sp.Expr]]:
@@ -345,9 +350,10 @@ def _forcing(system: System) -> tuple[sp.Symbol | None, list[tuple[sp.Expr, sp.E
 def _check_ratio(resonance: Any, omegas: list[sp.Expr], tolerance: float, name: str) -> str:
     w1, w2 = (float(w) for w in omegas)
     ratio = w2 / w1
+    declared = "declared"
     if resonance is None:
-        best = min(RESONANCES, key=lambda r: abs(ratio / RESONANCES[r] - 1))
-        resonance = best
+        resonance = min(RESONANCES, key=lambda r: abs(ratio / RESONANCES[r] - 1))
+        declared = "nearer"
     if resonance not in RESONANCES:
         raise ParameterError(
             f"resonance = {resonance!r}: expected one of {', '.join(map(repr, RESONANCES))} "
@@ -358,7 +364,7 @@ def _check_ratio(resonance: Any, omegas: list[sp.Expr], tolerance: float, name: 
     if abs(off) > tolerance:
         raise ModelError(
             f"system {name!r}: omega_2/omega_1 = {w2:.6g}/{w1:.6g} = {ratio:.6g}, "
-            f"{100 * off:+.3g}% from the declared {resonance} ratio {R} (tolerance "
+            f"{100 * off:+.3g}% from the {declared} {resonance} ratio {R} (tolerance "
             f"{100 * tolerance:.3g}%): not near a {resonance} internal resonance; the internal "
             f"detuning omega_2 - {R}*omega_1 = {w2 - R * w1:.6g} must be small"
         )
