@@ -661,15 +661,19 @@ def internal_resonance_slow_flow(
     polar_A = {A[j]: amp[j] / 2 * sp.exp(-sp.I * gam[j]) for j in range(2)}
     polar_A.update({Ab[j]: amp[j] / 2 * sp.exp(sp.I * gam[j]) for j in range(2)})
     gain_subs_polar: dict[sp.Basic, sp.Expr] = {}
+    amp_defs_cart: list[sp.Equality] = []
+    amp_defs_polar: list[sp.Equality] = []
     for _, S_sym, gain, _, s_hat in pwl:
         sr, si = _real_imag(s_hat.xreplace(cart_A))
         S_cart = 2 * sp.sqrt(sr**2 + si**2)
         fn = sp.Function(f"N_{S_sym.name[2:]}")(S_sym)
         gain_subs_cart[fn] = gain.xreplace({S_sym: S_cart})
+        amp_defs_cart.append(sp.Eq(S_sym, S_cart, evaluate=False))
         s_pol = _exp_to_trig(s_hat.xreplace(polar_A))
         pr, pi_ = _real_imag(s_pol)
         S_pol = 2 * sp.sqrt(sp.trigsimp(sp.expand(pr**2 + pi_**2)))
         gain_subs_polar[fn] = gain.xreplace({S_sym: S_pol})
+        amp_defs_polar.append(sp.Eq(S_sym, S_pol, evaluate=False))
 
     # ---- slow flows
     complex_flow = tuple(
@@ -677,6 +681,9 @@ def internal_resonance_slow_flow(
     )
     cart_rhs: list[sp.Expr] = []
     polar_rhs: list[sp.Expr] = []
+    # the derivation prints N_e(S_e) by name, with S_e defined beside the flow
+    cart_shown: list[sp.Expr] = []
+    polar_shown: list[sp.Expr] = []
     for k in range(2):
         fns = {f for f in secular[k].atoms(sp.Function) if f.func.__name__.startswith("N_")}
         c_cart = secular[k].xreplace(cart_A)
@@ -684,16 +691,12 @@ def internal_resonance_slow_flow(
         det = nu[k] - w[k]
         pk = -det * q[k] + im_c / w[k]
         qk = det * p[k] + re_c / w[k]
-        cart_rhs += [
-            sp.expand(pk).xreplace(gain_subs_cart),
-            sp.expand(qk).xreplace(gain_subs_cart),
-        ]
+        cart_shown += [sp.expand(pk), sp.expand(qk)]
+        cart_rhs += [x.xreplace(gain_subs_cart) for x in cart_shown[-2:]]
         c_pol = _exp_to_trig(secular[k].xreplace(polar_A) * sp.exp(sp.I * gam[k]))
         re_p, im_p = _real_imag(c_pol)
-        polar_rhs += [
-            sp.expand(im_p / w[k]).xreplace(gain_subs_polar),
-            sp.expand(det * amp[k] + re_p / w[k]).xreplace(gain_subs_polar),
-        ]
+        polar_shown += [sp.expand(im_p / w[k]), sp.expand(det * amp[k] + re_p / w[k])]
+        polar_rhs += [x.xreplace(gain_subs_polar) for x in polar_shown[-2:]]
         del fns
     cart = (p[0], q[0], p[1], q[1])
     polar = (amp[0], gam[0], amp[1], gam[1])
@@ -780,7 +783,11 @@ def internal_resonance_slow_flow(
         values=values,
         notes=tuple(notes),
     )
-    steps = _steps(system, result_args, M, K, pwl, N_parts, E, theta, omega_b, m_force)
+    shown = {
+        "cartesian": (tuple(cart_shown), tuple(amp_defs_cart)),
+        "polar": (tuple(polar_shown), tuple(amp_defs_polar)),
+    }
+    steps = _steps(system, result_args, M, K, pwl, N_parts, theta, omega_b, shown)
     return InternalResonanceSlowFlow(**result_args, steps=steps)
 
 
@@ -797,7 +804,7 @@ def _all_symbols(system: System) -> set[sp.Symbol]:
 
 
 # ------------------------------------------------------------------------- derivation --
-def _steps(system, res, M, K, pwl, N_parts, E, theta, omega_b, m_force) -> tuple[Step, ...]:
+def _steps(system, res, M, K, pwl, N_parts, theta, omega_b, shown) -> tuple[Step, ...]:
     """The derivation as (title, mathematics, sentence) steps, in the order a paper writes
     them; equations are SymPy ``Eq`` (unevaluated where a side is a matrix)."""
     Omega = res["frequency"]
@@ -944,8 +951,9 @@ def _steps(system, res, M, K, pwl, N_parts, E, theta, omega_b, m_force) -> tuple
             "Cartesian slow flow",
             tuple(
                 sp.Eq(_Primed(f"{x.name}'"), rhs)
-                for x, rhs in zip(res["cartesian"], res["slow_flow"], strict=True)
-            ),
+                for x, rhs in zip(res["cartesian"], shown["cartesian"][0], strict=True)
+            )
+            + shown["cartesian"][1],
             text=(
                 "With $A_k = (p_k - i q_k)/2$, i.e. $\\eta_k = p_k\\cos\\nu_k t + q_k\\sin\\nu_k "
                 "t$:"
@@ -957,11 +965,12 @@ def _steps(system, res, M, K, pwl, N_parts, E, theta, omega_b, m_force) -> tuple
         Step(
             "Polar slow flow",
             (
-                sp.Eq(_Primed("a_1'"), res["polar_slow_flow"][0]),
-                sp.Eq(a1 * _Primed("gamma_1'"), res["polar_slow_flow"][1]),
-                sp.Eq(_Primed("a_2'"), res["polar_slow_flow"][2]),
-                sp.Eq(a2 * _Primed("gamma_2'"), res["polar_slow_flow"][3]),
-            ),
+                sp.Eq(_Primed("a_1'"), shown["polar"][0][0]),
+                sp.Eq(a1 * _Primed("gamma_1'"), shown["polar"][0][1]),
+                sp.Eq(_Primed("a_2'"), shown["polar"][0][2]),
+                sp.Eq(a2 * _Primed("gamma_2'"), shown["polar"][0][3]),
+            )
+            + shown["polar"][1],
             text=(
                 "With $A_k = \\tfrac12 a_k e^{-i\\gamma_k}$, i.e. $\\eta_k = a_k\\cos(\\nu_k t - "
                 "\\gamma_k)$:"
