@@ -28,7 +28,7 @@ from scipy.optimize import fsolve
 from perturb.errors import ModelError, ParameterError, PerturbError
 from perturb.fourier.symbols import NUMERIC_IMPLEMENTATIONS
 from perturb.methods.system_averaging import internal_resonance_slow_flow
-from perturb.model.system import System, dead_zone, stop
+from perturb.model.system import System, dead_zone, pwl_spring, stop
 from perturb.report.latex import derivation_body
 
 
@@ -411,6 +411,14 @@ def test_bad_input_is_refused_with_the_value():
     )
     with pytest.raises(ModelError, match="1:3 resonance its signal"):
         internal_resonance_slow_flow(pwl13, "1:3")
+    one_sided = System.from_matrices(
+        [[1, 0], [0, 1]],
+        [[0, 0], [0, 0]],
+        [[1, 0], [0, 1]],
+        elements=[pwl_spring("x1", [1], [0, 1])],
+    )
+    with pytest.raises(ModelError, match="is not odd"):
+        internal_resonance_slow_flow(one_sided, "1:1")
     stopped = System.from_matrices(
         [[1, 0], [0, 1]], [[0, 0], [0, 0]], [[1, 0], [0, 1]], elements=[stop("x1", -1, 1)]
     )
