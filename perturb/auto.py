@@ -67,6 +67,13 @@ __all__ = [
     "auto_frequency_response",
     "auto_solutions_at",
     "window_estimate",
+    "SYSTEM_LADDER",
+    "SpotOrbit",
+    "exact_system_spot_orbits",
+    "system_candidate_spot_errors",
+    "system_spot_frequencies",
+    "choose_system_method",
+    "auto_system_response",
 ]
 
 
@@ -136,6 +143,7 @@ class CandidateResult:
     estimate: float
     seconds: float
     note: str = ""
+    coordinate_errors: tuple[tuple[str, float], ...] = ()
 
     @property
     def error(self) -> float:
@@ -155,6 +163,11 @@ class CandidateResult:
             "estimate": _num(self.estimate),
             "cpu_seconds": round(self.seconds, 4),
             "note": self.note,
+            **(
+                {"coordinate_errors": {k: _num(v) for k, v in self.coordinate_errors}}
+                if self.coordinate_errors
+                else {}
+            ),
         }
 
 
@@ -220,6 +233,14 @@ class AutoChoice:
             f"  spot checks at Omega = {spots} ({', '.join(map(str, self.exact_orbits))} exact "
             f"orbits, {self.exact_seconds:.1f} s CPU)",
             f"  spot-check errors: {errs} (max {c.error:.2e})",
+            *(
+                [
+                    "  per coordinate (max |.| at the spots): "
+                    + ", ".join(f"{k} {v:.2e}" for k, v in c.coordinate_errors)
+                ]
+                if c.coordinate_errors
+                else []
+            ),
             f"  estimate (vs next richer HB): {c.estimate:.2e}; calibration error/estimate = "
             f"{self.calibration:.3g}",
         ]
@@ -780,8 +801,12 @@ def auto_frequency_response(
     log=None,
     max_extra_spots: int = 3,
     frequencies: Sequence[float] | None = None,
+    output: str | None = None,
 ) -> tuple[Response, AutoChoice]:
     """Choose the method (:func:`choose_method`), then trace only it over ``window``.
+
+    A :class:`~perturb.model.system.System` goes to :func:`auto_system_response` (with
+    ``output``; :data:`SYSTEM_LADDER` unless a ladder is given).
 
     Parameters
     ----------
@@ -808,6 +833,20 @@ def auto_frequency_response(
     spot check (exact orbits there) and the ladder resumes at the chosen rung, at most
     ``max_extra_spots`` times; what remains is reported in the notes.
     """
+    from perturb.solve import is_system
+
+    if is_system(oscillator):
+        return auto_system_response(
+            oscillator,
+            window,
+            rtol,
+            output=output,
+            spots=spots,
+            n_spots=n_spots,
+            ladder=SYSTEM_LADDER if ladder is LADDER else ladder,
+            log=log,
+            frequencies=frequencies,
+        )
     if frequencies is not None:
         return auto_solutions_at(
             oscillator, frequencies, rtol, spots=spots, n_spots=n_spots, ladder=ladder, log=log
@@ -968,3 +1007,503 @@ def _with_notes(choice: AutoChoice, notes: tuple[str, ...]) -> AutoChoice:
     if not notes:
         return choice
     return dataclasses.replace(choice, notes=choice.notes + notes)
+
+
+# ------------------------------------------------------------------------------------------
+# Systems of several coordinates: the same ladder with exact spot checks in n dimensions
+# ------------------------------------------------------------------------------------------
+#: The ladder of a :class:`~perturb.model.system.System`, cheapest first: the symbolic
+#: single-harmonic balance of systems, numeric multi-harmonic balance with H = 3 ... 63,
+#: the exact solver.
+SYSTEM_LADDER: tuple[Candidate, ...] = (
+    Candidate("hb1", "hb1"),
+    *(Candidate(f"hb{h}", "hb", harmonics=h) for h in (3, 7, 15, 31, 63)),
+    Candidate("exact", "exact"),
+)
+
+
+@dataclass(frozen=True)
+class SpotOrbit:
+    """What a spot check measures on one exact orbit of a system.
+
+    Attributes
+    ----------
+    orbit
+        The exact :class:`~perturb.simulate.orbits.shooting.PeriodicOrbit`.
+    output : float
+        ``max |c . y|`` of the output combination.
+    coordinates : tuple of (str, float)
+        ``max |.|`` of every coordinate.
+    """
+
+    orbit: Any
+    output: float
+    coordinates: tuple[tuple[str, float], ...]
+
+
+def _system_measures(system: Any, c: np.ndarray) -> Any:
+    from perturb.solve import system_coordinates
+
+    names = system.state_names
+    coords = system_coordinates(system)
+    eye = np.eye(len(names))
+
+    def measure(orbit: Any) -> SpotOrbit:
+        return SpotOrbit(
+            orbit,
+            float(orbit.max_abs(c)),
+            tuple((n, float(orbit.max_abs(eye[names.index(n)]))) for n in coords),
+        )
+
+    return measure
+
+
+def exact_system_spot_orbits(
+    system: Any, frequencies: Sequence[float], output: str | None = None
+) -> list[list[SpotOrbit]]:
+    """Every exact period-1 orbit of ``system`` at each frequency
+    (:func:`perturb.solve.periodic_orbits`: linear-part, transient and random starts, shooting
+    on the exact flow), with the ``max |.|`` of the output and of every coordinate."""
+    from perturb.solve import periodic_orbits, system_output
+
+    c, _ = system_output(system, output)
+    measure = _system_measures(system, c)
+    return [
+        [measure(o) for o in periodic_orbits(system, float(w), output=output) if o.m == 1]
+        for w in frequencies
+    ]
+
+
+def _system_coefficients(system: Any, orbit: Any, H: int, Omega: float) -> np.ndarray:
+    """Balance coefficients ``(n2 + n1, 2H + 1)`` (``[a0, a1, b1, ...]`` of cos/sin
+    ``k Omega t``) of an exact orbit's coordinates and first-order states."""
+    n = max(256, 8 * H)
+    t, Y = orbit.sample_states(n)
+    n2 = len(system.coordinates)
+    rows = np.concatenate([Y[:n2], Y[2 * n2 :]])
+    th = Omega * t
+    out = np.empty((rows.shape[0], 2 * H + 1))
+    out[:, 0] = rows.mean(axis=1)
+    for k in range(1, H + 1):
+        out[:, 2 * k - 1] = 2.0 * (rows * np.cos(k * th)).mean(axis=1)
+        out[:, 2 * k] = 2.0 * (rows * np.sin(k * th)).mean(axis=1)
+    return out
+
+
+def _solution_measures(system: Any, sol: Any, c: np.ndarray) -> tuple[float, dict[str, float]]:
+    """``max |.|`` of the output combination ``c`` and of every coordinate of a balance
+    solution (:class:`~perturb.numeric.system_balance.SystemBalanceSolution`)."""
+    from perturb.numeric.system_balance import SystemBalanceSolution
+
+    n2 = len(system.coordinates)
+    U = sol.U
+    w = sol.Omega / sol.m
+    # the output's series: positions and first-order states enter as they are, velocities
+    # through the derivative of each harmonic (a_k, b_k) -> (k b_k, -k a_k)
+    alpha = np.concatenate([c[:n2], c[2 * n2 :]])
+    beta = c[n2 : 2 * n2]
+    s = alpha @ U
+    if np.any(beta):
+        k = np.arange(1, (U.shape[1] - 1) // 2 + 1)
+        dU = np.zeros_like(U[:n2])
+        dU[:, 1::2] = k * U[:n2, 2::2]
+        dU[:, 2::2] = -k * U[:n2, 1::2]
+        s = s + w * (beta @ dU)
+    series = SystemBalanceSolution(sol.Omega, s[None, :], ("output",), sol.basis, sol.m, None, 1)
+    return float(series.max_abs()["output"]), sol.max_abs()
+
+
+def _system_candidate_at(
+    system: Any,
+    H: int,
+    w: float,
+    spots: Sequence[SpotOrbit],
+    c: np.ndarray,
+    zero_mean: bool,
+    residuals: Any = None,
+) -> list[tuple[float, dict[str, float]] | None]:
+    """The balance solution with ``H`` harmonics started from each exact orbit's Fourier
+    coefficients (it belongs to that orbit), measured; None where Newton fails, where the
+    ansatz has no mean but the solution has one, or where ``residuals`` (a system's symbolic
+    single-harmonic residuals) do not vanish at it."""
+    from perturb.numeric.system_balance import system_balance_orbit
+
+    out: list[tuple[float, dict[str, float]] | None] = []
+    for sp in spots:
+        guess = _system_coefficients(system, sp.orbit, H, w)
+        if zero_mean:
+            guess[:, 0] = 0.0
+        try:
+            sol = system_balance_orbit(system, w, harmonics=H, guess=guess, stability=False)
+        except PerturbError:
+            out.append(None)
+            continue
+        size = max(1.0, float(np.abs(sol.U).max()))
+        if zero_mean and float(np.abs(sol.U[:, 0]).max()) > 1e-7 * size:
+            out.append(None)
+            continue
+        if residuals is not None:
+            R = float(np.abs(residuals(sol.U[None, :, :3], np.array([w]))).max())
+            if not R <= 1e-7 * size:
+                out.append(None)
+                continue
+        out.append(_solution_measures(system, sol, c))
+    return out
+
+
+def _spot_errors(
+    spots: Sequence[SpotOrbit], found: Sequence[tuple[float, dict[str, float]] | None]
+) -> tuple[float, dict[str, float]]:
+    """The output's error at one frequency (each exact orbit against its own solution, else
+    the nearest other one found there; ``inf`` without any) and each coordinate's."""
+    valid = [f for f in found if f is not None]
+    worst = 0.0
+    coord: dict[str, float] = {}
+    for sp, own in zip(spots, found, strict=True):
+        if own is None:
+            if not valid:
+                worst = math.inf
+                for n, _ in sp.coordinates:
+                    coord[n] = math.inf
+                continue
+            own = min(valid, key=lambda f, sp=sp: _rel(f[0], sp.output))
+        worst = max(worst, _rel(own[0], sp.output))
+        for n, a in sp.coordinates:
+            coord[n] = max(coord.get(n, 0.0), _rel(own[1][n], a))
+    return worst, coord
+
+
+def system_candidate_spot_errors(
+    system: Any,
+    candidate: Candidate,
+    frequencies: Sequence[float],
+    orbits: Sequence[Sequence[SpotOrbit]],
+    output: str | None = None,
+    derivation: Any = None,
+) -> CandidateResult:
+    """Spot errors of ``candidate`` on a system against the exact ``orbits``
+    (:func:`exact_system_spot_orbits`): at each spot frequency the relative error of the
+    output's ``max |.|`` (what decides), and per coordinate the largest over the spots
+    (``coordinate_errors``); the estimate is the difference to the next richer balance
+    (``2H + 1`` harmonics; ``H = 3`` for ``hb1``) at the same orbits.
+
+    ``hb1`` is the symbolic single-harmonic balance of the system: its solutions at a spot are
+    those of the balance with one harmonic (the same equations), checked on the symbolic
+    residuals of ``derivation`` (:func:`perturb.methods.system_harmonic_balance.
+    system_single_harmonic_balance`), zero means when the derivation has no bias.
+    """
+    from perturb.solve import system_output, system_single_harmonic_residuals
+
+    t0 = time.process_time()
+    ws = [float(w) for w in frequencies]
+    if candidate.method == "exact":
+        zeros = tuple(0.0 for _ in ws)
+        return CandidateResult(candidate, zeros, 0.0, time.process_time() - t0, "reference")
+    c, _ = system_output(system, output)
+    try:
+        if candidate.method in ("hb1", "shb"):
+            if derivation is None:
+                from perturb.methods.system_harmonic_balance import (
+                    system_single_harmonic_balance,
+                )
+
+                derivation = system_single_harmonic_balance(system)
+            H, richer_H = 1, 3
+            zero_mean = not derivation.biases
+            residuals = system_single_harmonic_residuals(derivation)
+        elif candidate.method == "hb":
+            H = int(candidate.harmonics or 15)
+            richer_H, zero_mean, residuals = 2 * H + 1, False, None
+        else:
+            raise ParameterError(
+                f"ladder rung {candidate.name!r}: method {candidate.method!r} does not take a "
+                "system (expected hb1, hb or exact)"
+            )
+        errs, est = [], 0.0
+        coord: dict[str, float] = {}
+        for w, spots in zip(ws, orbits, strict=True):
+            found = _system_candidate_at(system, H, w, spots, c, zero_mean, residuals)
+            e, ce = _spot_errors(spots, found)
+            errs.append(e)
+            for k, v in ce.items():
+                coord[k] = max(coord.get(k, 0.0), v)
+            richer = _system_candidate_at(system, richer_H, w, spots, c, False)
+            for f, g in zip(found, richer, strict=True):
+                if f is not None and g is not None:
+                    est = max(est, _rel(f[0], g[0]))
+        return CandidateResult(
+            candidate, tuple(errs), est, time.process_time() - t0, "", tuple(coord.items())
+        )
+    except PerturbError as exc:
+        inf = tuple(math.inf for _ in ws)
+        return CandidateResult(candidate, inf, math.nan, time.process_time() - t0, str(exc))
+
+
+def system_spot_frequencies(system: Any, window: Sequence[float], n: int = 4) -> tuple[float, ...]:
+    """``n`` frequencies spread over ``window``, kept 3 % of the window away from the folds of
+    the system's one-harmonic balance (as :func:`spot_frequencies` for one coordinate)."""
+    lo, hi = checks.window(window)
+    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 50:
+        raise ParameterError(
+            f"n_spots = {n!r}: expected an integer number of spot checks in [1, 50]"
+        )
+    edges = np.linspace(lo, hi, n + 1)
+    mids = 0.5 * (edges[:-1] + edges[1:])
+    try:
+        from perturb.solve import frequency_response
+
+        r = frequency_response(system, "hb", (lo, hi), harmonics=1, stability=False)
+        folds = np.array([w for w, _ in r.folds])
+    except PerturbError:
+        folds = np.empty(0)
+    gap = 0.03 * (hi - lo)
+    out = []
+    for i, w in enumerate(mids):
+        if folds.size and np.min(np.abs(folds - w)) < gap:
+            cand = np.linspace(edges[i], edges[i + 1], 41)[1:-1]
+            dist = np.min(np.abs(folds[None, :] - cand[:, None]), axis=1)
+            w = cand[int(np.argmax(dist))]
+        out.append(float(f"{w:.6g}"))
+    return tuple(out)
+
+
+def choose_system_method(
+    system: Any,
+    window: Sequence[float],
+    rtol: float,
+    *,
+    output: str | None = None,
+    spots: Sequence[float] | None = None,
+    n_spots: int = 4,
+    ladder: Sequence[Candidate] = SYSTEM_LADDER,
+    log=None,
+) -> AutoChoice:
+    """The cheapest rung of ``ladder`` whose spot checks on ``system`` meet ``rtol`` (the
+    output's error decides; :class:`CandidateResult` ``coordinate_errors`` holds each
+    coordinate's). See :func:`auto_system_response`."""
+    return _choose_system(system, window, rtol, output, spots, n_spots, ladder, log)[0]
+
+
+def _choose_system(
+    system, window, rtol, output, spots, n_spots, ladder, log, known=None, before=()
+):
+    """:func:`choose_system_method`; ``known`` caches the exact spot orbits (filled in here),
+    ``before`` are results of cheaper rungs already rejected (reported, not re-run)."""
+    from perturb.solve import SYSTEM_METHODS
+
+    rtol = check_rtol(rtol)
+    lo, hi = checks.window(window)
+    ladder = list(ladder)
+    for c in ladder:
+        check_candidate(c)
+        if c.method not in SYSTEM_METHODS or c.method == "auto":
+            raise ParameterError(
+                f"ladder rung {c.name!r}: method {c.method!r} does not take a system (expected "
+                f"one of {', '.join(m for m in SYSTEM_METHODS if m != 'auto')})"
+            )
+    if spots is None:
+        spots = system_spot_frequencies(system, (lo, hi), n_spots)
+    try:
+        ws = tuple(float(w) for w in spots)
+    except (TypeError, ValueError):
+        raise ParameterError(f"spots = {spots!r}: expected positive frequencies") from None
+    if not ws or not all(math.isfinite(w) and w > 0 for w in ws) or len(set(ws)) != len(ws):
+        raise ParameterError(f"spots = {spots!r}: expected distinct positive frequencies")
+    known = {} if known is None else known
+    t0 = time.process_time()
+    if ws not in known:
+        known[ws] = exact_system_spot_orbits(system, ws, output)
+        known["seconds"] = known.get("seconds", 0.0) + time.process_time() - t0
+    orbits = known[ws]
+    exact_s = known.get("seconds", 0.0)
+    ladder = [c for c in ladder if c.method != "exact"] + [Candidate("exact", "exact")]
+    derivation = None
+    tried: list[CandidateResult] = list(before)
+    for cand in ladder:
+        if cand.method in ("hb1", "shb") and derivation is None:
+            from perturb.methods.system_harmonic_balance import system_single_harmonic_balance
+
+            try:
+                derivation = system_single_harmonic_balance(system)
+            except PerturbError as exc:
+                res = CandidateResult(
+                    cand, tuple(math.inf for _ in ws), math.nan, 0.0, f"not derived: {exc}"
+                )
+                tried.append(res)
+                if log is not None:
+                    log(f"{cand.name}: {res.note}")
+                continue
+        res = system_candidate_spot_errors(system, cand, ws, orbits, output, derivation)
+        if log is not None:
+            log(
+                f"{cand.name}: spot error {res.error:.2e}, estimate {res.estimate:.2e}, "
+                f"{res.seconds:.2f} s CPU"
+                + (f" ({res.note})" if res.note and res.note != "reference" else "")
+            )
+        if res.meets(rtol):
+            choice = AutoChoice(
+                res,
+                tuple(tried),
+                rtol,
+                (lo, hi),
+                ws,
+                tuple(len(o) for o in orbits),
+                exact_s,
+                tuple(tuple(s.output for s in row) for row in orbits),
+            )
+            return choice, orbits
+        tried.append(res)
+    raise AssertionError("unreachable: the exact candidate always meets rtol")
+
+
+def auto_system_response(
+    system: Any,
+    window: Sequence[float],
+    rtol: float,
+    *,
+    output: str | None = None,
+    spots: Sequence[float] | None = None,
+    n_spots: int = 4,
+    ladder: Sequence[Candidate] = SYSTEM_LADDER,
+    log=None,
+    frequencies: Sequence[float] | None = None,
+    curve_checks: int = 12,
+    max_climbs: int = 2,
+) -> tuple[Any, AutoChoice]:
+    """The cheapest method that meets ``rtol`` on a system of several coordinates, then only
+    it over ``window`` (or at exactly ``frequencies``).
+
+    The ladder (:data:`SYSTEM_LADDER`): the symbolic single-harmonic balance of the system
+    (``hb1``), numeric multi-harmonic balance with H = 3, 7, 15, 31, 63, the exact solver. At
+    each spot frequency (:func:`system_spot_frequencies`, or the listed ``frequencies`` when
+    there are at most ``n_spots``) every exact period-1 orbit is found
+    (:func:`exact_system_spot_orbits`) and each rung's balance solved from each orbit's
+    Fourier coefficients; the relative error of the output's ``max |.|`` decides, every
+    coordinate's is reported (``coordinate_errors``, the summary's "per coordinate" line).
+    A rung is accepted when its spot error and its estimate (the next richer balance at the
+    same orbits) are both within ``rtol``.
+
+    Parameters
+    ----------
+    system
+        A forced :class:`~perturb.model.system.System` with parameter values.
+    window, rtol, spots, n_spots, log
+        As :func:`choose_method`.
+    output
+        What the ``amplitude`` column measures and the spot error judges (default the first
+        coordinate), as :func:`perturb.solve.system_output`.
+    ladder
+        Rungs of methods that take a system (``hb1``, ``shb``, ``hb``, ``exact``).
+    curve_checks, max_climbs
+        After the trace, exact orbits are shot from ``curve_checks`` points of the chosen
+        balance's curve (away from its folds, :func:`perturb.solve.system_errors`); where the
+        output's error exceeds ``rtol`` between the spot frequencies the next rung is taken,
+        at most ``max_climbs`` times (the notes say what was found).
+
+    Returns
+    -------
+    (SystemResponse, AutoChoice)
+        The response's ``notes`` start with the choice.
+    """
+    from perturb.solve import frequency_response
+
+    if frequencies is not None:
+        from perturb.methods.registry import MAX_FREQUENCIES
+
+        targets = checks.frequencies(frequencies, MAX_FREQUENCIES)
+        unique = sorted(set(targets))
+        window = (unique[0] * (1 - 0.02), unique[-1] * (1 + 0.02))
+        if spots is None and len(unique) <= n_spots:
+            spots = unique
+    known: dict = {}
+    ladder = list(ladder)
+    before: tuple[CandidateResult, ...] = ()
+    extra: list[str] = []
+    for attempt in range(max_climbs + 1):
+        choice, _ = _choose_system(
+            system, window, rtol, output, spots, n_spots, ladder, log, known, before
+        )
+        spots = choice.spot_frequencies
+        cand = choice.chosen.candidate
+        settings = cand.settings()
+        method = settings.pop("method")
+        if frequencies is not None:
+            resp = frequency_response(
+                system, method, frequencies=targets, output=output, **settings
+            )
+            break
+        resp = frequency_response(system, method, choice.window, output=output, **settings)
+        if method == "exact":
+            break
+        worst, at = _curve_check(system, resp, output, curve_checks)
+        if not worst > rtol:
+            if math.isfinite(worst):
+                extra.append(
+                    f"{cand.name} on the traced curve: exact orbits shot from {curve_checks} "
+                    f"of its points away from folds, largest error {worst:.2e} <= rtol"
+                )
+            break
+        msg = (
+            f"{cand.name}: error {worst:.2e} > rtol against the exact orbit at Omega = "
+            f"{at:.6g} on the traced curve (between the spot frequencies)"
+        )
+        if attempt == max_climbs:
+            extra.append(msg + "; kept (no more climbs): tighten rtol or give spots there")
+            break
+        extra.append(msg + ": the next rung is tried")
+        if log is not None:
+            log(msg)
+        i = next(j for j, c in enumerate(ladder) if c == cand)
+        failed = dataclasses.replace(choice.chosen, note=f"curve check {worst:.2e} at {at:.6g}")
+        before = (*choice.rejected, failed)
+        ladder = ladder[i + 1 :]
+    if frequencies is None:
+        extra += list(_coverage_notes(resp, choice))
+    choice = _with_notes(choice, tuple(extra))
+    head = tuple(choice.summary().splitlines())
+    return dataclasses.replace(resp, notes=head + tuple(resp.notes)), choice
+
+
+def _curve_check(system: Any, resp: Any, output: str | None, points: int) -> tuple[float, float]:
+    """The largest relative error of the output's ``max |.|`` over up to ``points`` points of a
+    traced balance response, each against the exact orbit shot from its state
+    (:func:`perturb.solve.system_errors`), points within 1 % of a fold left out (there the
+    amplitude at a fixed frequency is ill-conditioned and the truncated fold is displaced);
+    ``(nan, nan)`` when none could be checked."""
+    from perturb.solve import system_errors
+
+    rows = [
+        (b, j)
+        for b, br in enumerate(resp.branches)
+        for j in range(len(br))
+        if not any(abs(float(br.omega[j]) - f) < 0.01 * f for f, _ in resp.folds)
+    ]
+    if not rows or not resp.columns or "states" not in resp.columns[0]:
+        return math.nan, math.nan
+    pick = np.unique(np.linspace(0, len(rows) - 1, min(points, len(rows))).round().astype(int))
+    chosen = {rows[int(i)] for i in pick}
+    # a response of only the chosen points (system_errors checks every point it is given)
+    branches, cols, where = [], [], []
+    for b, br in enumerate(resp.branches):
+        idx = [j for j in range(len(br)) if (b, j) in chosen]
+        if not idx:
+            continue
+        branches.append(
+            Branch(
+                br.omega[idx],
+                br.amplitude[idx],
+                br.first_harmonic_amplitude[idx],
+                br.mean[idx],
+                br.stable[idx],
+                br.max_multiplier[idx],
+            )
+        )
+        cols.append({k: np.asarray(v)[idx] for k, v in resp.columns[b].items()})
+        where += [float(br.omega[j]) for j in idx]
+    part = dataclasses.replace(resp, branches=tuple(branches), columns=tuple(cols), folds=())
+    errs, _ = system_errors(system, part, output, max_points=len(where))
+    e = errs["rel_error"]
+    if not np.any(np.isfinite(e)):
+        return math.nan, math.nan
+    i = int(np.nanargmax(e))
+    return float(e[i]), where[i]

@@ -99,6 +99,8 @@ __all__ = [
     "system_coordinates",
     "check_oscillator_output",
     "SYSTEM_METHODS",
+    "system_method_text",
+    "system_single_harmonic_residuals",
     "SystemResponse",  # noqa: F822 - built on first access (module __getattr__)
     "SYSTEM_INTEGRATORS",
     "orbit_columns",
@@ -582,9 +584,15 @@ def _hb_solutions_at(
 # Systems of several coordinates (issue 15): the front door for System models
 # ------------------------------------------------------------------------------------------
 
-#: Methods a :class:`~perturb.model.system.System` takes (the approximations of several
-#: coordinates are the next issue's).
-SYSTEM_METHODS = ("exact", "hb")
+#: Methods a :class:`~perturb.model.system.System` takes: the exact reference, numeric
+#: multi-harmonic balance, the symbolic single-harmonic balance of systems
+#: (:mod:`perturb.methods.system_harmonic_balance`: ``"hb1"`` with the bias its derivation
+#: decides, ``"shb"`` with ``bias=`` and the harmonic set ``(1,)``) and the automatic choice.
+SYSTEM_METHODS = ("exact", "hb", "hb1", "shb", "auto")
+#: Options of the symbolic single-harmonic balance of a system (:func:`_system_shb`).
+SYSTEM_SHB_OPTIONS = ("bias", "harmonics", "stability", "all_branches", "ds_max", "max_points")
+#: Options of ``method="auto"`` for a system (:func:`perturb.auto.auto_system_response`).
+SYSTEM_AUTO_OPTIONS = ("rtol", "spots", "n_spots", "ladder", "log")
 #: Options of method ``"hb"`` for a system (:func:`_system_hb`).
 SYSTEM_HB_OPTIONS = (
     "harmonics",
@@ -1781,11 +1789,15 @@ def _system_response(
     if spec.name not in SYSTEM_METHODS:
         raise ParameterError(
             f"method {spec.name!r} ({spec.title}) is for one coordinate (an Oscillator); a "
-            f"system of several coordinates ({system.name!r}) takes method 'exact' or 'hb' "
-            "(numeric multi-harmonic balance)"
+            f"system of several coordinates ({system.name!r}) takes one of "
+            f"{', '.join(SYSTEM_METHODS)} ({system_method_text()})"
         )
     if spec.name == "hb":
         return _system_hb(system, Omega, frequencies, output, dict(options))
+    if spec.name in ("hb1", "shb"):
+        return _system_shb(system, spec.name, Omega, frequencies, output, dict(options))
+    if spec.name == "auto":
+        return _system_auto(system, Omega, frequencies, output, dict(options))
     options = spec.validate(dict(options))
     for key in ("approximation", "approximation_seeds"):
         if key in options:
@@ -1837,12 +1849,7 @@ def _system_hb(
         An option the system's HB does not take (the message lists those it does), bad
         values (``harmonics``, window, ``stability``).
     """
-    from perturb.numeric.system_balance import (
-        SystemBalance,
-        system_balance_branch,
-        system_balance_response,
-        system_balance_solutions_at,
-    )
+    from perturb.numeric.system_balance import SystemBalance
 
     unknown = sorted(set(options) - set(SYSTEM_HB_OPTIONS))
     if unknown:
@@ -1852,23 +1859,44 @@ def _system_hb(
         )
     H = registry.check_harmonics(options.pop("harmonics", DEFAULT_HARMONICS))
     m = options.pop("m", 1)
-    stability = options.pop("stability", True)
-    if stability in ("none", False, None):
-        stability = False
-    elif stability in (True, "hill", "floquet"):
-        stability = True
-    else:
-        raise ParameterError(
-            f"stability = {stability!r}: expected True/'floquet' (Floquet multipliers of the "
-            "linearisation about the HB orbit) or False/'none'"
-        )
+    stability = _check_stability_flag(options.pop("stability", True))
     projection = options.pop("projection", "exact")
     all_branches = options.pop("all_branches", True)
     system_output(system, output)  # a bad output is refused before any work
     _check_frequency_response(system, frequencies is not None)
     sb = SystemBalance(system, H, m=m, projection=projection)
-    _, out_text = system_output(system, output)
-    cls = _response_class()
+    branches, resp = _balance_branches(
+        system, sb, Omega, frequencies, output, stability, all_branches, options
+    )
+    if resp is None:
+        notes: tuple[str, ...] = (
+            f"harmonic balance of a system, H = {H}, m = {m}: every solution found at "
+            "each frequency",
+        )
+        return _balance_response(system, branches, "hb-system", output, notes)
+    return _balance_response(system, branches, resp.method, output, resp.notes, resp)
+
+
+def _balance_branches(
+    system: Any,
+    sb: Any,
+    Omega: Sequence[float],
+    frequencies: Sequence[float] | None,
+    output: str | None,
+    stability: bool,
+    all_branches: bool,
+    options: dict[str, Any],
+) -> tuple[list, Any]:
+    """The branches of the balance ``sb`` (a :class:`~perturb.numeric.system_balance.
+    SystemBalance`) over ``Omega`` (every branch, or one with ``all_branches=False``), or its
+    solutions at listed ``frequencies``; and the traced response (None at listed
+    frequencies)."""
+    from perturb.numeric.system_balance import (
+        system_balance_branch,
+        system_balance_response,
+        system_balance_solutions_at,
+    )
+
     if frequencies is not None:
         for key in ("mirror", "ds_max", "max_points", "max_branches", "direction", "interior"):
             if key in options:
@@ -1881,47 +1909,313 @@ def _system_hb(
             stability=stability,
             balance=sb,
         )
-        return cls(
-            tuple(b.to_branch() for b in found.branches),
-            "hb-system",
-            system.name,
-            notes=(
-                f"harmonic balance of a system, H = {H}, m = {m}: every solution found at "
-                "each frequency",
-            ),
-            output=out_text,
-            coordinates=system_coordinates(system),
-            columns=tuple({**b.columns(), "states": b.states()} for b in found.branches),
-        )
+        return list(found.branches), None
     window = checks.window(Omega)
     if all_branches:
         options.pop("direction", None)
         found = system_balance_response(
             system, window, output=output, stability=stability, balance=sb, **options
         )
-        resp, branches = found.to_response(), found.branches
-    else:
-        options.pop("interior", None)
-        options.pop("mirror", None)
-        options.pop("max_branches", None)
-        br = system_balance_branch(
-            system, window, output=output, stability=stability, balance=sb, **options
-        )
-        resp, branches = br.to_response(), (br,)
+        return list(found.branches), found.to_response()
+    options.pop("interior", None)
+    options.pop("mirror", None)
+    options.pop("max_branches", None)
+    br = system_balance_branch(
+        system, window, output=output, stability=stability, balance=sb, **options
+    )
+    return [br], br.to_response()
+
+
+def _balance_response(
+    system: Any,
+    branches: Sequence[Any],
+    method: str,
+    output: str | None,
+    notes: Sequence[str],
+    traced: Any = None,
+) -> Any:
+    """A :class:`SystemResponse` of balance branches; ``traced`` (a Response of the same
+    branches, or None for listed points) gives the folds and parameters."""
     # each branch's columns also hold "states" (P, n): the HB orbits' states at t = 0, which
     # system_errors shoots the exact orbits from (not written to the CSV)
     cols = tuple({**b.columns(), "states": b.states()} for b in branches)
+    cls = _response_class()
+    if traced is None:
+        return cls(
+            tuple(b.to_branch() for b in branches),
+            method,
+            system.name,
+            notes=tuple(notes),
+            output=system_output(system, output)[1],
+            coordinates=system_coordinates(system),
+            columns=cols,
+        )
     return cls(
-        resp.branches,
-        resp.method,
-        resp.model,
-        resp.params,
-        resp.folds,
-        resp.notes,
-        output=out_text,
+        tuple(b.to_branch() for b in branches),
+        method,
+        traced.model,
+        traced.params,
+        traced.folds,
+        tuple(notes),
+        output=system_output(system, output)[1],
         coordinates=system_coordinates(system),
         columns=cols,
     )
+
+
+def system_method_text() -> str:
+    """One line naming what each method of :data:`SYSTEM_METHODS` does for a system."""
+    return (
+        "exact: continuation of exact orbits; hb: numeric multi-harmonic balance, harmonics=H; "
+        "hb1 / shb: symbolic single-harmonic balance (describing functions; shb takes bias=); "
+        "auto: the cheapest of those meeting rtol at exact spot checks"
+    )
+
+
+def _check_stability_flag(stability: Any) -> bool:
+    if stability in ("none", False, None):
+        return False
+    if stability in (True, "hill", "floquet"):
+        return True
+    raise ParameterError(
+        f"stability = {stability!r}: expected True/'floquet' (Floquet multipliers of the "
+        "linearisation about the HB orbit) or False/'none'"
+    )
+
+
+def system_single_harmonic_residuals(derivation: Any) -> Any:
+    """The residuals of a system's symbolic single-harmonic balance as a numeric function.
+
+    Parameters
+    ----------
+    derivation
+        A :class:`~perturb.methods.system_harmonic_balance.SystemHarmonicBalance`.
+
+    Returns
+    -------
+    callable
+        ``f(U, Omega) -> R``: ``U`` of shape ``(P, n, 3)`` (per point and coordinate the
+        coefficients ``[mean, cos, sin]`` as numeric balance lays them out), ``Omega`` of
+        shape ``(P,)``; ``R`` of shape ``(P, len(residuals))``, the system's parameter values
+        bound. Without a bias in the derivation the means are not arguments (they must be 0).
+    """
+    import numpy as np
+
+    from perturb.numeric.compile import lambdify
+
+    fn = lambdify(derivation.arguments, derivation.residuals)
+    values = []
+    for p in derivation.parameters:
+        v = derivation.values.get(str(p))
+        if v is None:
+            raise ParameterError(
+                f"parameter {p} of system {derivation.system.name!r} has no value: the "
+                "single-harmonic balance needs numbers to be solved"
+            )
+        values.append(float(v))
+    biased = bool(derivation.biases)
+
+    def residuals(U: Any, Omega: Any) -> Any:
+        U = np.asarray(U, dtype=float)
+        W = np.asarray(Omega, dtype=float)
+        args = ([*U[:, :, 0].T] if biased else []) + [*U[:, :, 1].T] + [*U[:, :, 2].T]
+        out = fn(*args, W, *(np.full(W.shape, v) for v in values))
+        return np.stack([np.broadcast_to(o, W.shape) for o in out], axis=1)
+
+    return residuals
+
+
+def _system_shb(
+    system: Any,
+    name: str,
+    Omega: Sequence[float],
+    frequencies: Sequence[float] | None,
+    output: str | None,
+    options: dict[str, Any],
+) -> Any:
+    """Methods ``"hb1"`` and ``"shb"`` for a :class:`~perturb.model.system.System`: the
+    symbolic single-harmonic balance (:func:`perturb.methods.system_harmonic_balance.
+    system_single_harmonic_balance`, describing functions of each element's combination).
+
+    Its equations are those of numeric harmonic balance with ``H = 1`` and the exact Galerkin
+    projection (the projection of a PWL force on one harmonic is its closed-form describing
+    function and mean), so the numeric layer traces them there (every branch, Floquet
+    multipliers of the linearisation about each orbit), and every point found is then checked
+    on the symbolic residuals themselves (lambdified): a point where they do not vanish (to
+    ``1e-7`` of the orbit's size) is dropped with a note. Without a bias (an odd system without
+    static load, ``bias=None``/``False``) the ansatz has zero means: branches of numeric
+    solutions with a mean are outside it and left out (the note says how many).
+
+    Raises
+    ------
+    ParameterError
+        An option neither method takes (listing those they do), ``bias`` with ``"hb1"``, a
+        harmonic set other than ``(1,)``.
+    ModelError
+        What the derivation refuses (a stop, a zero combination, several forcing frequencies).
+    """
+    import numpy as np
+
+    from perturb.methods.system_harmonic_balance import system_single_harmonic_balance
+    from perturb.numeric.system_balance import SystemBalance
+
+    unknown = sorted(set(options) - set(SYSTEM_SHB_OPTIONS))
+    if unknown:
+        raise ParameterError(
+            f"{', '.join(unknown)}: not options of the single-harmonic balance of a system "
+            f"(expected: {', '.join(SYSTEM_SHB_OPTIONS)})"
+        )
+    bias = options.pop("bias", None)
+    harmonics = options.pop("harmonics", None)
+    if name == "hb1" and (bias is not None or harmonics is not None):
+        given = "bias" if bias is not None else "harmonics"
+        raise ParameterError(
+            f"{given}: 'hb1' is the single-harmonic balance with the bias its derivation "
+            "decides (a mean where an element is not odd or a load acts); method 'shb' takes "
+            "bias=True/False, numeric 'hb' takes harmonics=H"
+        )
+    if harmonics is not None and tuple(harmonics) not in ((1,), (1.0,)):
+        raise ParameterError(
+            f"harmonics = {harmonics!r}: the symbolic balance of a system has the one harmonic "
+            "set (1,); numeric 'hb' takes harmonics=H for more"
+        )
+    if bias is not None and not isinstance(bias, bool):
+        raise ParameterError(f"bias = {bias!r}: expected True, False or None (automatic)")
+    stability = _check_stability_flag(options.pop("stability", True))
+    all_branches = options.pop("all_branches", True)
+    system_output(system, output)  # a bad output is refused before any work
+    _check_frequency_response(system, frequencies is not None)
+    derivation = system_single_harmonic_balance(system, bias=bias)
+    sb = SystemBalance(system, 1)
+    branches, traced = _balance_branches(
+        system, sb, Omega, frequencies, output, stability, all_branches, options
+    )
+    residuals = system_single_harmonic_residuals(derivation)
+    kept, off_ansatz, off_residual, worst = [], 0, 0, 0.0
+    for br in branches:
+        U = np.asarray(br.U, dtype=float)
+        size = np.maximum(1.0, np.abs(U).max(axis=(1, 2)))
+        ok = np.ones(len(br), dtype=bool)
+        if not derivation.biases:
+            ok &= np.abs(U[:, :, 0]).max(axis=1) <= 1e-7 * size
+        R = np.abs(residuals(U, br.Omega)).max(axis=1)
+        good = ok & (R <= 1e-7 * size)
+        off_residual += int(np.sum(ok & ~good))
+        if np.any(good):
+            worst = max(worst, float(np.max(R[good] / size[good])))
+        if good.all():
+            kept.append(br)
+            continue
+        if not ok.any():
+            off_ansatz += 1
+            continue
+        kept += _runs_of(br, good, frequencies is not None)
+    notes = [
+        f"symbolic single-harmonic balance of {len(derivation.coordinates)} coordinates "
+        f"({derivation.label}: unknowns {', '.join(map(str, derivation.unknowns))}), solved "
+        "as numeric balance with H = 1 and the exact projection (the same equations); its "
+        f"symbolic residuals at the solutions: max {worst:.1e} relative to the orbit's size",
+        *derivation.notes,
+    ]
+    if off_ansatz:
+        notes.append(
+            f"{off_ansatz} branches with a mean left out: the zero-mean ansatz (no bias in the "
+            "derivation) does not hold them; method 'shb' with bias=True keeps them"
+        )
+    if off_residual:
+        notes.append(f"{off_residual} points dropped: the symbolic residuals did not vanish there")
+    label = f"{name}-system"
+    if traced is None:
+        return _balance_response(system, kept, label, output, notes)
+    folds = tuple(
+        (float(f), float(b.output_amplitude[int(np.argmin(np.abs(b.Omega - f)))]))
+        for b in kept
+        for f in b.folds
+    )
+    return _balance_response(
+        system,
+        kept,
+        label,
+        output,
+        notes,
+        _Traced(traced.model, dict(traced.params), tuple(dict.fromkeys(folds))),
+    )
+
+
+class _Traced:
+    """The model, parameters and folds of a traced response (what :func:`_balance_response`
+    reads from it)."""
+
+    def __init__(self, model: str, params: dict, folds: tuple) -> None:
+        self.model, self.params, self.folds = model, params, folds
+
+
+def _runs_of(br: Any, good: Any, listed: bool) -> list:
+    """The runs of consecutive ``good`` points of a balance branch, each a branch of its own
+    (at least two points; one for listed frequencies)."""
+    import dataclasses
+
+    import numpy as np
+
+    out = []
+    idx = np.flatnonzero(good)
+    if idx.size == 0:
+        return out
+    cuts = np.flatnonzero(np.diff(idx) > 1) + 1
+    for run in np.split(idx, cuts):
+        if run.size < (1 if listed else 2):
+            continue
+        sl = slice(int(run[0]), int(run[-1]) + 1)
+        lo, hi = float(br.Omega[sl].min()), float(br.Omega[sl].max())
+        out.append(
+            dataclasses.replace(
+                br,
+                Omega=br.Omega[sl],
+                U=br.U[sl],
+                amplitudes={k: v[sl] for k, v in br.amplitudes.items()},
+                output_amplitude=br.output_amplitude[sl],
+                max_multiplier=None if br.max_multiplier is None else br.max_multiplier[sl],
+                stable=None if br.stable is None else br.stable[sl],
+                folds=tuple(f for f in br.folds if lo <= f <= hi),
+                curve=None,
+                output_coefficients=br.output_coefficients[sl],
+            )
+        )
+    return out
+
+
+def _system_auto(
+    system: Any,
+    Omega: Sequence[float],
+    frequencies: Sequence[float] | None,
+    output: str | None,
+    options: dict[str, Any],
+) -> Any:
+    """Method ``"auto"`` for a system: :func:`perturb.auto.auto_system_response` (the ladder
+    hb1 -> HB H = 3 ... 63 -> exact with exact spot checks in n dimensions).
+
+    Raises
+    ------
+    ParameterError
+        An option it does not take (listing those it does), a bad ``rtol``.
+    """
+    unknown = sorted(set(options) - set(SYSTEM_AUTO_OPTIONS))
+    if unknown:
+        raise ParameterError(
+            f"{', '.join(unknown)}: not options of method 'auto' for a system (expected: "
+            f"{', '.join(SYSTEM_AUTO_OPTIONS)})"
+        )
+    rtol = registry.check_rtol(options.pop("rtol", 1e-3))
+    system_output(system, output)  # a bad output is refused before any work
+    _check_frequency_response(system, frequencies is not None)
+    if frequencies is not None:
+        frequencies = checks.frequencies(frequencies, MAX_FREQUENCIES)
+    # the registry's target (perturb.auto.auto_frequency_response) hands a system to its
+    # ladder of system methods; resolved by name: auto imports solve, never the reverse
+    resp, _ = registry.spec("auto").resolve()(
+        system, Omega, rtol, output=output, frequencies=frequencies, **options
+    )
+    return resp
 
 
 #: At most this many HB points of a response are checked against exact orbits

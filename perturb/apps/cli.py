@@ -537,19 +537,33 @@ def _frc_system(args: argparse.Namespace) -> int:
     if method.name not in SYSTEM_METHODS:
         raise ParameterError(
             f"--method {args.method}: {method.title} is a method for one coordinate; a system "
-            f"of several coordinates ({args.model!r}) takes --method exact or hb (numeric "
-            "multi-harmonic balance)"
+            f"of several coordinates ({args.model!r}) takes --method exact, hb, hb1, shb or "
+            "auto (exact orbits; numeric multi-harmonic balance; symbolic single-harmonic "
+            "balance; the cheapest meeting rtol 1e-3)"
         )
     options: dict = {}
-    if method.name == "hb":
+    if args.compare not in (None, "exact"):
+        raise PerturbError(f"--compare {args.compare!r}: expected exact")
+    if method.name in ("hb", "hb1", "shb", "auto"):
         if args.order is not None:
-            raise ParameterError("--order: not an option of --method hb (give --harmonics H)")
+            raise ParameterError(
+                f"--order: not an option of --method {method.name} for a system (an "
+                "expansion order belongs to the methods of one coordinate)"
+            )
         if args.harmonics is not None:
-            options["harmonics"] = _harmonics_option("hb", args.harmonics)
+            if method.name in ("hb1", "auto"):
+                raise ParameterError(
+                    f"--harmonics: --method {method.name} chooses its harmonics itself (hb1: "
+                    "one; auto: the ladder's); give --method hb --harmonics H"
+                )
+            options["harmonics"] = _harmonics_option(method.name, args.harmonics)
         if args.one_branch:
+            if method.name == "auto":
+                raise ParameterError(
+                    "--one-branch applies to --method hb, hb1 and shb; auto traces every branch "
+                    "its chosen method finds"
+                )
             options["all_branches"] = False
-        if args.compare not in (None, "exact"):
-            raise PerturbError(f"--compare {args.compare!r}: expected exact")
     else:
         given = {
             "--harmonics": args.harmonics,
@@ -576,6 +590,8 @@ def _frc_system(args: argparse.Namespace) -> int:
     from perturb.solve import frequency_response, system_output
 
     _, output = system_output(system, args.output)  # refused before any work
+    if method.kind == "auto":
+        print("[perturb] choosing a method (exact spot checks) ...", file=sys.stderr)
     if kind == "range":
         resp = frequency_response(system, method.name, omegas, output=args.output, **options)
     else:
@@ -583,7 +599,11 @@ def _frc_system(args: argparse.Namespace) -> int:
             system, method.name, frequencies=omegas, output=args.output, **options
         )
     extra = ref = summary = None
-    if args.compare == "exact":
+    if args.compare == "exact" and resp.columns and "states" not in resp.columns[0]:
+        # --method auto chose the exact solver: the response is its own reference
+        summary = "none: the chosen method is the exact solver"
+        ref = "exact orbits"
+    elif args.compare == "exact":
         from perturb.solve import system_errors
 
         extra, summary = system_errors(system, resp, args.output)
@@ -1100,7 +1120,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--method",
         help=f"{', '.join(names())} (default: hb1); a system of several coordinates takes "
-        "exact (its default and only method for now); see the list below",
+        "exact (its default), hb, hb1, shb or auto; see the list below",
     )
     p.add_argument(
         "--param",
