@@ -108,7 +108,7 @@ def test_cli_frc_hb_and_compare(tmp_path):
 
 def test_cli_refuses_other_approximations_for_systems():
     for argv in (
-        ("frc", "nsd2", "--method", "hb1", "--omega", "1:1.2"),
+        ("frc", "nsd2", "--method", "kb", "--omega", "1:1.2"),
         ("frc", "nsd2", "--method", "mlp", "--omega", "1:1.2"),
         ("frc", "nsd2", "--method", "hb", "--order", "2", "--omega", "1:1.2"),
         ("frc", "nsd2", "--method", "exact", "--harmonics", "7", "--omega", "1:1.2"),
@@ -116,8 +116,8 @@ def test_cli_refuses_other_approximations_for_systems():
         code, _, err = cli(*argv)
         assert code != 0
         assert argv[3] in err or "--order" in err or "--harmonics" in err, err
-    with pytest.raises(PerturbError, match="hb1"):
-        frequency_response(builtin_system("nsd2"), "hb1", (1.0, 1.2))
+    with pytest.raises(PerturbError, match="kb.*hb1"):
+        frequency_response(builtin_system("nsd2"), "kb", (1.0, 1.2))
     with pytest.raises(PerturbError, match="seeds"):
         frequency_response(builtin_system("nsd2"), "hb", (1.0, 1.2), seeds=3)
 

@@ -415,7 +415,7 @@ def test_simulate_systems_with_stops_and_drift():
         (("frc", "nsd2", "--output", "x2 + 1"), "constant term"),
         (("simulate", "nsd", "--output", "x2"), "one coordinate 'x'"),
         (("periodic", "nsd", "--omega", "0.6", "--output", "x1"), "one coordinate 'x'"),
-        (("frc", "nsd2", "--method", "hb1"), "hb1.*one coordinate.*--method exact"),
+        (("frc", "nsd2", "--method", "mlp"), "mlp.*one coordinate.*--method exact"),
         (("frc", "nsd2", "--harmonics", "5"), "--harmonics.*one coordinate"),
         (("frc", "nsd2", "--param", "Omega=1"), "--omega"),
         (("derive", "hb1", "nsd2"), "several coordinates"),
