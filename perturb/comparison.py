@@ -74,6 +74,8 @@ __all__ = [
     "ReferenceBranchComparison",
     "StabilityDisagreement",
     "compare",
+    "compare_coordinates",
+    "coordinate_response",
     "relative_errors",
 ]
 
@@ -223,6 +225,11 @@ class Comparison:
     rel_errors : ndarray
         One relative error per row of ``response.rows()`` (NaN where not compared);
         read-only.
+    coordinates : tuple of (str, float, float)
+        Two responses of a system of several coordinates (both with ``amplitude_<name>``
+        columns, :class:`perturb.solve.SystemResponse`): per coordinate its name and the max
+        and RMS relative error of its ``max |.|`` (:func:`compare_coordinates`, matched branch
+        by branch like the output); empty otherwise.
     """
 
     method: str
@@ -241,6 +248,7 @@ class Comparison:
     excluded: int
     folds: tuple[tuple[int, float, float], ...]
     rel_errors: np.ndarray
+    coordinates: tuple[tuple[str, float, float], ...] = ()
 
     @property
     def matches(self) -> dict[int, int]:
@@ -313,6 +321,8 @@ class Comparison:
             if self.fold_distance is not None
             else ""
         )
+        for name, mx, rms in self.coordinates:
+            lines.append(f"  coordinate {name}: max |{name}| error max {mx:.3e}, rms {rms:.3e}")
         lines.append(f"  stability disagreements: {len(self.stability_disagreements)}{where}")
         for run in _runs(self.stability_disagreements):
             first = run[0]
@@ -366,8 +376,66 @@ def _check_response(r: object, name: str) -> Response:
 
 def _check_quantity(quantity: str) -> str:
     if quantity not in QUANTITIES:
-        raise ParameterError(f"quantity = {quantity!r}: expected one of {', '.join(QUANTITIES)}")
+        raise ParameterError(
+            f"quantity = {quantity!r}: expected one of {', '.join(QUANTITIES)}, or "
+            "'amplitude_<coordinate>' for responses of a system of several coordinates"
+        )
     return quantity
+
+
+def _coordinates(r: Response) -> tuple[str, ...]:
+    """The coordinates whose ``amplitude_<name>`` columns ``r`` carries (a system's response)."""
+    return tuple(getattr(r, "coordinates", ()) or ())
+
+
+def coordinate_response(response: Response, coordinate: str) -> Response:
+    """``response`` with its ``amplitude`` column replaced by ``amplitude_<coordinate>`` (the
+    ``max |.|`` of one coordinate of a system's response), so that it is compared like an
+    output; folds (of the output) are dropped, the other columns kept.
+
+    Raises
+    ------
+    ParameterError
+        A response without that coordinate (naming the coordinates it has).
+    """
+    from perturb.response import Branch
+
+    _check_response(response, "response")
+    name = coordinate.removeprefix("amplitude_") if isinstance(coordinate, str) else coordinate
+    coords = _coordinates(response)
+    cols = getattr(response, "columns", ())
+    if name not in coords or len(cols) != len(response.branches):
+        have = ", ".join(coords) if coords else "none (not a system's response)"
+        raise ParameterError(
+            f"coordinate {coordinate!r}: response {response.method!r} has the coordinates {have}"
+        )
+    key = f"amplitude_{name}"
+    branches = tuple(
+        Branch(
+            b.omega,
+            np.asarray(c[key], dtype=float),
+            b.first_harmonic_amplitude,
+            b.mean,
+            b.stable,
+            b.max_multiplier,
+        )
+        for b, c in zip(response.branches, cols, strict=True)
+    )
+    return Response(branches, response.method, response.model, response.params, (), response.notes)
+
+
+def _resolve_quantity(
+    response: Response, reference: Response, quantity: str
+) -> tuple[Response, Response, str]:
+    """``amplitude_<name>``: both responses projected on that coordinate
+    (:func:`coordinate_response`), compared as ``amplitude``."""
+    if isinstance(quantity, str) and quantity.startswith("amplitude_"):
+        return (
+            coordinate_response(response, quantity),
+            coordinate_response(reference, quantity),
+            "amplitude",
+        )
+    return response, reference, _check_quantity(quantity)
 
 
 def _check_fraction(value: object, name: str, *, upper: float | None) -> float:
@@ -656,8 +724,9 @@ def relative_errors(
     ----------
     response, reference : Response
         ``reference`` is interpolated along its branches, which may fold back in omega.
-    quantity : {'amplitude', 'first_harmonic_amplitude'}
-        The compared column.
+    quantity : {'amplitude', 'first_harmonic_amplitude', 'amplitude_<coordinate>'}
+        The compared column (``amplitude_<coordinate>``: one coordinate's ``max |.|`` of two
+        responses of a system, :func:`coordinate_response`).
 
     Returns
     -------
@@ -674,7 +743,7 @@ def relative_errors(
     """
     response = _check_response(response, "response")
     reference = _check_response(reference, "reference")
-    quantity = _check_quantity(quantity)
+    response, reference, quantity = _resolve_quantity(response, reference, quantity)
     w, a, _ = _points(response, quantity)
     near = _nearest(w, a, _curves(reference, quantity, refine_folds=True))
     return np.where(near.found, _rel(a, near.value), np.nan)
@@ -700,8 +769,10 @@ def compare(
     reference : Response
         The response judged against (the exact one, say); should be traced densely, since
         it is interpolated linearly between its points.
-    quantity : {'amplitude', 'first_harmonic_amplitude'}
-        The compared column: ``max |x|`` (default) or the first-harmonic amplitude.
+    quantity : {'amplitude', 'first_harmonic_amplitude', 'amplitude_<coordinate>'}
+        The compared column: ``max |x|`` (default), the first-harmonic amplitude, or one
+        coordinate's ``max |.|`` of two responses of a system. With ``'amplitude'`` and two
+        such responses, :attr:`Comparison.coordinates` also holds every coordinate's errors.
     tolerance : float
         Relative error up to which a point counts as reproducing a solution (default 0.2).
     min_share : float
@@ -741,7 +812,21 @@ def compare(
     """
     response = _check_response(response, "response")
     reference = _check_response(reference, "reference")
-    quantity = _check_quantity(quantity)
+    kwargs = {
+        "tolerance": tolerance,
+        "min_share": min_share,
+        "fold_distance": fold_distance,
+        "special_frequencies": special_frequencies,
+        "fold_overshoot": fold_overshoot,
+    }
+    per_coordinate: tuple[tuple[str, float, float], ...] = ()
+    shared = [c for c in _coordinates(response) if c in _coordinates(reference)]
+    if quantity == "amplitude" and shared:
+        per_coordinate = tuple(
+            (name, c.max_error, c.rms_error)
+            for name, c in compare_coordinates(response, reference, **kwargs).items()
+        )
+    response, reference, quantity = _resolve_quantity(response, reference, quantity)
     tolerance = _check_fraction(tolerance, "tolerance", upper=None)
     min_share = _check_fraction(min_share, "min_share", upper=1.0)
     fold_overshoot = _check_fraction(fold_overshoot, "fold_overshoot", upper=None)
@@ -778,7 +863,35 @@ def compare(
         excluded=int(excluded.sum()),
         folds=tuple(ref_cur.folds),
         rel_errors=pts.err,
+        coordinates=per_coordinate,
     )
+
+
+def compare_coordinates(
+    response: Response, reference: Response, **options: object
+) -> dict[str, Comparison]:
+    """One :class:`Comparison` per coordinate of two responses of a system of several
+    coordinates: each compares that coordinate's ``max |.|`` (``amplitude_<name>`` columns,
+    :func:`coordinate_response`) branch by branch, with the options of :func:`compare`.
+
+    Raises
+    ------
+    ParameterError
+        Responses without common coordinates (naming what each has).
+    """
+    shared = [c for c in _coordinates(response) if c in _coordinates(reference)]
+    if not shared:
+        raise ParameterError(
+            f"responses {response.method!r} (coordinates: "
+            f"{', '.join(_coordinates(response)) or 'none'}) and {reference.method!r} "
+            f"(coordinates: {', '.join(_coordinates(reference)) or 'none'}) share no "
+            "coordinate: expected two responses of the same system (frequency_response(system, "
+            "...))"
+        )
+    return {
+        name: compare(response, reference, quantity=f"amplitude_{name}", **options)  # type: ignore[arg-type]
+        for name in shared
+    }
 
 
 # =============================================================================================
