@@ -719,6 +719,12 @@ class Engine:
         if trajs is None and self.exact:
             trajs = [flow.trajectory(Z[i], node_t[i], node_t[i + 1]) for i in range(N)]
         X = np.empty((n, ns + 1))
+        # the exact affine flow: states and rates from the closed form of each piece (None:
+        # a piece without one, then the field at the samples)
+        F: np.ndarray | None = None
+        rated = trajs is not None and all(hasattr(tr, "state_and_rate") for tr in trajs)
+        if rated:
+            F = np.empty((n, ns + 1))
         for i in range(N):
             sel = idx == i
             if not np.any(sel):
@@ -726,24 +732,38 @@ class Engine:
             a, b = node_t[i], node_t[i + 1]
             ts = np.clip(t[sel], a, b)
             if trajs is not None:
-                X[:, sel] = trajs[i](ts)
+                got = trajs[i].state_and_rate(ts) if F is not None else None
+                if got is not None:
+                    X[:, sel], F[:, sel] = got
+                else:
+                    F = None
+                    X[:, sel] = trajs[i](ts)
             else:
                 X[:, sel] = np.asarray(flow(Z[i], a, b, t_eval=ts).ys).T
                 self.periods += self.m / N
                 self.calls += 1
-        F = self._nd_field(flow, t, X)
+        if F is None:
+            rated = False
+            F = self._nd_field(flow, t, X)
         G = self._funcs @ X
         Gd = self._funcs @ F
 
-        def state_at(j: int, tt: float) -> np.ndarray:
-            # the orbit at tt in sample interval [t_j, t_j+1] (which may hold a node)
+        def state_at(j: int, tt: float) -> tuple[np.ndarray, np.ndarray]:
+            # the orbit and its rate at tt in sample interval [t_j, t_j+1] (which may hold
+            # a node)
             if trajs is not None:
                 i = min(max(int(np.searchsorted(node_t, tt, side="right")) - 1, 0), N - 1)
-                return np.asarray(trajs[i](min(max(tt, node_t[i]), node_t[i + 1])), dtype=float)
-            if tt <= t[j]:
-                return X[:, j]
-            self.calls += 1
-            return flow(X[:, j], float(t[j]), tt).y
+                ti = min(max(tt, node_t[i]), node_t[i + 1])
+                got = trajs[i].state_and_rate1(float(ti)) if rated else None
+                if got is not None:
+                    return got
+                y = np.asarray(trajs[i](ti), dtype=float)
+            elif tt <= t[j]:
+                y = X[:, j]
+            else:
+                self.calls += 1
+                y = flow(X[:, j], float(t[j]), tt).y
+            return y, np.asarray(flow.vector_field(tt, y), dtype=float)
 
         K = G.shape[0]
         amps = np.empty(K)
@@ -904,11 +924,11 @@ def _refine_nd(c, g, gd, t, j, sign, ns, state_at, flow, max_iter: int = 4) -> f
     lo_t, hi_t, rlo, rhi = ta, tb, ra, rb
     tt = ta + s * h
     for _ in range(max_iter):
-        y = state_at(a, tt)
+        y, f = state_at(a, tt)
         val = float(c @ y)
         if sign * val > sign * best:
             best = val
-        rate = sign * float(c @ np.asarray(flow.vector_field(tt, y), dtype=float))
+        rate = sign * float(c @ f)
         if rate > 0.0:
             lo_t, rlo = tt, rate
         else:

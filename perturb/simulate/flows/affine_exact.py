@@ -314,6 +314,66 @@ class AffineTrajectory:
             out *= model.D[:, None]  # the pieces hold the scaled state z = y / D
         return out[:, 0] if scalar else out
 
+    def state_and_rate(self, t: ArrayLike) -> tuple[np.ndarray, np.ndarray] | None:
+        """The exact state and its time derivative at sorted times ``t`` (1-d, inside
+        ``t_span``): two arrays of shape ``(n, len(t))``, from the closed form of each piece
+        (no field evaluation); None when a piece has no such form (a resonant pair or the
+        augmented-exponential representation: use the vector field).  At a switch time the
+        piece that starts there gives the rate (one-sided where the field jumps).
+
+        Raises
+        ------
+        ParameterError
+            Times not finite, not sorted or outside ``t_span``.
+        """
+        ta = np.asarray(t, dtype=float).reshape(-1)
+        t0, t1 = self.t_span
+        slack = 1e-12 * max(t1 - t0, abs(t0), abs(t1))
+        if (
+            not np.all(np.isfinite(ta))
+            or np.any(ta < t0 - slack)
+            or np.any(ta > t1 + slack)
+            or np.any(ta[1:] < ta[:-1])
+        ):
+            raise ParameterError(
+                f"t = {ta.tolist()!r}: expected sorted finite times in t_span = {self.t_span!r}"
+            )
+        n = self.system.n
+        out = np.empty((2 * n, ta.size))
+        cut = np.searchsorted(ta, self.starts[1:], side="right").tolist()
+        lo = 0
+        for k, hi in enumerate([*cut, ta.size]):
+            if hi > lo:
+                part = self._pieces[k].state_rate(ta[lo:hi] - self._starts[k])
+                if part is None:
+                    return None
+                out[:, lo:hi] = part
+            lo = max(lo, hi)
+        model = self._pieces[0].region.model
+        if model.scaled:
+            out *= np.concatenate([model.D, model.D])[:, None]
+        return out[:n], out[n:]
+
+    def state_and_rate1(self, t: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """:meth:`state_and_rate` at one time (a Python float inside ``t_span``; root
+        solvers on the dense orbit call it once per iterate): ``(y, y')`` of shape ``(n,)``
+        each, or None."""
+        t0, t1 = self.t_span
+        slack = 1e-12 * max(t1 - t0, abs(t0), abs(t1))
+        if not (t0 - slack <= t <= t1 + slack):
+            raise ParameterError(
+                f"t outside t_span = {self.t_span!r}: expected finite t0 <= t <= t1"
+            )
+        k = min(max(bisect.bisect_right(self._starts, t) - 1, 0), len(self._pieces) - 1)
+        part = self._pieces[k].state_rate(np.array([t - self._starts[k]]))
+        if part is None:
+            return None
+        n = self.system.n
+        model = self._pieces[k].region.model
+        if model.scaled:
+            return part[:n, 0] * model.D, part[n:, 0] * model.D
+        return part[:n, 0], part[n:, 0]
+
 
 class AffinePropagation(NamedTuple):
     """What :func:`propagate` returns (unpacks as ``y, events, trajectory, stats``).
@@ -555,6 +615,7 @@ class _ModalPiece:
         "ns",
         "colnorm",
         "Gp",
+        "_YY",
     )
 
     def __init__(self, region: _ModalRegion, t0: float, y0: np.ndarray) -> None:
@@ -583,6 +644,7 @@ class _ModalPiece:
         self.Y = YW[:n]
         W = self.W = YW[n:]
         self._Wp = None  # W mu^p, (4, ns, nt): built when first needed (see Wp)
+        self._YY = None  # (Y; Y mu), (2n, nt): built when first needed (see state_rate)
         # g = sigma s (the scan's function): W mu^p sigma, p < 3 (a sign flip is exact)
         self.Gp = W[None] * region.mupow_sig
         aW = aYW[n:]
@@ -630,6 +692,15 @@ class _ModalPiece:
         if self.has_res:
             return self.state(np.array([tau]))[:, 0]
         return (self.Y @ np.exp(self.mu * tau)).real
+
+    def state_rate(self, tau: np.ndarray) -> np.ndarray | None:
+        """``(y; y')`` at ``t0 + tau``, shape ``(2n, len(tau))`` (the derivative of the closed
+        form, one product for both); None with a resonant pair (callers use the field)."""
+        if self.has_res:
+            return None
+        if self._YY is None:
+            self._YY = np.concatenate([self.Y, self.Y * self.mu])
+        return (self._YY @ np.exp(self.mu[:, None] * tau)).real
 
     def grid(self, taus: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(s, s', s'')`` of every surface at ``taus`` (shape ``(3, ns, m)``) and the bound
@@ -827,6 +898,10 @@ class _ExpmPiece:
 
     def state1(self, tau: float) -> np.ndarray:
         return self.z(float(tau))[: self.y0.size].copy()
+
+    def state_rate(self, tau: np.ndarray) -> None:
+        """None: callers take the rate from the field (see :meth:`_ModalPiece.state_rate`)."""
+        return None
 
     def grid(self, taus: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         reg = self.region
