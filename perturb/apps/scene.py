@@ -187,6 +187,8 @@ class Scene:
     step_outputs: tuple[str, ...] | Mapping[str, str] | None = None
     crossings: tuple[str, ...] = ()
     active: Mapping[str, int | None] | None = None
+    #: ``[method] bias`` of a system scene with ``name = "shb"`` (None: automatic).
+    bias: bool | None = None
 
     def model_object(self):
         """The scene's model with its parameter values: an
@@ -1433,13 +1435,27 @@ def _parse_system_scene(source: str, data: dict, model: dict) -> Scene:
                 f"[ask] {key!r} does not apply to kind {kind!r} of a system: expected one of "
                 + ", ".join(sorted(_SYSTEM_KIND_KEYS[kind])),
             )
-    for table in ("plot", "accuracy"):
-        if data.get(table):
-            raise _scene_error(
-                source, f"[{table}] applies to oscillators; a system scene does not take it (yet)"
-            )
+    if data.get("plot"):
+        raise _scene_error(
+            source, "[plot] applies to oscillators; a system scene does not take it (yet)"
+        )
     fields: dict = _system_ask_fields(source, ask, kind)
     fields["method"] = _system_method(source, data.get("method", {}), ask, kind)
+    if fields["method"] == "auto" and kind == "frequency_response":
+        rtol, accuracy_fields = _accuracy_table(source, data.get("accuracy", {}), kind, "auto")
+        fields["rtol"] = rtol
+        fields.update(accuracy_fields)
+    elif data.get("accuracy"):
+        raise _scene_error(
+            source,
+            "[accuracy] is the tolerance of [method] name = 'auto': a system scene takes it "
+            "with that method only",
+        )
+    if "bias" in data.get("method", {}):
+        bias = data["method"]["bias"]
+        if not isinstance(bias, bool):
+            raise _scene_error(source, f"[method] bias = {bias!r}: expected true or false")
+        fields["bias"] = bias
     if fields["method"] == "hb" and "harmonics" in data.get("method", {}):
         from perturb.methods.registry import check_harmonics
 
@@ -1454,13 +1470,14 @@ def _parse_system_scene(source: str, data: dict, model: dict) -> Scene:
             raise _scene_error(
                 source,
                 f"[compare] {compare!r}: a system scene takes reference = 'exact' only "
-                "(with [method] name = 'hb')",
+                "(with [method] name = 'hb', 'hb1', 'shb' or 'auto')",
             )
-        if kind != "frequency_response" or fields["method"] != "hb":
+        if kind != "frequency_response" or fields["method"] not in _SYSTEM_COMPARED:
             raise _scene_error(
                 source,
-                "[compare] reference = 'exact' compares a system's HB response with exact "
-                "orbits: it needs kind 'frequency_response' and [method] name = 'hb'",
+                "[compare] reference = 'exact' compares a system's balance response with exact "
+                "orbits: it needs kind 'frequency_response' and [method] name = 'hb', 'hb1', "
+                "'shb' or 'auto'",
             )
         fields["reference"] = "exact"
     outputs = _output_table(source, data.get("output", {}), kind)
@@ -1563,30 +1580,41 @@ def _state_table(source: str, value: object) -> tuple[float, ...] | Mapping[str,
     )
 
 
+#: Methods of a system's frequency response whose points [compare] checks against exact
+#: orbits.
+_SYSTEM_COMPARED = ("hb", "hb1", "shb", "auto")
+
+
 def _system_method(source: str, table: dict, ask: dict, kind: str) -> str:
-    """``[method] name`` of a system scene: ``exact`` for a frequency response (the
-    approximations take one coordinate), an integrator for a time history, a step-response
-    solver (also as ``[ask] method``) for a step response."""
-    hb = kind == "frequency_response" and table.get("name") == "hb"
-    extra = sorted(set(table) - ({"name", "harmonics"} if hb else {"name"}))
+    """``[method] name`` of a system scene: for a frequency response one of
+    :data:`perturb.solve.SYSTEM_METHODS` (``exact``, ``hb`` with ``harmonics``, ``hb1``,
+    ``shb`` with ``bias``, ``auto`` with ``[accuracy] rtol``), an integrator for a time
+    history, a step-response solver (also as ``[ask] method``) for a step response."""
+    name0 = table.get("name")
+    takes = {"name"}
+    if kind == "frequency_response":
+        takes |= {"hb": {"harmonics"}, "shb": {"bias"}}.get(name0, set())
+    extra = sorted(set(table) - takes)
     if extra:
         raise _scene_error(
             source,
-            f"[method] {', '.join(extra)}: options of the approximations, which take one "
-            "coordinate; a system scene takes [method] name only (and harmonics with "
-            "name = 'hb')",
+            f"[method] {', '.join(extra)}: not options of a system scene's method {name0!r}; "
+            "a system scene takes [method] name (harmonics with name = 'hb', bias with "
+            "name = 'shb')",
         )
     if "method" in ask and "name" in table:
         raise _scene_error(source, "[ask] method and [method] name are one setting: give one")
     if kind == "frequency_response":
         name = table.get("name", "exact")
         spec = _method_spec(source, "[method] name =", name)
-        if spec.name not in ("exact", "hb"):
+        from perturb.solve import SYSTEM_METHODS, system_method_text
+
+        if spec.name not in SYSTEM_METHODS:
             raise _scene_error(
                 source,
                 f"[method] name = {name!r} ({spec.title}) is a method for one coordinate; a "
-                "system of several coordinates takes 'exact' or 'hb' (numeric multi-harmonic "
-                "balance)",
+                f"system of several coordinates takes one of {', '.join(SYSTEM_METHODS)} "
+                f"({system_method_text()})",
             )
         return spec.name
     if kind == "time_history":
@@ -1779,17 +1807,35 @@ def _run_system_frequency_response(scene: Scene, system, out: Path, paths: dict,
     from perturb.solve import frequency_response, system_errors, system_output
 
     _, output = system_output(system, scene.output)
-    method = scene.method if scene.method in ("exact", "hb") else "exact"
-    what = "exact frequency response" if method == "exact" else "harmonic-balance response"
+    method = scene.method
+    what = {
+        "exact": "exact frequency response",
+        "hb": "harmonic-balance response",
+        "hb1": "single-harmonic balance response",
+        "shb": "single-harmonic balance response",
+        "auto": "response by the cheapest method meeting rtol",
+    }[method]
     say(f"[perturb] tracing the {what} of {system.name} over Omega in {scene.omega} ...")
-    options = {"harmonics": scene.harmonics} if method == "hb" and scene.harmonics else {}
+    options: dict = {}
+    if method == "hb" and scene.harmonics:
+        options["harmonics"] = scene.harmonics
+    if method == "shb" and scene.bias is not None:
+        options["bias"] = scene.bias
+    if method == "auto":
+        options["rtol"] = scene.rtol
+        if scene.spots is not None:
+            options["spots"] = scene.spots
+        options["log"] = lambda line: say(f"[perturb]   {line}")
     resp = frequency_response(system, method, scene.omega, output=scene.output, **options)
     say(f"[perturb] {resp!r}".replace("\n", "\n[perturb] "))
     extra = summary = None
-    if scene.reference == "exact" and method == "hb":
-        say("[perturb] shooting the exact orbits at the HB points ...")
+    has_states = bool(resp.columns) and "states" in resp.columns[0]
+    if scene.reference == "exact" and method != "exact" and has_states:
+        say("[perturb] shooting the exact orbits at the balance points ...")
         extra, summary = system_errors(system, resp, scene.output)
         say(f"[perturb] max relative error against exact orbits: {summary}")
+    elif scene.reference == "exact" and method == "auto":
+        say("[perturb] auto chose the exact solver: the response is its own reference")
     resp.to_csv(paths["csv"], extra=extra)  # the output's columns, then every coordinate's
     from perturb.report.figures import frequency_response_figure, save_figure
 
