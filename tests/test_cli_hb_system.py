@@ -140,7 +140,7 @@ def test_scene_hb_with_compare(tmp_path):
     api = frequency_response(builtin_system("nsd2"), "hb", WINDOW, harmonics=7, output="x2")
     assert len(rows) == sum(len(b) for b in api.branches)
     for bad, match in (
-        ('[method]\nname = "hb1"', "hb1"),
+        ('[method]\nname = "kb"', "kb"),
         ('[method]\nname = "exact"\n[compare]\nreference = "exact"', "compare"),
         ('[method]\nname = "exact"\nharmonics = 7', "harmonics"),
     ):

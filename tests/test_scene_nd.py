@@ -246,7 +246,7 @@ png = "mount_step.png"
         ('[model]\nsystem = "nsd2"\nequation = "x\'\' = 0"', "equations"),
         ("[model]\nequations = \"x1'' = 0\"", "list of"),
         ('[model]\nsystem = "nsd2"\n[ask]\nkind = "backbone"', "one coordinate"),
-        ('[model]\nsystem = "nsd2"\n[method]\nname = "hb1"', "hb1.*one coordinate"),
+        ('[model]\nsystem = "nsd2"\n[method]\nname = "mlp"', "mlp.*one coordinate"),
         ('[model]\nsystem = "nsd2"\n[method]\nname = "exact"\nharmonics = 3', "harmonics"),
         ('[model]\nsystem = "nsd2"\n[compare]\nreference = "exact"', r"\[compare\]"),
         ('[model]\nsystem = "nsd2"\n[ask]\nkind = "time_history"\nsamples = 1', "samples"),
