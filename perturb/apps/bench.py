@@ -23,6 +23,13 @@ The van der Pol problem is autonomous: its "response" is the limit cycle over ``
 limit_cycle`, continued in ``eps``), approximate by averaging and multiple scales, brute
 force by integrating until the transient has died.
 
+The systems ``nsd2`` (2-DOF structure with the negative-stiffness device) and ``impact_pair``
+(impact damper / backlash pair) are answered by the methods that take a system (``hb1``,
+``shb``, numeric HB with H = 1 ... 63, exact or AFT projection, ``auto``): the output's
+(``x1``) error is in the row's columns, every coordinate's in its note, ``missed`` says which
+exact branches a method did not find; there is no brute-force sweep of a system (no time
+ratios).
+
 Outputs into ``--out``: ``work_precision.md``, ``work_precision.csv`` and one log-log PNG per
 problem (``work_precision_<problem>.png``).
 
@@ -100,12 +107,24 @@ class Problem:
     points: int = 0
 
     def oscillator(self):
+        """The model: an oscillator, or for ``kind = "system"`` a
+        :class:`~perturb.model.system.System` (:func:`~perturb.model.system_builtins.
+        builtin_system`)."""
+        if self.kind == "system":
+            from perturb.model.system_builtins import builtin_system
+
+            return builtin_system(self.model, **self.params)
         from perturb.model.builtins import builtin_model
 
         return builtin_model(self.model, **self.params)
 
 
-#: The fixed problem set (issue 7 item 1).
+#: Window of the impact pair: around the primary resonance (7 exact branches, ~6 s CPU for
+#: the exact response). Numeric HB with H >= 3 finds no start there (the free mass in the
+#: clearance: numeric/system_balance.py "Known limit"); its rows say so.
+IMPACT_PAIR_WINDOW = (0.6, 1.4)
+
+#: The fixed problem set (issue 7 item 1; the systems nsd2 and impact_pair, issue 16).
 PROBLEMS: dict[str, Problem] = {
     p.name: p
     for p in (
@@ -156,6 +175,24 @@ PROBLEMS: dict[str, Problem] = {
             parameter="eps",
             points=20,
         ),
+        Problem(
+            "nsd2",
+            "nsd2",
+            {},
+            (0.5, 2.0),
+            "2-DOF structure with the nsd device (k = -0.5, F = 2): output x1, every "
+            "coordinate compared",
+            kind="system",
+        ),
+        Problem(
+            "impact_pair",
+            "impact_pair",
+            {},
+            IMPACT_PAIR_WINDOW,
+            "impact damper / backlash pair (clearance d = 0.5, contact r = 20): output x1, "
+            "every coordinate compared",
+            kind="system",
+        ),
     )
 }
 
@@ -163,6 +200,8 @@ PROBLEMS: dict[str, Problem] = {
 REPEAT_BUDGET = 5.0
 
 HB_HARMONICS = (1, 3, 5, 9, 15, 31)
+#: Harmonics of the systems' rows (the auto ladder's).
+SYSTEM_HB_HARMONICS = (1, 3, 7, 15, 31, 63)
 
 
 @dataclass(frozen=True)
@@ -180,6 +219,29 @@ class Setting:
 def method_settings(kind: str = "forced") -> list[Setting]:
     """Every method/setting tried on a problem of ``kind`` (``exact`` and ``sweep`` are added
     apart)."""
+    if kind == "system":
+        return [
+            Setting("hb1", "hb1", "symbolic single-harmonic balance of the system", kinds=(kind,)),
+            Setting(
+                "shb",
+                "shb",
+                "symbolic single-harmonic balance with bias",
+                {"bias": True},
+                kinds=(kind,),
+            ),
+            *(
+                Setting(
+                    f"hb-{proj}-H{h}",
+                    "hb",
+                    f"H={h}, projection={proj}, every branch",
+                    {"harmonics": h, "projection": proj},
+                    kinds=(kind,),
+                )
+                for proj, hs in (("exact", SYSTEM_HB_HARMONICS), ("aft", (3, 7, 15)))
+                for h in hs
+            ),
+            Setting("auto", "auto", "auto, rtol = 1e-3", {"rtol": 1e-3}, kinds=(kind,)),
+        ]
     if kind == "limit_cycle":
         return [
             Setting("kb", "kb", "averaging (Krylov-Bogoliubov)", kinds=(kind,)),
@@ -377,6 +439,8 @@ def _run_problem(
 
     if prob.kind == "limit_cycle":
         return _run_limit_cycle(prob, pats, rep, timeout, say)
+    if prob.kind == "system":
+        return _run_system(prob, pats, rep, timeout, say)
     from perturb.simulate.studies import frequency_sweep
     from perturb.solve import frequency_response
 
@@ -471,6 +535,80 @@ def _run_problem(
         if r.status == "ok" and np.isfinite(sweep_time) and sweep_time > 0:
             r.time_vs_sweep = r.time_s / sweep_time
     return out_rows
+
+
+def _system_note(row: Row, comparison: Any) -> None:
+    """Every coordinate's error (the output's is in the row's columns)."""
+    if comparison.coordinates:
+        _note(
+            row,
+            "per coordinate max|.| error: "
+            + ", ".join(f"{n} {mx:.2e} (rms {rms:.2e})" for n, mx, rms in comparison.coordinates),
+        )
+
+
+def _run_system(
+    prob: Problem,
+    pats: list[str] | None,
+    rep: int,
+    timeout: float | None,
+    say: Callable[[str], None],
+) -> list[Row]:
+    """A system of several coordinates: the exact response (every branch by continuation of
+    exact orbits) is the reference; each method's output error is in the row's columns, every
+    coordinate's in its note, ``missed`` says whether it found every exact branch. There is no
+    brute-force sweep of a system (no time ratios)."""
+    from perturb.comparison import compare
+    from perturb.solve import frequency_response
+
+    name = prob.name
+    system = prob.oscillator()
+    lo, hi = prob.window
+    say(f"== {name}: {prob.description}, Omega in [{lo}, {hi}]")
+    ex = Row(name, "exact", "continuation of exact orbits (every branch)")
+    ref = None
+    try:
+        t = time.perf_counter()
+        ref = frequency_response(system, "exact", Omega=(lo, hi))
+        ex.time_s = ex.first_s = time.perf_counter() - t
+        ex.repeats = 1
+        ex.note = f"reference ({ref.method}, {sum(len(b) for b in ref.branches)} points)"
+        ex.matched = f"{len(ref.branches)}/{len(ref.branches)}"
+        ex.max_rel_error = ex.rms_rel_error = 0.0
+    except Exception as exc:  # noqa: BLE001 - recorded in the table
+        ex.status = _reason(exc)
+    say(f"   exact: {ex.time_s:.3g} s {ex.status} {ex.note}")
+    rows = [ex]
+    for s in method_settings("system"):
+        if not _selected(s.key, pats):
+            continue
+        row = Row(name, s.key, s.setting)
+        resp = _run_setting(
+            row,
+            lambda s=s: frequency_response(system, s.method, Omega=(lo, hi), **s.kwargs),
+            rep,
+            timeout,
+            say,
+        )
+        rows.append(row)
+        if resp is None:
+            continue
+        if ref is None:
+            row.note = "no exact reference: error not measured"
+        else:
+            try:
+                _fill_errors(row, resp, ref)
+                _system_note(row, compare(resp, ref))
+            except Exception as exc:  # noqa: BLE001 - recorded in the table
+                _note(row, f"comparison failed: {_reason(exc)[4:-1]}")
+        if s.method == "auto":
+            _note(row, resp.notes[0].removeprefix("auto: "))
+        for text in resp.notes:
+            if "left out" in text:
+                _note(row, text)
+        explain_row(row)
+        _say_row(say, row)
+    return rows
 
 
 #: Rows whose error is large for a reason found by investigation: ``(problem, methods)``
