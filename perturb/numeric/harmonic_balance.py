@@ -121,6 +121,16 @@ one ``(2H + 2)``-square LU per point (a few per cent); the rest is the continuat
 branches found (the connected branch of k = -0.5, with its four branch points: 0.18 s
 without and 0.24 s with their detection and location; k = -3: 0.054 s and 0.056 s).
 
+Branches that neither the seeds nor a branch point inside the window reach (a stable isola;
+an isola that straddles a window edge; a branch that enters at an edge and folds back out)
+come from stage 3b of :func:`harmonic_balance_branches`: Newton from the stable orbits that a
+short fixed-step simulation reaches from a grid of initial states at frequencies 2 % apart
+across the window (PWL forces), and at both edges from the solutions found there with their
+bias shifted. CPU time of a repeated call, bench windows (0.2, 2.5), H = 15, loaded machine:
+nsd k = -0.5 0.64 -> 0.93 s (4 branches, as before), k = -3 0.74 -> 1.9 s (7 -> 19
+branches: the 6 that the exact solver finds and HB missed, and 6 more, each checked to be an
+exact orbit by shooting), k = 2 0.25 -> 0.65 s (1 -> 2: the stable isola on 0.5915-0.6151).
+
 Starting without a guess
 ------------------------
 At one frequency the first of: the closed-form steady state of a linear segment of a PWL
@@ -196,7 +206,7 @@ class HarmonicBalanceOptions:
     :func:`harmonic_balance_branches`, :func:`harmonic_balance_response`).
 
     Each function also takes the fields as keyword arguments (they replace the fields of
-    ``options``); a function uses the fields it needs (the last four only
+    ``options``); a function uses the fields it needs (the last five only
     :func:`harmonic_balance_branches`, and :func:`harmonic_balance_response` with
     ``all_branches``). Values are checked by the functions (a
     :class:`~perturb.errors.ParameterError` names a bad one).
@@ -226,6 +236,10 @@ class HarmonicBalanceOptions:
         Add mirror images for odd systems (stage 4).
     max_branches : int
         Stop looking for more branches once this many are found.
+    attractors : bool
+        Look for the stable orbits across the window (a short simulation from a grid of
+        initial states) and for more solutions at both window edges, and trace the new ones
+        (stage 3b of :func:`harmonic_balance_branches`).
     """
 
     harmonics: int = 15
@@ -241,6 +255,7 @@ class HarmonicBalanceOptions:
     branch_points: bool = True
     mirror: bool = True
     max_branches: int = 40
+    attractors: bool = True
 
 
 #: The fields of :class:`HarmonicBalanceOptions` that shape one branch (the rest choose which
@@ -1424,8 +1439,9 @@ class HarmonicBalanceBranch:
     origin : str
         How the branch was found: ``'start'`` (from the window's edge), ``'seed'`` (from a
         single-harmonic balance or a linear-segment / equilibrium seed), ``'branch point'``
-        (switched onto at a branch point of another branch) or ``'mirror'`` (image of another
-        branch under the symmetry of an odd system).
+        (switched onto at a branch point of another branch), ``'edge'`` (a solution at a
+        window edge found by :func:`harmonic_balance_branches`' edge search) or ``'mirror'``
+        (image of another branch under the symmetry of an odd system).
     """
 
     omega: np.ndarray
@@ -1870,6 +1886,182 @@ def _branch_point_note(points: Sequence[tuple[float, float]]) -> str:
 
 #: Frequencies (window edges included) of the linear-segment and equilibrium seeds.
 _LINEAR_SEED_FREQUENCIES = 5
+#: Initial conditions per axis of the simulations of :func:`_attractor_guesses`: at the
+#: window edges, and at the frequencies in between.
+_ATTRACTOR_GRID_EDGE = 5
+_ATTRACTOR_GRID = 3
+#: Most state-steps (RK4 steps times trajectories) of the simulation of
+#: :func:`_attractor_guesses`: beyond it (light damping, stiff segments) it is skipped.
+_ATTRACTOR_MAX_WORK = 4_000_000
+#: Largest ratio of neighbouring frequencies of the attractor search across the window, and
+#: most frequencies: a stable isola narrower than that ratio can be missed.
+_ATTRACTOR_RATIO = 1.02
+_ATTRACTOR_FREQUENCIES = 128
+#: Bias shifts of each known solution at a window edge (:func:`_bias_shifted`), in units of
+#: the smallest nonzero breakpoint magnitude (1 without breakpoints).
+_EDGE_BIAS_SHIFT = 0.5
+#: Newton iterations of an edge guess: a guess that has not converged by then is far from
+#: every solution (edge guesses are many; a failure should cost little).
+_EDGE_NEWTON_ITERATIONS = 20
+
+
+def _acceleration(system: HarmonicBalanceSystem) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """``(x, v) -> g(x, v)`` of the equation ``x'' + g(x, x') = f(t)``, vectorised."""
+    mu = system.damping
+    if system.pwl is not None:
+        pwl = system.pwl
+        return lambda x, v: mu * v + pwl(x)
+    k_lin = system.linear_stiffness
+
+    def g(x: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return mu * v + k_lin * x + system._g(x, v)[0]
+
+    return g
+
+
+def _attractor_guesses(
+    system: HarmonicBalanceSystem, Omegas: Sequence[float], grids: Sequence[int]
+) -> list[tuple[float, np.ndarray]]:
+    """``(Omega, coefficients)`` of the attractors reached at each of ``Omegas`` from a grid
+    of initial states (``grids[i]**2`` of them at ``Omegas[i]``).
+
+    One fixed-step RK4 simulation of ``x'' + g(x, x') = f(t)`` for every frequency and
+    initial state at once (states in ``[-e, e]^2``, ``e`` three times the largest
+    breakpoint, at least 3), for eight damping times (a transient decays by ``e^-4``, close
+    enough for Newton) and at least three orbit periods; the last orbit period of each
+    trajectory that has settled (``x(t)`` and ``x(t - P)`` within 5 % of its amplitude) is
+    resampled on ``4 K + 4`` phases and projected onto the basis. Only a guess for Newton on
+    the HB residual, so the step is coarse (0.15 over the largest natural frequency, and at
+    least ``2 K + 2`` steps per shortest period): the stable orbits, of whatever branch, are
+    reached without any approximation's help, where Newton from a generic guess rarely
+    converges (the basins of a non-smooth force are small). Nothing for an undamped system
+    (no attractor to settle on) or when the work would exceed ``_ATTRACTOR_MAX_WORK``
+    state-steps; at most one guess per attractor (1 % apart) and frequency. PWL forces only:
+    their Newton basins are the small ones, and a smooth force's stiffness grows with the
+    state box (Duffing: the search costs ~0.7 s, 2.5x its whole response with every branch,
+    and found nothing new on the bench problem)."""
+    mu = system.damping
+    if system.pwl is None or not mu > 0.0 or not len(Omegas):
+        return []
+    ext = 3.0
+    if system.pwl is not None and system.pwl.breakpoints.size:
+        ext = max(ext, 3.0 * float(np.abs(system.pwl.breakpoints).max()))
+    g = _acceleration(system)
+    xs = np.linspace(-ext, ext, 201)
+    with np.errstate(all="ignore"):
+        # largest local stiffness over the grid of states, by differences of g(x, 0)
+        gx = np.abs(np.diff(g(xs, np.zeros_like(xs)))) / (xs[1] - xs[0])
+    if not np.all(np.isfinite(gx)):
+        return []
+    W = np.repeat(np.asarray(Omegas, dtype=float), [n * n for n in grids])
+    x = np.concatenate([np.repeat(np.linspace(-ext, ext, n), n) for n in grids])
+    v = np.concatenate([np.tile(np.linspace(-ext, ext, n), n) for n in grids])
+    w_orbit = W / system.m
+    P = _TWO_PI / w_orbit
+    kmax = max(system.basis.kmax, 1)
+    h = min(
+        0.15 / max(math.sqrt(float(gx.max())), float(w_orbit.max()), mu),
+        float(P.min()) / (2 * kmax + 2),
+    )
+    t_end = max(8.0 / mu, 3.0 * float(P.max()))
+    steps = math.ceil(t_end / h)
+    n_keep = math.ceil(2.0 * float(P.max()) / h) + 2
+    if steps * x.size > _ATTRACTOR_MAX_WORK:
+        return []
+    # the forcing of each column: its static part and its harmonics (few are nonzero)
+    F = np.array([np.add(*system.forcing_vector(float(w))[:2]) for w in Omegas])
+    F = np.repeat(F, [n * n for n in grids], axis=0)
+    used = np.flatnonzero(np.any(F != 0.0, axis=0))
+    terms = []
+    for i in used:
+        if system.basis.bias and i == 0:
+            terms.append((0, 0, F[:, 0]))
+            continue
+        j = (i - (1 if system.basis.bias else 0)) // 2
+        k = int(system.basis.k[j])
+        terms.append((k, 1 if i == system.basis.a_index[j] else 2, F[:, i]))
+
+    def force(t: float) -> np.ndarray:
+        th = w_orbit * t
+        out = np.zeros_like(th)
+        for k, kind, c in terms:
+            out += c if kind == 0 else c * (np.cos(k * th) if kind == 1 else np.sin(k * th))
+        return out
+
+    keep = np.empty((n_keep, x.size))
+    with np.errstate(all="ignore"):
+        t = 0.0
+        f0 = force(0.0)
+        for i in range(steps):
+            fm, f1 = force(t + 0.5 * h), force(t + h)
+            k1v = f0 - g(x, v)
+            k2x = v + 0.5 * h * k1v
+            k2v = fm - g(x + 0.5 * h * v, k2x)
+            k3x = v + 0.5 * h * k2v
+            k3v = fm - g(x + 0.5 * h * k2x, k3x)
+            k4x = v + h * k3v
+            k4v = f1 - g(x + h * k3x, k4x)
+            x = x + (h / 6.0) * (v + 2.0 * k2x + 2.0 * k3x + k4x)
+            v = v + (h / 6.0) * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
+            t, f0 = t + h, f1
+            if i >= steps - n_keep:
+                keep[i - (steps - n_keep)] = x
+    times = t - h * np.arange(n_keep - 1, -1, -1)
+    q = np.arange(4 * kmax + 4) / (4 * kmax + 4)
+    out: list[tuple[float, np.ndarray]] = []
+    for c in range(x.size):
+        col = keep[:, c]
+        if not np.all(np.isfinite(col)):
+            continue
+        t_last = t - P[c] + P[c] * q
+        now = np.interp(t_last, times, col)
+        before = np.interp(t_last - P[c], times, col)
+        amp = max(1e-12, float(np.abs(now).max()))
+        if float(np.abs(now - before).max()) > 0.05 * amp:
+            continue
+        # phase of each sample in the HB variable theta = Omega t / m
+        design = system.basis.design(w_orbit[c] * t_last)
+        u = np.linalg.lstsq(design, now, rcond=None)[0]
+        scale = max(1.0, float(np.abs(u).max()))
+        if not any(Wo == W[c] and float(np.abs(u - w).max()) <= 1e-2 * scale for Wo, w in out):
+            out.append((float(W[c]), u))
+    return out
+
+
+def _solutions_on(branches: Sequence[HarmonicBalanceBranch], Omega: float) -> list[np.ndarray]:
+    """The points of ``branches`` at ``Omega``: samples there and chords that bracket it."""
+    out = []
+    for b in branches:
+        Wb, Ub = b.omega, b.coefficients
+        for i in np.nonzero((Wb[:-1] - Omega) * (Wb[1:] - Omega) <= 0.0)[0]:
+            dw = Wb[i + 1] - Wb[i]
+            f = 0.5 if dw == 0 else (Omega - Wb[i]) / dw
+            out.append((1 - f) * Ub[i] + f * Ub[i + 1])
+    return out
+
+
+def _bias_shifted(system: HarmonicBalanceSystem, known: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Each of ``known`` with its bias shifted by ``+-_EDGE_BIAS_SHIFT`` times the smallest
+    nonzero breakpoint magnitude (1 without breakpoints): guesses for asymmetric orbits near a
+    known one (an unstable branch next to one that crosses a window edge); nothing without a
+    bias term."""
+    if not system.basis.bias:
+        return []
+    d = 1.0
+    if system.pwl is not None:
+        bp = np.abs(system.pwl.breakpoints)
+        bp = bp[bp > 0.0]
+        if bp.size:
+            d = float(bp.min())
+    out = []
+    for u in known:
+        for sign in (-1.0, 1.0):
+            w = np.array(u, dtype=float)
+            w[0] += sign * _EDGE_BIAS_SHIFT * d
+            out.append(w)
+    return out
+
+
 #: Distance (scaled: coefficients over their largest, Omega over the window width) of the
 #: first point on the other branch from a branch point, as a multiple of ``ds_max``.
 _BRANCH_OFF_STEP = 1.0
@@ -1913,12 +2105,26 @@ def harmonic_balance_branches(
        even harmonics), is stepped along both ways by ``ds_max`` and corrected onto the
        other branch (:func:`perturb.numeric.continuation.branch_off`); a point on no known
        branch starts a new one, traced both ways and searched for branch points in turn.
+    3b. Attractors and window edges (``attractors``, ``origin='attractor'`` or ``'edge'``):
+       Newton from the stable orbits reached by one short fixed-step simulation from a grid
+       of initial states at frequencies spaced by a ratio of at most 1.02 across the window
+       (at most 128 of them; a finer grid of states at the two edges:
+       :func:`_attractor_guesses`), and at each edge from each solution already found there
+       with its bias shifted both ways by half the smallest breakpoint. A guess or solution
+       on no branch found so far (nor, for an odd system, its mirror image) starts a
+       branch, traced both ways and searched for branch points. This finds what neither a
+       seed nor a branch point inside the window reaches: a stable isola (nsd, k = 2: the
+       one on Omega 0.5915-0.6151), an isola that straddles an edge (k = -0.5: the
+       asymmetric pair on 0.2991-0.3021, window from 0.3), a branch that enters at an edge
+       and folds back out (k = -3, window from 0.2: the stable pair on 0.2-0.2116 and,
+       from bias shifts, the unstable one on 0.2-0.4073).
     4. Mirror images (``mirror``, odd systems: :func:`odd_symmetry`, ``origin='mirror'``):
        each branch that is not its own image under ``x(t) -> -x(t + T/2)`` gets its image,
        exactly and without continuation.
 
     Branches that none of these reach can still be missed: ones born at a branch point
-    outside the window, isolas far from every seed.
+    outside the window that reach the window's edges only as unstable orbits far from the
+    bias-shifted known ones, isolas inside the window far from every seed.
 
     Cost: the symbolic single-harmonic balance and its compilation (about 1-2 s the first
     time in a process; SymPy caches make repeats cheaper), the continuation of every branch,
@@ -1968,11 +2174,12 @@ def harmonic_balance_branches(
         o.samples,
     )
     stability, ds_max, max_points, tol = o.stability, o.ds_max, o.max_points, o.tol
-    seeds_per_branch, branch_points, mirror, max_branches = (
+    seeds_per_branch, branch_points, mirror, max_branches, attractors = (
         o.seeds_per_branch,
         o.branch_points,
         o.mirror,
         o.max_branches,
+        o.attractors,
     )
     for name, value, least in (
         ("seeds_per_branch", seeds_per_branch, 1),
@@ -1980,7 +2187,11 @@ def harmonic_balance_branches(
     ):
         if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < least:
             raise ParameterError(f"{name} = {value!r}: expected an integer >= {least}")
-    for name, value in (("branch_points", branch_points), ("mirror", mirror)):
+    for name, value in (
+        ("branch_points", branch_points),
+        ("mirror", mirror),
+        ("attractors", attractors),
+    ):
         if not isinstance(value, bool | np.bool_):
             raise ParameterError(f"{name} = {value!r}: expected True or False")
     window = _check_window(Omega_window)
@@ -2045,12 +2256,13 @@ def harmonic_balance_branches(
             found.append(br)
 
     width = window[1] - window[0]
-    if detect:
-        # each branch point is met from both branches through it: switch once
-        done: list[BranchPoint] = []
-        step = _BRANCH_OFF_STEP * float(ds_max)
-        i = 0
-        while i < len(found) and len(found) < max_branches:
+    # each branch point is met from both branches through it: switch once
+    done: list[BranchPoint] = []
+    step = _BRANCH_OFF_STEP * float(ds_max)
+
+    def switch_branches(i: int) -> None:
+        """Branch switching at the branch points of ``found[i:]`` (and of what it adds)."""
+        while detect and i < len(found) and len(found) < max_branches:
             for bp in found[i].branch_point_records:
                 scale = max(1e-12, float(np.abs(bp.u).max()))
                 if any(
@@ -2073,7 +2285,54 @@ def harmonic_balance_branches(
                         found.append(br)
             i += 1
 
+    switch_branches(0)
     S = odd_symmetry(system, window) if mirror else None
+    if attractors:
+        # stage 3b: the stable orbits across the window and every solution found at its
+        # edges, for the branches that neither a seed nor a branch point inside the window
+        # reaches: a stable isola, or a branch that lies in the window only near an edge (an
+        # isola straddling it, a branch that folds back out of it)
+        n_before = len(found)
+        lo, hi = window
+        count = min(
+            _ATTRACTOR_FREQUENCIES,
+            max(2, math.ceil(math.log(hi / lo) / math.log(_ATTRACTOR_RATIO)) + 1),
+        )
+        grids = [_ATTRACTOR_GRID] * count
+        grids[0] = grids[-1] = _ATTRACTOR_GRID_EDGE
+        guesses = _attractor_guesses(system, np.geomspace(lo, hi, count), grids)
+        for W_edge in window:
+            known = _solutions_on(found, W_edge)
+            if S is not None:
+                known += [S @ u for u in known]
+            guesses += [(W_edge, u) for u in _bias_shifted(system, known)]
+        for W, guess in guesses:
+            if len(found) >= max_branches:
+                break
+            # an odd system's mirror images are added below: one of a pair is enough
+            images = [guess] if S is None else [guess, S @ guess]
+            if any(_on_branch(b, w, W, 0.05) for b in found for w in images):
+                continue  # near a traced branch: save the Newton solve
+            try:
+                u, _ = newton_fixed(
+                    system.residual,
+                    system.jacobian,
+                    guess,
+                    W,
+                    u_scale=max(1.0, float(np.abs(guess).max())),
+                    tol=tol,
+                    max_iterations=_EDGE_NEWTON_ITERATIONS,
+                )
+            except ContinuationError:
+                continue
+            images = [u] if S is None else [u, S @ u]
+            if any(_on_branch(b, w, W, 0.05) for b in found for w in images):
+                continue
+            br = trace_from(u, W, "attractor" if W not in window else "edge")
+            if br is not None and not _duplicate(br, found, 0.01, width):
+                found.append(br)
+        switch_branches(n_before)
+
     if S is not None:
         for br in list(found):
             if len(found) >= max_branches:
@@ -2195,7 +2454,13 @@ def harmonic_balance_response(
         notes = (
             f"{len(found)} branches: the connected one, {origins.count('seed')} seeded (single-"
             f"harmonic balance, linear segments), {origins.count('branch point')} switched onto "
-            f"at branch points, {origins.count('mirror')} mirror images",
+            f"at branch points, "
+            + (
+                f"{origins.count('edge')} from solutions at the window edges, "
+                if "edge" in origins
+                else ""
+            )
+            + f"{origins.count('mirror')} mirror images",
         )
         # a branch point lies on two branches (and an odd system's on their mirror images
         # too): listed once
