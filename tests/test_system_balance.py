@@ -2,8 +2,9 @@
 (perturb.numeric.system_balance), against independent oracles:
 
 * the exact periodic orbit of the piecewise-affine system (closed-form propagation,
-  ``periodic_orbit`` on ``AffineExactFlow``), sampled densely; its Fourier series cut at ``H``
-  (FFT of the samples) is the truncation floor;
+  ``periodic_orbit`` on ``AffineExactFlow``) and its Fourier series (FFT of dense samples),
+  for the monodromy (the accuracy against the truncation floor, H = 1..63, is
+  tests/test_system_balance_accuracy.py);
 * the closed form ``(K - w^2 M + i w C)^-1 F`` per harmonic for a linear system (derived here,
   matrices written by hand);
 * central finite differences of the residual for the Jacobian;
@@ -29,17 +30,6 @@ from perturb.simulate.orbits.shooting import periodic_orbit
 N_SAMPLES = 2**14
 
 
-def _peak(x: np.ndarray) -> float:
-    """max |x| of a densely sampled periodic signal, refined by the parabola through the
-    largest sample and its neighbours (the orbits are C^2: continuous forces)."""
-    i = int(np.argmax(np.abs(x)))
-    n = x.size
-    a, b, c = x[(i - 1) % n], x[i], x[(i + 1) % n]
-    den = a - 2 * b + c
-    d = 0.5 * (a - c) / den if den != 0 else 0.0
-    return abs(b - 0.25 * (a - c) * d)
-
-
 def _exact_orbit(system: System, W: float, y_guess: np.ndarray):
     flow = make_flow(system.with_params(Omega=W), W)
     T = 2 * np.pi / W
@@ -57,87 +47,6 @@ def _coefficients(Y: np.ndarray, H: int) -> np.ndarray:
     U[:, 1::2] = 2 * X[1 : H + 1].real.T
     U[:, 2::2] = -2 * X[1 : H + 1].imag.T
     return U
-
-
-def _floor(x: np.ndarray, H: int) -> float:
-    """Error of max|x| of the exact orbit's Fourier series cut at H."""
-    X = np.fft.rfft(x)
-    X[H + 1 :] = 0.0
-    return abs(_peak(np.fft.irfft(X, n=x.size)) - _peak(x))
-
-
-def _accuracy(system: System, W: float, y_guess, guess_from_orbit: bool, Hs=(1, 3, 7, 15, 31)):
-    """HB error of every coordinate's max|.| and the floors, for each H of ``Hs``."""
-    orb, t, Y = _exact_orbit(system, W, y_guess)
-    n2 = len(system.coordinates)
-    Q = Y[:, :n2]
-    exact = [_peak(Q[:, j]) for j in range(n2)]
-    rows = []
-    ref = None if guess_from_orbit else system_balance_orbit(system, W, harmonics=15).U
-    for H in Hs:
-        # the guess: the H = 15 solution cut or padded (for the impact pair, whose automatic
-        # start does not reach the impacting orbit, the exact orbit's series): Newton then
-        # converges to the HB solution, which the guess does not determine
-        if ref is None:
-            guess = _coefficients(Q, H)
-        else:
-            guess = np.zeros((n2, 2 * H + 1))
-            k = min(2 * H + 1, ref.shape[1])
-            guess[:, :k] = ref[:, :k]
-        sol = system_balance_orbit(system, W, harmonics=H, guess=guess, stability=False)
-        amp = sol.max_abs()
-        err = [abs(amp[c] - exact[j]) for j, c in enumerate(system.coordinates)]
-        floors = [_floor(Q[:, j], H) for j in range(n2)]
-        rows.append((H, err, floors))
-    return orb, rows
-
-
-@pytest.mark.parametrize(("W"), [1.2, 0.7])
-def test_nsd2_error_tracks_truncation_floor(W):
-    """nsd2 (unstable orbits at both frequencies; the accuracy does not care): every
-    coordinate's HB error of max|.| is within 2x of the orbit's truncation floor for
-    H = 3, 7, 15, 31 and drops by more than two decades from H = 3 to 31."""
-    system = builtin_system("nsd2")
-    y_guess = system_balance_orbit(system, W, harmonics=15, stability=False).state(0.0)
-    _, rows = _accuracy(system, W, y_guess, False)
-    errs = np.array([r[1] for r in rows])  # (H, coordinate)
-    floors = np.array([r[2] for r in rows])
-    assert np.all(errs[-1] < 1e-2 * errs[1])
-    for i in range(1, len(rows)):
-        # the floor of the orbit: the largest over its coordinates (the error of the smooth
-        # coordinate x2 is inherited from the truncation of x1, which carries the PWL force:
-        # against its own floor it is 3-60x; measured ratios in the report)
-        assert np.all(errs[i] <= 2.0 * floors[i].max()), (rows[i][0], errs[i], floors[i])
-
-
-def test_impact_pair_error_tracks_truncation_floor():
-    """impact_pair with a dissipative contact mass (mu2 = 0.2) at Omega = 1.2: a stable
-    impacting orbit. The contact (stiffness r = 20 on m2 = 0.2: ~3.7x the forcing frequency)
-    is resolved from H ~ 31 on: within 2x of the floor at H = 3 and 31, within 8x at H = 7 and
-    15 (measured 2.4x and 6.7x); decreasing by more than a decade from H = 3 to 31. The
-    automatic start does not reach this orbit: the guess is the exact orbit's series (Newton
-    converges to the HB solution, which the guess does not determine)."""
-    system = builtin_system("impact_pair").with_params(mu2=0.2)
-    W = 1.2
-    flow = make_flow(system.with_params(Omega=W), W)
-    y_guess = flow(np.zeros(system.n), 0.0, 300 * 2 * np.pi / W).y
-    orb, rows = _accuracy(system, W, y_guess, True, Hs=(3, 7, 15, 31))
-    assert orb.stability == "stable"
-    errs = np.array([r[1] for r in rows])
-    floors = np.array([r[2] for r in rows])
-    assert np.all(errs[-1] < 0.1 * errs[0])
-    for i, factor in enumerate((2.0, 8.0, 8.0, 2.0)):
-        assert np.all(errs[i] <= factor * floors[i].max()), (rows[i][0], errs[i], floors[i])
-
-
-def test_stiff_coordinate_error_equals_its_floor():
-    """nsd2: the coordinate carrying the PWL force is within 1.5x of its own floor."""
-    system = builtin_system("nsd2")
-    W = 1.2
-    y0 = system_balance_orbit(system, W, harmonics=15, stability=False).state(0.0)
-    _, rows = _accuracy(system, W, y0, False)
-    for H, err, floors in rows[1:]:
-        assert err[0] <= 1.5 * floors[0], (H, err[0], floors[0])
 
 
 def test_linear_system_equals_closed_form():

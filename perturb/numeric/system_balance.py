@@ -904,6 +904,11 @@ class SystemBalance:
                     break
                 lam *= 0.5
             if not decreased:
+                if float(np.abs(du).max()) <= tol * scale:
+                    # the residual is at rounding level, where no step decreases it: the
+                    # full Newton correction is below the tolerance, so u is the solution
+                    # (nsd2, H = 1, AFT: |R| = 2.3e-16, |du| = 1e-15 was reported unconverged)
+                    return u, it, min(best, nr)
                 break  # stalled: a local minimum of |R| (the caller tries another start)
             u = un
             best = min(best, float(np.linalg.norm(rn)))
