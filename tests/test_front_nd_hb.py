@@ -1,0 +1,163 @@
+"""Front doors for systems (issue 16 item 3): the symbolic single-harmonic balance of a
+system (``hb1`` / ``shb``) through frequency_response, compare per coordinate, bad input.
+
+Oracles, all written here: the single-harmonic balance equations of nsd2 derived by hand from
+its equations of motion, with the nonlinear force projected by a 2^16-point rectangle rule
+(the force is piecewise linear: its error is O(N^-2), ~1e-9); the exact periodic orbit by
+single shooting of the equations of motion (solve_ivp DOP853, rtol = atol = 1e-12, fsolve).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+from scipy.optimize import fsolve
+
+from perturb.comparison import compare, relative_errors
+from perturb.errors import ParameterError, PerturbError
+from perturb.model.system_builtins import builtin_system
+from perturb.solve import frequency_response
+
+P = {"k": -0.5, "mu1": 0.05, "mu2": 0.02, "k2": 1.0, "m2": 1.0, "F": 2.0}
+WINDOW = (1.1, 1.3)
+THETA = 2 * np.pi * np.arange(2**16) / 2**16
+
+
+def g(x):
+    """The nsd restoring force of the first mass (hand copy of the builtin's equation)."""
+    k = P["k"]
+    return k * x + (1 - k) * (np.maximum(x - 1, 0.0) + np.minimum(x + 1, 0.0))
+
+
+def rhs(t, y, W):
+    x1, x2, v1, v2 = y
+    a1 = P["F"] * np.cos(W * t) - P["mu1"] * v1 - P["mu2"] * (v1 - v2) - g(x1) - P["k2"] * (x1 - x2)
+    a2 = (-P["mu2"] * (v2 - v1) - P["k2"] * (x2 - x1)) / P["m2"]
+    return [v1, v2, a1, a2]
+
+
+def exact_orbit_max(W, y0, samples=20000):
+    """max |x1|, max |x2| of the exact periodic orbit shot from y0 (independent of perturb)."""
+    T = 2 * np.pi / W
+
+    def flow(y):
+        return solve_ivp(rhs, (0, T), y, args=(W,), method="DOP853", rtol=1e-12, atol=1e-12).y[
+            :, -1
+        ]
+
+    y, _, ok, _ = fsolve(lambda y: flow(y) - y, np.asarray(y0, float), full_output=True, xtol=1e-12)
+    assert ok == 1
+    t = np.linspace(0, T, samples, endpoint=False)
+    sol = solve_ivp(rhs, (0, T), y, args=(W,), method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t)
+    return float(np.abs(sol.y[0]).max()), float(np.abs(sol.y[1]).max())
+
+
+def hand_residuals(W, c, a, b):
+    """Single-harmonic balance of nsd2 with means c, cosines a, sines b (per coordinate)."""
+    x1 = c[0] + a[0] * np.cos(THETA) + b[0] * np.sin(THETA)
+    G0, Gc, Gs = (
+        np.mean(g(x1)),
+        2 * np.mean(g(x1) * np.cos(THETA)),
+        2 * np.mean(g(x1) * np.sin(THETA)),
+    )
+    mu1, mu2, k2, m2, F = P["mu1"], P["mu2"], P["k2"], P["m2"], P["F"]
+    return np.array(
+        [
+            G0 + k2 * (c[0] - c[1]),
+            k2 * (c[1] - c[0]),
+            -(W**2) * a[0] + (mu1 + mu2) * W * b[0] - mu2 * W * b[1] + Gc + k2 * (a[0] - a[1]) - F,
+            -(W**2) * b[0] - (mu1 + mu2) * W * a[0] + mu2 * W * a[1] + Gs + k2 * (b[0] - b[1]),
+            -m2 * W**2 * a[1] + mu2 * W * (b[1] - b[0]) + k2 * (a[1] - a[0]),
+            -m2 * W**2 * b[1] - mu2 * W * (a[1] - a[0]) + k2 * (b[1] - b[0]),
+        ]
+    )
+
+
+def points(resp, every=7):
+    """(W, means, cosines, sines, amplitude_x1, row) of every ``every``-th point."""
+    out = []
+    for b, br in enumerate(resp.branches):
+        cols = resp.columns[b]
+        for j in range(0, len(br), every):
+            W = float(br.omega[j])
+            y = cols["states"][j]
+            c = np.array([cols["mean_x1"][j], cols["mean_x2"][j]])
+            # an orbit with one harmonic: x(0) = c + a, x'(0) = W b
+            out.append((W, c, y[:2] - c, y[2:] / W, float(cols["amplitude_x1"][j])))
+    return out
+
+
+@pytest.fixture(scope="module")
+def nsd2():
+    return builtin_system("nsd2")
+
+
+def test_hb1_solves_the_hand_derived_balance(nsd2):
+    resp = frequency_response(nsd2, "hb1", WINDOW)
+    assert resp.method == "hb1-system" and resp.branches
+    pts = points(resp, every=3)
+    assert len(pts) >= 6
+    for W, c, a, b, amp in pts:
+        assert np.abs(c).max() <= 1e-12  # the zero-mean ansatz: odd system, no load
+        assert np.abs(hand_residuals(W, c, a, b)).max() <= 1e-7
+        assert amp == pytest.approx(np.hypot(a[0], b[0]), rel=1e-9)
+
+
+def test_shb_with_bias_keeps_the_asymmetric_orbits(nsd2):
+    resp = frequency_response(nsd2, "shb", WINDOW, bias=True)
+    pts = points(resp, every=5)
+    assert any(abs(c[0]) > 1e-3 for _, c, _, _, _ in pts)  # orbits with a mean are there
+    for W, c, a, b, _ in pts:
+        assert np.abs(hand_residuals(W, c, a, b)).max() <= 1e-7
+    # the zero-mean answer holds fewer branches: those with a mean are left out, said so
+    hb1 = frequency_response(nsd2, "hb1", WINDOW)
+    assert len(hb1.branches) < len(resp.branches)
+    assert any("with a mean left out" in n for n in hb1.notes)
+
+
+def test_compare_per_coordinate_against_exact_orbits(nsd2):
+    hb = frequency_response(nsd2, "hb", WINDOW, harmonics=3)
+    ex = frequency_response(nsd2, "exact", WINDOW)
+    c = compare(hb, ex)
+    names = [n for n, _, _ in c.coordinates]
+    assert names == ["x1", "x2"]
+    assert "coordinate x2" in str(c)
+    e2 = relative_errors(hb, ex, quantity="amplitude_x2")
+    # the errors of x2's max |.| at points away from the folds, against orbits shot here
+    folds = [w for w, _ in hb.folds]
+    rows = [(b, j) for b, br in enumerate(hb.branches) for j in range(len(br))]
+    checked = 0
+    for r in range(0, len(rows), 9):
+        b, j = rows[r]
+        W = float(hb.branches[b].omega[j])
+        if any(abs(W - f) < 0.02 * f for f in folds):
+            continue
+        _, m2 = exact_orbit_max(W, hb.columns[b]["states"][j])
+        own = abs(float(hb.columns[b]["amplitude_x2"][j]) - m2) / m2
+        assert e2[r] == pytest.approx(own, rel=0.2, abs=2e-5)
+        checked += 1
+    assert checked >= 4
+    with pytest.raises(ParameterError, match="x3.*x1, x2"):
+        relative_errors(hb, ex, quantity="amplitude_x3")
+
+
+@pytest.mark.parametrize("method", ["hb1", "shb", "hb", "auto", "exact"])
+def test_output_not_a_coordinate_names_it(nsd2, method):
+    with pytest.raises(PerturbError, match="x3") as info:
+        frequency_response(nsd2, method, WINDOW, output="x3")
+    assert "x1" in str(info.value) and "x2" in str(info.value)
+
+
+def test_methods_that_do_not_take_systems_name_those_that_do(nsd2):
+    for method in ("mlp", "kb", "ms", "lp"):
+        with pytest.raises(ParameterError, match=method) as info:
+            frequency_response(nsd2, method, WINDOW)
+        for name in ("exact", "hb", "hb1", "shb", "auto"):
+            assert name in str(info.value)
+    with pytest.raises(ParameterError, match="bias"):
+        frequency_response(nsd2, "hb1", WINDOW, bias=True)
+    with pytest.raises(ParameterError, match=r"harmonics.*\(1,\)"):
+        frequency_response(nsd2, "shb", WINDOW, harmonics=(1, 3))
+    with pytest.raises(ParameterError, match="order"):
+        frequency_response(nsd2, "hb1", WINDOW, order=2)
