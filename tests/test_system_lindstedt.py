@@ -376,3 +376,13 @@ def test_derivation_compiles(make, tmp_path):
         timeout=120,
     )
     assert proc.returncode == 0, proc.stdout[-3000:]
+
+
+def test_symbolic_linear_part_is_refused_and_element_parameters_stay_symbolic():
+    chain = ["x1'' + (1 + k2)*x1 - k2*x2 + eps*x1**3 = 0", "x2'' + k2*x2 - k2*x1 = 0"]
+    with pytest.raises(ParameterError, match=r"parameters without values \(k2\)"):
+        nnm_backbone(System.parse(chain), 1)
+    r = nnm_backbone(System.parse(chain, {"k2": 2}), 1, 1)
+    assert [p.name for p in r.parameters] == ["eps"] and r.values["eps"] is None
+    with pytest.raises(ParameterError, match="needs values for eps"):
+        r.frequency_at(1.0)

@@ -452,7 +452,15 @@ def _model(system: System) -> _Model:
     # the values of the parameters of the linear part are substituted (exactly) so that the
     # modal matrix is readable; parameters only in the elements stay symbolic
     linear_syms = (system.M.free_symbols | system.K.free_symbols) - {system.t}
-    reps = {s: _exact(given[s]) for s in linear_syms if s in given}
+    free = sorted(s.name for s in linear_syms if s not in given)
+    if free:
+        # a symbolic eigenproblem gives nested radicals SymPy cannot simplify in bounded time
+        raise ParameterError(
+            f"system {system.name!r}: the linear part (M, K) has parameters without values "
+            f"({', '.join(free)}): give them values (with_params); parameters that appear only "
+            "in the nonlinear elements may stay symbolic"
+        )
+    reps = {s: _exact(given[s]) for s in linear_syms}
     M = sp.Matrix(system.M.xreplace(reps))
     K = sp.Matrix(system.K.xreplace(reps))
     if M != M.T or sp.simplify(K - K.T) != sp.zeros(2, 2):
