@@ -46,8 +46,10 @@ def exact_orbit_max(W, y0, samples=20000):
             :, -1
         ]
 
-    y, _, ok, _ = fsolve(lambda y: flow(y) - y, np.asarray(y0, float), full_output=True, xtol=1e-12)
-    assert ok == 1
+    y = fsolve(lambda y: flow(y) - y, np.asarray(y0, float), xtol=1e-12)
+    # accepted on the shooting residual (fsolve may stop short of xtol once it stalls at
+    # rounding level)
+    assert np.abs(flow(y) - y).max() <= 1e-9 * (1 + np.abs(y).max())
     t = np.linspace(0, T, samples, endpoint=False)
     sol = solve_ivp(rhs, (0, T), y, args=(W,), method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t)
     return float(np.abs(sol.y[0]).max()), float(np.abs(sol.y[1]).max())
