@@ -33,7 +33,8 @@ the same ``kg (s - g) H(s - g)`` as pyHarm's ``PenaltyUnilateralGap`` (contact w
   downwards, the analogue of pyHarm's trace) and ``system_balance_response`` (every branch in
   the window: seeds, branch points, mirrors), exact Galerkin projection of the contact force,
   exact Jacobians, Floquet multipliers (stability) at every point, default settings
-  (``ds_max = 0.05``, ``tol = 1e-9``). The ``SystemBalance`` set-up (SymPy, once per call)
+  (``ds_max = 0.05``, ``tol = 1e-9``); the branch also with ``ds_max = 0.1, 0.2`` (its point
+  density, the same knob as pyHarm's ``ds``). The ``SystemBalance`` set-up (SymPy, once per call)
   is inside the time.
 * pyHarm-os (``pyHarm.Maestro``) in a subprocess of the venv that stays alive between runs
   (so its numba compilation is paid once, as in a session; the cold first run is reported
@@ -92,6 +93,7 @@ H = 15
 SAMPLES = 32 * H + 1  # AFT time samples for pyHarm (as bench_aft_packages: 481)
 CHECK = (0.5, 0.62, 0.9, 1.3, 1.62, 2.0)
 PYHARM_DS = (0.5, 0.2, 0.1, 0.05, 0.02)
+PERTURB_DS_MAX = (0.1, 0.2)  # besides the default 0.05
 COORDS = ("x1", "x2")
 # "as accurate": within 10 % (the point errors of both sit at the truncation floor, where the
 # sampled points' scatter is of that order)
@@ -155,9 +157,11 @@ def worker() -> None:
     coefficients of x1 then x2, ``[a0, a1, b1, ...]``, then W).
     """
     import logging
+    from importlib.metadata import version as _version
 
     import pyHarm
 
+    version = f"pyHarm-os {_version('pyHarm-os')}, numba {_version('numba')}"
     logging.disable(logging.WARNING)
     import warnings
 
@@ -189,7 +193,8 @@ def worker() -> None:
             rows = np.hstack([X[:, 0:-1:2], X[:, 1:-1:2], X[:, -1:]])
             np.save(path, rows)
             n = len(sols)
-        print(json.dumps({"wall": wall, "cpu": cpu, "n": n, "reason": reason}), flush=True)
+        ans = {"wall": wall, "cpu": cpu, "n": n, "reason": reason, "version": version}
+        print(json.dumps(ans), flush=True)
 
 
 class PyHarmWorker:
@@ -207,6 +212,7 @@ class PyHarmWorker:
         )
         self.tmp = tempfile.mkdtemp(prefix="bench_pyharm_nd_")
         self.count = 0
+        self.version = "?"
 
     def run(self, ds: float, nti: int, timeout: float):
         """``(rows or None, wall, cpu, reason)`` of one pyHarm frf run."""
@@ -223,6 +229,7 @@ class PyHarmWorker:
         if not line:
             return None, float("nan"), float("nan"), "worker exited (pyHarm-os not importable?)"
         ans = json.loads(line)
+        self.version = ans.get("version", "?")
         rows = np.load(path) if ans["n"] else None
         return rows, ans["wall"], ans["cpu"], ans["reason"]
 
@@ -462,9 +469,20 @@ def main() -> None:
             system, WINDOW, harmonics=H, stability=True
         ),
     }
+    # perturb's own accuracy knob (the step cap of the continuation), for equal-accuracy pairs
+    for cap in PERTURB_DS_MAX:
+        ours[f"perturb branch, ds_max={cap:g}"] = lambda cap=cap: system_balance_branch(
+            system, WINDOW, harmonics=H, direction=-1, stability=True, ds_max=cap
+        )
     ph = PyHarmWorker(args.venv_python)
     try:
         rows, wall, cpu, why = ph.run(PYHARM_DS[0], args.nti[0], args.timeout + 300.0)
+        import scipy
+
+        print(
+            f"python {sys.version.split()[0]}, numpy {np.__version__}, scipy {scipy.__version__}"
+            f"; worker: {ph.version}"
+        )
         print(
             f"pyHarm cold first run (imports, numba compile or cache load): wall {wall:.2f} s, "
             f"CPU {cpu:.2f} s {why}"
