@@ -107,6 +107,8 @@ __all__ = [
     "system_errors",
     "limit_cycles",
     "LimitCycles",
+    "BalanceCycle",
+    "LIMIT_CYCLE_METHODS",
     "Equilibrium",
     "is_forced",
     "invariant_note",
@@ -1309,6 +1311,95 @@ def _crossings(t: Any, s: Any, value: float) -> list:
     ]
 
 
+class BalanceCycle:
+    """A limit cycle of autonomous harmonic balance (:func:`perturb.numeric.autonomous_balance.
+    autonomous_balance_orbit`) read like a :class:`~perturb.simulate.orbits.shooting.
+    PeriodicOrbit` by the front doors (:func:`orbit_columns`, ``perturb periodic``): ``period``,
+    ``y0``, ``multipliers``, ``max_multiplier`` (the largest non-trivial one), ``stability``,
+    ``sample_states``, ``max_abs`` (on ``2^14`` samples of the series); ``solution`` is the
+    balance's own result."""
+
+    autonomous = True
+    m = 1
+    _SAMPLES = 2**14
+
+    def __init__(self, solution: Any, system: Any) -> None:
+        import numpy as np
+
+        self.solution = solution
+        self.n2 = len(system.coordinates)
+        self.period = float(solution.period)
+        self.multipliers = np.asarray(solution.multipliers)
+        self.max_multiplier = float(solution.max_multiplier)
+        self.stability = "stable" if solution.stable else "unstable"
+        self.t0 = 0.0
+        self.y0 = self._states(np.zeros(1))[:, 0]
+        self._dense: Any = None
+
+    def _states(self, t: Any) -> Any:
+        import numpy as np
+
+        U = np.asarray(self.solution.coefficients, dtype=float)
+        w = float(self.solution.frequency)
+        H = (U.shape[1] - 1) // 2
+        th = w * np.asarray(t, dtype=float)
+        k = np.arange(1, H + 1)
+        c, s = np.cos(np.outer(k, th)), np.sin(np.outer(k, th))
+        val = U[:, :1] + U[:, 1::2] @ c + U[:, 2::2] @ s
+        der = w * (k * U[: self.n2, 2::2] @ c - k * U[: self.n2, 1::2] @ s)
+        return np.vstack([val[: self.n2], der, val[self.n2 :]])
+
+    def sample_states(self, n: int = 256) -> tuple[Any, Any]:
+        """``n`` equally spaced samples of every state over one period: ``(t, Y)``."""
+        import numpy as np
+
+        t = self.period * np.arange(int(n)) / int(n)
+        return t, self._states(t)
+
+    def max_abs(self, output: Any = None) -> Any:
+        """``max_t |c . y(t)|`` (every state's without ``output``) on ``2^14`` samples."""
+        import numpy as np
+
+        if self._dense is None:
+            self._dense = self.sample_states(self._SAMPLES)[1]
+        if output is None:
+            return np.abs(self._dense).max(axis=1)
+        return float(np.abs(np.asarray(output, dtype=float) @ self._dense).max())
+
+    def __repr__(self) -> str:
+        return f"BalanceCycle(period {self.period:.10g}, {self.stability})"
+
+
+#: Methods of :func:`limit_cycles`.
+LIMIT_CYCLE_METHODS = ("exact", "hb")
+
+
+def _balance_limit_cycles(system: Any, harmonics: int, output: str | None) -> LimitCycles:
+    """:func:`limit_cycles` with ``method="hb"``: autonomous harmonic balance from its own
+    automatic start (one cycle, no equilibria searched)."""
+    from perturb.numeric.autonomous_balance import autonomous_balance_orbit
+
+    H = registry.check_harmonics(harmonics)
+    system_output(system, output)  # a bad output is refused before any work
+    try:
+        sol = autonomous_balance_orbit(system, H)
+    except PerturbError as exc:
+        if isinstance(exc, ParameterError):
+            raise
+        from perturb.errors import ModelError
+
+        if isinstance(exc, ModelError):
+            raise
+        return LimitCycles((), (), None, (), (f"harmonic balance, H = {H}: {exc}",))
+    note = (
+        f"harmonic balance of the autonomous system, H = {H} (frequency an unknown, phase "
+        f"condition): one cycle from its automatic start, residual {sol.residual_norm:.1e}"
+        + (f", friction jumps smoothed over {sol.jump_width:.3g}" if sol.jump_width else "")
+        + "; no equilibria searched (method 'exact' finds them)"
+    )
+    return LimitCycles((BalanceCycle(sol, system),), (), None, (0.0,), (note,))
+
+
 def limit_cycles(
     system: Any,
     *,
@@ -1317,8 +1408,16 @@ def limit_cycles(
     transient_periods: int = 100,
     extent: float | None = None,
     output: str | None = None,
+    method: str = "exact",
+    harmonics: int | None = None,
 ) -> LimitCycles:
     """Every limit cycle (and equilibrium) found of an autonomous system (no harmonic forcing).
+
+    ``method="hb"`` answers by autonomous harmonic balance instead
+    (:func:`perturb.numeric.autonomous_balance.autonomous_balance_orbit`, ``harmonics``
+    harmonics, default 7; the frequency an unknown, Floquet multipliers of the linearisation):
+    one cycle from its automatic start, as a :class:`BalanceCycle`, no equilibria; ``guesses``,
+    ``grid``, ``transient_periods`` and ``extent`` belong to the default ``"exact"`` search.
 
     The equilibria come from Newton on ``f(y) = 0`` from the zero state and from where the
     settled runs come to rest (a system with a drift direction ``d``, ``f(y + s d) = f(y)``
@@ -1350,11 +1449,36 @@ def limit_cycles(
         A forced system, or one with conserved combinations (:meth:`System.invariants
         <perturb.model.system.System.invariants>`; not searched yet).
     ParameterError
-        Bad ``guesses``, ``grid``, ``transient_periods`` or ``extent``.
+        Bad ``guesses``, ``grid``, ``transient_periods`` or ``extent``; a ``method`` other
+        than ``"exact"`` or ``"hb"``; ``harmonics`` without ``method="hb"``.
     """
     import numpy as np
 
     from perturb.errors import ModelError
+
+    if method not in LIMIT_CYCLE_METHODS:
+        raise ParameterError(
+            f"method = {method!r}: expected 'exact' (shooting from settled runs) or 'hb' "
+            "(autonomous harmonic balance, harmonics=H)"
+        )
+    if method == "hb":
+        if guesses or grid != 3 or transient_periods != 100 or extent is not None:
+            raise ParameterError(
+                "guesses, grid, transient_periods and extent belong to the exact search "
+                "(method='exact'); method 'hb' takes harmonics"
+            )
+        if not is_system(system):
+            raise ParameterError(f"system = {system!r}: expected a perturb System")
+        if is_forced(system):
+            raise ModelError(
+                f"system {system.name!r} is forced: its periodic orbits are at the forcing "
+                "frequency (frequency_response / periodic_orbits), not limit cycles"
+            )
+        return _balance_limit_cycles(system, 7 if harmonics is None else harmonics, output)
+    if harmonics is not None:
+        raise ParameterError(
+            f"harmonics = {harmonics!r}: an option of method 'hb' (the exact search has none)"
+        )
     from perturb.simulate.orbits.shooting import limit_cycle
 
     if is_forced(system):

@@ -831,7 +831,16 @@ def _periodic_autonomous(args: argparse.Namespace, system) -> str:
             f"--invariants {args.invariants}: the limit-cycle search of an autonomous system "
             "takes no invariant values (it refuses systems with conserved combinations)"
         )
-    found = limit_cycles(system, output=args.output)
+    method = getattr(args, "method", None) or "exact"
+    harmonics = getattr(args, "harmonics", None)
+    if harmonics is not None and method != "hb":
+        raise ParameterError(
+            f"--harmonics {harmonics}: an option of --method hb (the exact search has none)"
+        )
+    if method == "hb":
+        found = limit_cycles(system, output=args.output, method="hb", harmonics=harmonics)
+    else:
+        found = limit_cycles(system, output=args.output)
     coords = system_coordinates(system)
     cols = ["omega", "m", "period", "amplitude", "first_harmonic_amplitude", "mean", "stable"]
     cols += ["max_multiplier", "stability"]
@@ -934,6 +943,13 @@ def _cmd_periodic(args: argparse.Namespace) -> int:
             f"--omega: required for {args.model!r}, a forced model (its periodic orbits are at "
             "a forcing frequency, e.g. --omega 0.6); only an autonomous system (no forcing "
             "term, e.g. belt) goes without it"
+        )
+    if not autonomous and (args.method is not None or args.harmonics is not None):
+        flag = "--method" if args.method is not None else "--harmonics"
+        raise ParameterError(
+            f"{flag}: applies to the limit cycles of an autonomous system (perturb periodic "
+            "belt --method hb); the orbits at a forcing frequency are exact (frc --method hb "
+            "for harmonic balance)"
         )
     if is_system(osc):
         text = _periodic_autonomous(args, at) if autonomous else _periodic_system(args, osc)
@@ -1249,6 +1265,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="systems: what the amplitude (simulate: the output column) measures, a "
         "coordinate or a linear combination such as x2 or 'x1 - x2' (default: the first "
         "coordinate); an oscillator takes x only",
+    )
+    p.add_argument(
+        "--method",
+        choices=["exact", "hb"],
+        help="autonomous systems: exact (default: shooting from settled runs, equilibria too) "
+        "or hb (autonomous harmonic balance, --harmonics H, one cycle)",
+    )
+    p.add_argument(
+        "--harmonics",
+        type=int,
+        help=f"--method hb: harmonics, 1 to {MAX_HARMONICS} (default 7)",
     )
     p.add_argument("--out", help="CSV file (default: standard output)")
     p.set_defaults(func=_cmd_periodic)
