@@ -386,3 +386,21 @@ def test_symbolic_linear_part_is_refused_and_element_parameters_stay_symbolic():
     assert [p.name for p in r.parameters] == ["eps"] and r.values["eps"] is None
     with pytest.raises(ParameterError, match="needs values for eps"):
         r.frequency_at(1.0)
+
+
+def test_forces_without_a_potential_or_symmetry_are_refused():
+    # a cubic of x2 acting on x1 alone: w = (1, 0) is not along c = (0, 1)
+    follower = System.parse(["x1'' + 2*x1 - x2 + eps*x2**3 = 0", "x2'' + 2*x2 - x1 = 0"])
+    with pytest.raises(ModelError, match="not along its combination"):
+        nnm_backbone(follower, 1)
+    skew = System.parse(["x1'' + 2*x1 - x2 = 0", "x2'' + 2*x2 - 3*x1 + eps*x2**3 = 0"])
+    with pytest.raises(ModelError, match="must be symmetric"):
+        nnm_backbone(skew, 1)
+    one_sided = System.parse(
+        ["x1'' + 2*x1 - x2 + (x1 - 1)*Heaviside(x1 - 1) = 0", "x2'' + 2*x2 - x1 = 0"]
+    )
+    with pytest.raises(ModelError, match="is not odd"):
+        nnm_backbone(one_sided, 1, 1)
+    unstable = System.parse(["x1'' - x1 + eps*x1**3 = 0", "x2'' + x2 = 0"])
+    with pytest.raises(ModelError, match="eigenvalue omega\\*\\*2 = -1"):
+        nnm_backbone(unstable, 1)

@@ -1348,8 +1348,28 @@ def _opening_steps(model, lams, omegas, Phi, forces, mode, method, order, tau, o
                 "Alpha-transformation",
                 (
                     equation(tau, omega * t),
+                    equation(
+                        omega**2,
+                        lams[j]
+                        + eps * sp.Symbol("omega_1")
+                        + eps**2 * sp.Symbol("omega_2")
+                        + sp.Symbol("..."),
+                    ),
+                    equation(nu, eps * sp.Symbol("omega_1")),
                     equation(alpha, nu / (lams[j] + nu)),
                     equation(omega**2, lams[j] * (1 + deltas) / (1 - alpha)),
+                ),
+                "Time is scaled by the frequency of the NNM continuing mode "
+                f"{mode}, whose square is expanded in $\\varepsilon$. The first-order shift "
+                "$\\nu$ defines Cheung, Chen and Lau's parameter $\\alpha$, which stays below "
+                "one however strong a hardening nonlinearity; the higher shifts become the "
+                "coefficients $\\delta_n$.",
+            )
+        )
+        steps.append(
+            derivation_step(
+                "Transformed equation and expansion",
+                (
                     *(
                         equation(
                             sp.Add(
@@ -1371,11 +1391,10 @@ def _opening_steps(model, lams, omegas, Phi, forces, mode, method, order, tau, o
                         sp.Add(*(alpha**n * sp.Symbol(f"u_{{({n})}}") for n in range(order + 1))),
                     ),
                 ),
-                "The squared frequency of the NNM continuing mode "
-                f"{mode} is written with Cheung, Chen and Lau's parameter $\\alpha$, built on "
-                "its first-order shift $\\nu$; dividing the modal equations by $\\omega^2$ "
-                "leaves them linear in $\\alpha$ apart from the $\\delta_n$ (with $\\varepsilon$ "
-                "set to one). $u$ is expanded in powers of $\\alpha$.",
+                "Dividing the modal equations by $\\omega^2 = \\omega_j^2/(1 - \\alpha)$ "
+                "(times the $\\delta_n$ factor) leaves them linear in $\\alpha$ apart from the "
+                "$\\delta_n$, with $\\varepsilon$ set to one and the ratios "
+                "$r_i^2 = \\omega_i^2/\\omega_j^2$; $u$ is expanded in powers of $\\alpha$.",
             )
         )
     return steps
