@@ -444,38 +444,31 @@ class Tracer:
         (sa, wa, da), (sb, wb, db) = nodes
         if not (sa < sb < 0.0) or sb - sa < 0.05 * -sb:
             return None
-        z = (sa, sa, sb, sb, 0.0, 0.0)
-        # divided differences with repeated nodes (the slope where a node repeats), as
-        # weights of the data (wa, da, wb, db): Python floats, the vectors combined once
-        e = ((1.0, 0.0, 0.0, 0.0), (0.0, 1.0, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 0.0, 1.0))
-        nil = (0.0, 0.0, 0.0, 0.0)
-        vals = (e[0], e[0], e[2], e[2], nil, nil)
-        ders = (e[1], e[1], e[3], e[3], nil, nil)
-        Q = [[v] for v in vals]
-        for j in range(1, 6):
-            for i in range(j, 6):
-                if j == 1 and z[i] == z[i - 1]:
-                    Q[i].append(ders[i])
-                else:
-                    h = z[i] - z[i - j]
-                    Q[i].append(
-                        tuple(
-                            (x - y) / h for x, y in zip(Q[i][j - 1], Q[i - 1][j - 1], strict=True)
-                        )
-                    )
-        coef = [Q[j][j] for j in range(6)]
-        data = np.array([wa, da, wb, db])
-        if not np.all(np.isfinite(data)):
+        # w(s) = s^2 (c0 + c1 s + c2 s^2 + c3 s^3) in s = sigma / |sigma_b| (w(0) = w'(0) = 0),
+        # its values and slopes at s_a, s_b = -1: a 4 x 4 system for the four coefficients
+        hb = -sb
+        s_a = sa / hb
+        M = np.array(
+            [
+                [s_a**2, s_a**3, s_a**4, s_a**5],
+                [2 * s_a, 3 * s_a**2, 4 * s_a**3, 5 * s_a**4],
+                [1.0, -1.0, 1.0, -1.0],
+                [-2.0, 3.0, -4.0, 5.0],
+            ]
+        )
+        try:
+            coef = np.linalg.solve(M, np.array([wa, hb * da, wb, hb * db]))
+        except np.linalg.LinAlgError:
+            return None
+        if not np.all(np.isfinite(coef)):
             return None
 
         def predict(ds: float) -> tuple[np.ndarray, np.ndarray]:
-            w, dw = coef[5], nil
-            for k in range(4, -1, -1):
-                f = ds - z[k]
-                dw = tuple(a + f * b for a, b in zip(w, dw, strict=True))
-                w = tuple(c + f * a for c, a in zip(coef[k], w, strict=True))
-            d = t + np.array(dw) @ data
-            return uc + ds * t + np.array(w) @ data, d / np.linalg.norm(d)
+            x = ds / hb
+            w = np.array([x * x, x**3, x**4, x**5]) @ coef
+            dw = np.array([2 * x, 3 * x * x, 4 * x**3, 5 * x**4]) @ coef / hb
+            d = t + dw
+            return uc + ds * t + w, d / np.linalg.norm(d)
 
         return predict
 

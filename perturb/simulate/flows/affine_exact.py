@@ -474,6 +474,11 @@ class _RegionCore:
         self.lamj = [lam[j] for j in range(n)]
         self.Vcols = [V[:, j] for j in range(n)]
         self.lam_max = float(np.max(np.abs(lam))) if n else 0.0
+        # the sources as one (K, n) array and where they excite a mode (the vectorised
+        # particular solution of _ModalRegion, when no mode is resonant)
+        self.B = np.array(self.betas, dtype=complex).reshape(len(self.betas), n)
+        self.Bnz = self.B != 0.0
+        self.C, self.d = model.C, model.d
         self.lamc = lam.astype(complex)
         self.CV = model.C @ V
         self.YWV = np.concatenate([V.astype(complex), self.CV.astype(complex)], axis=0)
@@ -509,7 +514,10 @@ class _RegionCore:
             # cancel
             yc = yconst.real.copy()
             yc.setflags(write=False)
-            hit = self._constant[zero] = (tuple(res), yc)
+            # the constant column of the piece data: the state's rows, the surfaces' rows
+            col = np.concatenate([yc, self.C @ yc - self.d])[:, None]
+            col.setflags(write=False)
+            hit = self._constant[zero] = (tuple(res), yc, col)
         return hit
 
 
@@ -533,29 +541,43 @@ class _ModalRegion:
         rho = max(core.lam_max, model.omega_max)
         self.rho = rho
         # sources: sigma_0 = 0 with b, sigma_k = i omega_k with u_k - i v_k
-        res, yconst = core.constant(rho)
+        res, yconst, ycol = core.constant(rho)
         res = list(res)  # (lambda, sigma, V_j beta_jm)
-        lamj, Vcols = core.lamj, core.Vcols
-        Z = np.zeros((om.size, n), dtype=complex)
-        for k, w in enumerate(om):
-            beta = core.betas[k]
-            s = 1j * w
-            for j in core.nz[k]:
-                if abs(lamj[j] - s) < _RESONANCE_BAND * w:
-                    res.append((complex(lamj[j]), s, Vcols[j] * beta[j]))
-                else:
-                    Z[k] += Vcols[j] * (beta[j] / (s - lamj[j]))
+        C = model.C
+        ZW = None
+        if om.size:
+            # Z[k] = sum_j V_j beta_kj / (i w_k - lambda_j), and C Z[k], in one product when no
+            # excited mode is resonant (else the loop below, which sets the resonant pairs
+            # apart)
+            den = (1j * om)[:, None] - core.lamc[None, :]
+            if not np.any(core.Bnz & (np.abs(den) < _RESONANCE_BAND * om[:, None])):
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    R = np.where(core.Bnz, core.B / den, 0.0)
+                ZW = core.YWV @ R.T  # (n + ns, K)
+                Z = ZW[:n].T
+        if ZW is None:
+            lamj, Vcols = core.lamj, core.Vcols
+            Z = np.zeros((om.size, n), dtype=complex)
+            for k, w in enumerate(om):
+                beta = core.betas[k]
+                s = 1j * w
+                for j in core.nz[k]:
+                    if abs(lamj[j] - s) < _RESONANCE_BAND * w:
+                        res.append((complex(lamj[j]), s, Vcols[j] * beta[j]))
+                    else:
+                        Z[k] += Vcols[j] * (beta[j] / (s - lamj[j]))
+            ZW = np.concatenate([Z.T, (Z @ C.T).T])
         self.yconst = yconst
         self.Z = Z
         self.res = res
-        C = model.C
         self.CV = core.CV  # (ns, n)
-        Cconst = self.Cconst = C @ yconst - model.d
-        CZ = self.CZ = Z @ C.T  # (K, ns)
-        self.mu = np.concatenate([core.lamc, _ZERO1, 1j * om])
-        mu = self.mu
-        self.mupow = np.stack([np.ones_like(mu), mu, mu**2, mu**3])
-        self.amupow = np.abs(self.mupow)
+        mu = self.mu = np.concatenate([core.lamc, _ZERO1, 1j * om])
+        mupow = self.mupow = np.empty((4, mu.size), dtype=complex)
+        mupow[0] = 1.0
+        mupow[1] = mu
+        mupow[2] = mu**2
+        mupow[3] = mu**3
+        self.amupow = np.abs(mupow)
         if res:
             self.res_rho = max(max(abs(r[0]), abs(r[1])) for r in res)
             self.res_lam = np.array([r[0] for r in res], dtype=complex)
@@ -567,10 +589,7 @@ class _ModalRegion:
             self.res_lam, self.res_sig, self.res_vec, self.res_C = core.no_res
         # per-piece data are these columns times the piece's coefficients (alpha, 1, e^{i w t0}):
         # the state's rows (n), then the surfaces' (ns); Ybase and Wbase are views
-        self.YWbase = np.concatenate(
-            [core.YWV, np.concatenate([yconst, Cconst])[:, None], np.concatenate([Z.T, CZ.T])],
-            axis=1,
-        )
+        self.YWbase = np.concatenate([core.YWV, ycol, ZW], axis=1)
         self.Ybase, self.Wbase = self.YWbase[:n], self.YWbase[n:]
         self.n = n
         self.sig = core.sig
