@@ -980,6 +980,8 @@ class AutonomousBalance:
             for _ in range(40):
                 F, Jx = aug(X, True, amp)
                 nF = float(np.linalg.norm(F))
+                if nF <= 1e-14 * max(1.0, float(np.abs(X).max())):
+                    break  # converged to rounding (no decrease left for Armijo to find)
                 try:
                     dX = np.linalg.solve(Jx, -F)
                 except np.linalg.LinAlgError:

@@ -1,0 +1,241 @@
+"""Autonomous harmonic balance (limit cycles with unknown frequency) against independent
+oracles: the van der Pol series in eps and its literature period at eps = 1, a DOP853
+(rtol = atol = 1e-12) shooting of the cycle and of its monodromy written here, SciPy
+quadrature of the projected friction force, finite differences of its Jacobian, and the
+event-driven exact stick-slip cycle of the belt (perturb.solve.limit_cycles)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import quad, solve_ivp
+from scipy.optimize import brentq
+
+from perturb.errors import ModelError, ParameterError, PerturbError
+from perturb.model.builtins import builtin_model
+from perturb.model.system import System
+from perturb.model.system_builtins import builtin_system
+from perturb.numeric.autonomous_balance import (
+    AutonomousBalance,
+    AutonomousBalanceError,
+    autonomous_balance_branch,
+    autonomous_balance_orbit,
+)
+
+VDP = "x'' - eps*(1 - x**2)*x' + x = 0"
+
+
+def vdp(eps: float) -> System:
+    return System.parse([VDP], {"eps": eps}, name="vdp")
+
+
+def vdp_shooting(eps: float):
+    """Period, max|x| and the monodromy of the van der Pol cycle by DOP853 shooting: the
+    cycle started at its maximum (x' = 0, x > 0), period = the time of the next maximum."""
+
+    def f(t, z):
+        x, v = z[0], z[1]
+        out = [v, eps * (1 - x * x) * v - x]
+        if z.size > 2:
+            Phi = z[2:].reshape(2, 2)
+            A = np.array([[0.0, 1.0], [-2 * eps * x * v - 1.0, eps * (1 - x * x)]])
+            out += list((A @ Phi).reshape(-1))
+        return out
+
+    def first_return(x0):
+        def ev(t, z):
+            return z[1]
+
+        ev.direction = -1.0  # x' = 0 going down: a maximum of x
+        sol = solve_ivp(f, (0, 100), [x0, 0.0], method="DOP853", rtol=1e-12, atol=1e-12, events=ev)
+        ts = [t for t in sol.t_events[0] if t > 1e-6]
+        i = list(sol.t_events[0]).index(ts[0])
+        return ts[0], sol.y_events[0][i][0]
+
+    # settle, then solve x0 = P(x0) for the maximum on the cycle
+    x0 = 2.0
+    for _ in range(12):  # the cycle attracts strongly for eps >= 0.5 (multiplier <= 0.04)
+        x0 = first_return(x0)[1]
+    x0 = brentq(lambda a: first_return(a)[1] - a, x0 - 1e-3, x0 + 1e-3, xtol=1e-14)
+    T = first_return(x0)[0]
+    z0 = np.concatenate([[x0, 0.0], np.eye(2).reshape(-1)])
+    sol = solve_ivp(f, (0, T), z0, method="DOP853", rtol=1e-12, atol=1e-12)
+    Mono = sol.y[2:, -1].reshape(2, 2)
+    return T, x0, Mono
+
+
+def test_vdp_small_eps_series():
+    # Lindstedt: amplitude 2 + O(eps^2), period 2 pi (1 + eps^2/16 + O(eps^4))
+    eps = 0.1
+    sol = autonomous_balance_orbit(vdp(eps), 7)
+    assert sol.period == pytest.approx(2 * math.pi * (1 + eps**2 / 16), rel=2e-5)
+    assert sol.amplitudes["x"] == pytest.approx(2.0, abs=2e-3)
+    assert sol.stable is True
+    assert sol.jump_width == 0.0
+    assert "limit cycle" in str(sol)
+
+
+def test_vdp_eps1_literature_period_shooting_and_multipliers():
+    # H = 25: the period converges faster than the waveform (H = 15: period 7e-13, max|x|
+    # 5.5e-6 relative; H = 25: 1e-15 and 5e-9)
+    sol = autonomous_balance_orbit(vdp(1.0), 25)
+    assert sol.period == pytest.approx(6.663286859323130, rel=1e-12)
+    T, xmax, Mono = vdp_shooting(1.0)
+    assert T == pytest.approx(6.663286859323130, rel=1e-10)  # the oracle itself
+    assert sol.period == pytest.approx(T, rel=1e-11)
+    assert sol.amplitudes["x"] == pytest.approx(xmax, rel=1e-7)
+    mu_exact = np.sort(np.abs(np.linalg.eigvals(Mono)))
+    assert mu_exact[1] == pytest.approx(1.0, abs=1e-7)
+    # the trivial multiplier is reported apart; the other one matches the shooting's
+    assert abs(sol.trivial_multiplier - 1.0) < 1e-4
+    assert sol.nontrivial_multipliers.size == 1
+    assert abs(sol.nontrivial_multipliers[0]) == pytest.approx(mu_exact[0], rel=2e-3)
+    assert sol.stable is True
+    # the series satisfies the ODE: residual of x'' - eps (1 - x^2) x' + x on a grid
+    t = np.linspace(0, sol.period, 200)
+    h = 1e-4
+    x = sol(t)
+    v = (sol(t + h) - sol(t - h)) / (2 * h)
+    a = (sol(t + h) - 2 * x + sol(t - h)) / h**2
+    assert np.abs(a - (1 - x**2) * v + x).max() < 1e-4
+
+
+def test_oscillator_input_and_guess_from_other_H():
+    osc = builtin_model("vanderpol", eps=0.5)
+    low = autonomous_balance_orbit(osc, 5, stability=False)
+    assert low.multipliers is None and low.stable is None
+    high = autonomous_balance_orbit(osc, 11, guess=low)
+    T = vdp_shooting(0.5)[0]
+    assert high.period == pytest.approx(T, rel=1e-9)
+    assert abs(high.period - T) < abs(low.period - T)
+    # a (frequency, coefficients) guess
+    again = autonomous_balance_orbit(osc, 11, guess=(high.frequency, high.coefficients))
+    assert again.period == pytest.approx(high.period, rel=1e-12)
+
+
+def test_vdp_branch_in_eps_against_shooting():
+    br = autonomous_balance_branch(vdp(1.0), "eps", (0.5, 2.0), 15)
+    assert br.stop_reasons == ("window", "window")
+    assert br.values[0] == pytest.approx(0.5) and br.values[-1] == pytest.approx(2.0)
+    assert np.all(np.diff(br.values) > 0)
+    for i in (0, len(br) - 1):
+        T = vdp_shooting(float(br.values[i]))[0]
+        assert br.period[i] == pytest.approx(T, rel=1e-7)
+    assert np.all(br.stable)
+    cols = br.columns()
+    assert set(cols) >= {"eps", "frequency", "period", "amplitude_x", "mean_x", "stable"}
+    assert "branch of limit cycles" in str(br)
+
+
+def belt_projection_oracle(ab, s_coeffs, k_max):
+    """Galerkin coefficients of the belt friction on s(theta) by adaptive quadrature split at
+    the crossings of s = v_b found by brentq on a fine grid."""
+    v_b, mu_s, mu_k, v_s = 0.2, 0.4, 0.25, 0.5
+
+    def s(th):
+        return ab.basis.evaluate(s_coeffs, np.atleast_1d(th))[0]
+
+    def f(th):
+        z = s(th) - v_b
+        return (mu_k + (mu_s - mu_k) * math.exp(-abs(z) / v_s)) * np.sign(z)
+
+    grid = np.linspace(0, 2 * math.pi, 2001)
+    vals = np.array([s(t) - v_b for t in grid])
+    cuts = [
+        brentq(lambda t: s(t) - v_b, grid[i], grid[i + 1], xtol=1e-15)
+        for i in range(grid.size - 1)
+        if vals[i] * vals[i + 1] < 0
+    ]
+    edges = [0.0, *cuts, 2 * math.pi]
+    out = []
+    for k in range(k_max + 1):
+        for trig in (math.cos, math.sin) if k else (math.cos,):
+
+            def g(t, k=k, trig=trig):
+                return f(t) * trig(k * t)
+
+            tot = sum(
+                quad(g, a, b, epsabs=1e-13, epsrel=1e-12, limit=200)[0]
+                for a, b in zip(edges[:-1], edges[1:], strict=True)
+            )
+            out.append(tot / (2 * math.pi if k == 0 else math.pi))
+    return np.array(out), len(cuts)
+
+
+def test_friction_projection_quadrature_and_jacobian():
+    ab = AutonomousBalance(builtin_system("belt"), 5, jump_width=0.0)
+    name = ab.jump_elements()[0]
+    s = np.zeros(ab.size)
+    s[0], s[1], s[2], s[5] = 0.05, 0.3, 0.1, 0.04  # crosses v_b = 0.2 twice
+    P, J = ab.project(name, s)
+    ref, n_cuts = belt_projection_oracle(ab, s, ab.H)
+    assert n_cuts == 2
+    assert np.abs(P - ref).max() < 1e-12
+    # exact Jacobian (smooth part and the moving switches) against central differences
+    h = 1e-7
+    Jfd = np.column_stack(
+        [
+            (
+                ab.project(name, s + h * e, jacobian=False)[0]
+                - ab.project(name, s - h * e, jacobian=False)[0]
+            )
+            / (2 * h)
+            for e in np.eye(ab.size)
+        ]
+    )
+    assert np.abs(J - Jfd).max() < 1e-6 * max(1.0, np.abs(J).max())
+
+
+def test_belt_converges_to_exact_stick_slip_cycle_with_H():
+    from perturb.solve import limit_cycles
+
+    belt = builtin_system("belt")
+    exact = limit_cycles(belt).cycles[0]
+    T, amp = exact.period, float(exact.max_abs()[0])
+    errs = []
+    for H in (5, 9, 25):
+        sol = autonomous_balance_orbit(belt, H)
+        assert sol.jump_width > 0 and sol.stable is True
+        # the exact cycle sticks: its nontrivial multiplier is 0; the HB one is near it
+        assert abs(sol.nontrivial_multipliers[0]) < 0.05
+        errs.append((abs(sol.period - T) / T, abs(sol.amplitudes["x"] - amp) / amp))
+    assert errs[2][0] < errs[1][0] < errs[0][0]
+    assert errs[2][1] < errs[0][1]
+    assert errs[2][0] < 5e-3 and errs[2][1] < 1e-2
+
+
+def test_belt_branch_in_belt_speed():
+    belt = builtin_system("belt")
+    br = autonomous_balance_branch(belt, "v_b", (0.2, 0.3), 9, stability=False)
+    assert br.stop_reasons == ("window", "window")
+    assert br.values[0] == pytest.approx(0.2) and br.values[-1] == pytest.approx(0.3)
+    assert br.stable is None
+    # a faster belt: a larger stick-slip cycle (exact cycle at the edge within the H = 9 error)
+    from perturb.solve import limit_cycles
+
+    exact = limit_cycles(belt.with_params(v_b=0.3)).cycles[0]
+    assert br.amplitudes["x"][-1] == pytest.approx(float(exact.max_abs()[0]), rel=0.02)
+    assert br.period[-1] == pytest.approx(exact.period, rel=0.02)
+    assert br.amplitudes["x"][-1] > br.amplitudes["x"][0]
+
+
+def test_bad_input():
+    damped = System.parse(["x'' + 0.1*x' + x = 0"], name="damped")
+    with pytest.raises(AutonomousBalanceError, match="no self-excited oscillation"):
+        autonomous_balance_orbit(damped, 5)
+    assert issubclass(AutonomousBalanceError, PerturbError)
+    with pytest.raises(ParameterError, match="harmonics"):
+        autonomous_balance_orbit(vdp(1.0), 0)
+    with pytest.raises(ParameterError, match="not in system"):
+        autonomous_balance_branch(vdp(1.0), "mu", (0.1, 1.0), 5)
+    with pytest.raises(ParameterError, match="guess"):
+        autonomous_balance_orbit(vdp(1.0), 5, guess=(1.0, np.zeros((2, 11))))
+    with pytest.raises(ParameterError, match="jump_width"):
+        autonomous_balance_orbit(vdp(1.0), 5, jump_width=-1.0)
+    forced = System.parse(["x'' + 0.1*x' + x + x**3 = cos(Omega*t)"], {"Omega": 1.0})
+    with pytest.raises(ModelError, match="forced"):
+        autonomous_balance_orbit(forced, 5)
+    with pytest.raises(ParameterError, match="start"):
+        autonomous_balance_branch(vdp(1.0), "eps", (0.5, 1.0), 5, start=2.0)
