@@ -851,198 +851,269 @@ def nnm_backbone(
         ) from None
 
 
+@dataclass
+class _Run:
+    """What the orders share: the modes, the symbols, the expansion ``U[n][i]`` (order ``n``,
+    mode ``i``) as it grows, the frequency corrections found so far and the divisors met."""
+
+    model: _Model
+    mode: int
+    order: int
+    method: str
+    harmonics: int
+    lams: tuple[sp.Expr, sp.Expr]
+    omegas: tuple[sp.Expr, sp.Expr]
+    Phi: sp.Matrix
+    rounded: bool
+    A: sp.Symbol
+    tau: sp.Symbol
+    omega: sp.Symbol
+    forces: _Forces
+    U: list[list[Trig]] = field(default_factory=list)
+    w: list[sp.Expr] = field(default_factory=list)  # lp: omega_0 .. omega_n
+    nu_value: sp.Expr = sp.S.Zero  # mlp
+    delta_val: dict[int, sp.Expr] = field(default_factory=dict)  # mlp
+    denominators: dict[int, sp.Expr] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def j(self) -> int:
+        return self.mode - 1
+
+    @property
+    def k(self) -> int:
+        return 2 - self.mode
+
+    @property
+    def ratio2(self) -> list[sp.Expr]:
+        """``r_i^2 = omega_i^2/omega_j^2`` (exactly 1 for the mode itself)."""
+        return [
+            _canon(self.lams[i] / self.lams[self.j]) if i != self.j else sp.S.One for i in (0, 1)
+        ]
+
+
+NU = sp.Symbol("nu")
+
+
 def _derive(model: _Model, mode: int, order: int, method: str, harmonics: int) -> NNMBackbone:
     system = model.system
-    lams, omegas, Phi, numeric, rounded = _modes(model, system.name)
-    j, k = mode - 1, 2 - mode
+    lams, omegas, Phi, _, rounded = _modes(model, system.name)
     A = sp.Symbol("A", positive=True)
-    tau = real_symbol("tau")
     taken = set(system.params) | set(system.coordinates)
     wname = "omega"
     while wname in taken:
         wname += "_r"
-    omega = real_symbol(wname)
-    forces = _Forces(model, Phi, j, A, harmonics)
-    notes: list[str] = []
-    steps = _opening_steps(model, lams, omegas, Phi, forces, mode, method, order, tau, omega)
-    U: list[list[Trig]] = [[{}, {}]]
-    U[0][j] = {1: A}
-    denominators: dict[int, sp.Expr] = {}
-    ufun = [sp.Function(f"u_{i + 1}") for i in range(2)]
-    if method == "lp":
-        w = [omegas[j]]
-        w_sym = [omegas[j]] + [sp.Symbol(f"omega_{n}") for n in range(1, order + 1)]
-    else:
-        nu = sp.Symbol("nu")
-        delta = {n: sp.Symbol(f"delta_{n}") for n in range(2, order + 1)}
-        delta_val: dict[int, sp.Expr] = {}
-        ratio2 = [_canon(lams[i] / lams[j]) if i != j else sp.S.One for i in range(2)]
-    steps.append(
-        derivation_step(
-            "Order zero in $" + ("\\varepsilon" if method == "lp" else "\\alpha") + "$",
-            (
-                equation(ufun[j](tau), A * sp.cos(tau)),
-                equation(ufun[k](tau), 0),
-            ),
-            f"The NNM continues linear mode {mode}: at order zero only $u_{mode}$ moves, with "
-            "the amplitude $A$ of its first harmonic (kept so at every order); the phase is "
-            "set by starting at a turning point, so every term is a cosine.",
-        )
+    run = _Run(
+        model,
+        mode,
+        order,
+        method,
+        harmonics,
+        lams,
+        omegas,
+        Phi,
+        rounded,
+        A,
+        real_symbol("tau"),
+        real_symbol(wname),
+        _Forces(model, Phi, mode - 1, A, harmonics),
     )
+    run.U = [[{}, {}]]
+    run.U[0][run.j] = {1: A}
+    run.w = [omegas[run.j]]
+    steps = _opening_steps(
+        model, lams, omegas, Phi, run.forces, mode, method, order, run.tau, run.omega
+    )
+    steps.append(_order_zero_step(run))
     for n in range(1, order + 1):
-        N = forces.order(U, n - 1)
+        N = run.forces.order(run.U, n - 1)
         if n == 1 and model.pwl:
             cf = closed_form_step(
                 sp.Function(f"nhat_{mode}")(A),
-                N[j].get(1, sp.S.Zero),
+                N[run.j].get(1, sp.S.Zero),
                 f"First harmonic of the force on mode {mode} in closed form",
             )
             if cf is not None:
                 steps.append(derivation_step(cf.title, cf.math, cf.text))
-        rhs: list[Trig] = [{}, {}]
-        if method == "lp":
+        rhs, cond, secular = (_order_lp if method == "lp" else _order_mlp)(run, n, N)
+        run.U.append(_solve_modes(run, rhs))
+        steps.append(_order_step(run, n, rhs, cond, secular))
+    return _result(run, steps)
 
-            def W(i: int, known: list[sp.Expr] = w, n: int = n) -> sp.Expr:
-                return sum(
-                    (known[p] * known[i - p] for p in range(i + 1) if p != n and i - p != n),
-                    sp.S.Zero,
-                )
 
-            for i in range(2):
-                terms = [(-W(ii), _t_dd(U[n - ii][i])) for ii in range(1, n + 1)]
-                rhs[i] = _t_add(*terms, (-1, N[i]))
-            R = sp.expand(rhs[j].get(1, sp.S.Zero))
-            wn = sp.simplify(-R / (2 * omegas[j] * A))
-            w.append(wn)
-            cond = equation(w_sym[n], _tidy(wn))
-            sec = 2 * omegas[j] * w_sym[n] * A
-            lhs_scale = [lams[j], lams[j]]
-            diag = [lams[0], lams[1]]
-            denom = [lams[i] for i in range(2)]
-            scale_m = lams[j]
-        else:
-            for i in range(2):
-                terms = [(-delta_val[ii], _t_dd(U[n - ii][i])) for ii in range(2, n)]
-                terms.append((ratio2[i], U[n - 1][i]))
-                rhs[i] = _t_add(*terms, (-1 / nu, N[i]))
-            R = sp.expand(rhs[j].get(1, sp.S.Zero))
-            if n == 1:
-                # A - nhat_j1/nu = 0
-                nu_val = sp.simplify(N[j].get(1, sp.S.Zero) / A)
-                cond = equation(nu, _tidy(nu_val))
-                sec = sp.S.Zero
-            else:
-                delta_val[n] = sp.simplify(-R / A)
-                cond = equation(delta[n], _tidy(delta_val[n]))
-                sec = delta[n] * A
-            diag = ratio2
-            denom = ratio2
-            scale_m = sp.S.One
-        Un: list[Trig] = [{}, {}]
-        for i in range(2):
-            for m, v in rhs[i].items():
-                if i == j and m == 1:
-                    continue  # the secular term, removed by the condition above
-                d = denom[i] - m**2 * scale_m
-                if i == k and v != 0:
-                    if m not in denominators:
-                        d_lin = lams[k] - m**2 * lams[j]
-                        _check_resonance(system.name, mode, m, d_lin, omegas, v, notes)
-                        denominators[m] = sp.simplify(d_lin)
-                if i == j and m != 1 and d == 0:  # pragma: no cover - m != 1
-                    raise ModelError("secular term in a harmonic other than the first")
-                Un[i][m] = _chop(sp.expand(v / d))
-        U.append(Un)
-        shown = []
-        for i in range(2):
-            lhs = (lhs_scale[i] if method == "lp" else 1) * sp.Derivative(
-                ufun[i](tau), tau, 2
-            ) + diag[i] * ufun[i](tau)
-            shown_i = dict(rhs[i])
-            if i == j and sec != 0:  # the unknown correction joins the first harmonic
-                shown_i[1] = sp.expand(shown_i.get(1, sp.S.Zero) + sec)
-            rhs_shown = _t_expr(shown_i, tau)
-            shown.append(equation(lhs, rhs_shown))
-        sym = "\\varepsilon" if method == "lp" else "\\alpha"
-        steps.append(
-            derivation_step(
-                f"Order {n} in ${sym}$",
-                (
-                    *shown,
-                    cond,
-                    *(equation(ufun[i](tau), _t_expr(Un[i], tau)) for i in range(2)),
-                ),
-                f"Collected by harmonic. No secular term in mode {mode}: the coefficient of "
-                "$\\cos\\tau$ vanishes, which gives "
-                + (
-                    f"the frequency correction $\\omega_{n}$"
-                    if method == "lp"
-                    else ("$\\nu$" if n == 1 else f"$\\delta_{n}$")
-                )
-                + f"; mode {k + 1} is solved harmonic by harmonic (harmonic $m$ divided by "
-                + (
-                    f"$\\omega_{k + 1}^2 - m^2\\omega_{mode}^2$)."
-                    if method == "lp"
-                    else f"$r^2 - m^2$, $r = \\omega_{k + 1}/\\omega_{mode}$)."
-                ),
-            )
-        )
-    # ------------------------------------------------------------------ assembly (par = 1)
-    corrections: dict[str, sp.Expr] = {}
-    if method == "lp":
-        backbone = sp.Add(*w)
-        for n, wn in enumerate(w):
-            corrections[f"omega_{n}"] = wn
-        modal = [
-            sp.Add(*(_t_expr(U[n][i], tau, tidy=False) for n in range(order + 1))) for i in range(2)
-        ]
-        shown_backbone = equation(omega, sp.Add(*(_tidy(x) for x in w), evaluate=False))
-        extra: list[sp.Basic] = []
+def _order_zero_step(run: _Run) -> Step:
+    ufun = [sp.Function(f"u_{i + 1}") for i in range(2)]
+    return derivation_step(
+        "Order zero in $" + ("\\varepsilon" if run.method == "lp" else "\\alpha") + "$",
+        (
+            equation(ufun[run.j](run.tau), run.A * sp.cos(run.tau)),
+            equation(ufun[run.k](run.tau), 0),
+        ),
+        f"The NNM continues linear mode {run.mode}: at order zero only $u_{run.mode}$ moves, "
+        "with the amplitude $A$ of its first harmonic (kept so at every order); the phase is "
+        "set by starting at a turning point, so every term is a cosine.",
+    )
+
+
+def _order_lp(run: _Run, n: int, N: list[Trig]):
+    """L-P order ``n``: the right-hand sides of ``omega_j^2 u_n'' + Lambda u_n = ...`` without
+    the unknown ``omega_n``, which the secular condition gives (appended to ``run.w``)."""
+    w, U, j = run.w, run.U, run.j
+
+    def W(i: int) -> sp.Expr:  # sum_{p+q=i} omega_p omega_q, omega_n left out
+        return sum((w[p] * w[i - p] for p in range(i + 1) if p != n and i - p != n), sp.S.Zero)
+
+    rhs = [
+        _t_add(*((-W(ii), _t_dd(U[n - ii][i])) for ii in range(1, n + 1)), (-1, N[i]))
+        for i in range(2)
+    ]
+    # omega_n enters as -2 omega_j omega_n u_0'' = 2 omega_j omega_n A cos(tau)
+    wn = sp.simplify(-sp.expand(rhs[j].get(1, sp.S.Zero)) / (2 * run.omegas[j] * run.A))
+    w.append(wn)
+    w_n = sp.Symbol(f"omega_{n}")
+    return rhs, equation(w_n, _tidy(wn)), 2 * run.omegas[j] * w_n * run.A
+
+
+def _order_mlp(run: _Run, n: int, N: list[Trig]):
+    """mLP order ``n``: ``u_n'' + R u_n = -sum delta_i u_{n-i}'' + R u_{n-1} - N_{n-1}/nu``;
+    order 1 gives ``nu``, order ``n >= 2`` gives ``delta_n``."""
+    U, j, r2 = run.U, run.j, run.ratio2
+    rhs = []
+    for i in range(2):
+        terms = [(-run.delta_val[ii], _t_dd(U[n - ii][i])) for ii in range(2, n)]
+        rhs.append(_t_add(*terms, (r2[i], U[n - 1][i]), (-1 / NU, N[i])))
+    if n == 1:  # A - nhat_j1/nu = 0
+        run.nu_value = sp.simplify(N[j].get(1, sp.S.Zero) / run.A)
+        return rhs, equation(NU, _tidy(run.nu_value)), sp.S.Zero
+    # delta_n enters as -delta_n u_0'' = delta_n A cos(tau)
+    run.delta_val[n] = sp.simplify(-sp.expand(rhs[j].get(1, sp.S.Zero)) / run.A)
+    d_n = sp.Symbol(f"delta_{n}")
+    return rhs, equation(d_n, _tidy(run.delta_val[n])), d_n * run.A
+
+
+def _solve_modes(run: _Run, rhs: list[Trig]) -> list[Trig]:
+    """Harmonic ``m`` of mode ``i``: divided by ``lambda_i - m^2 lambda_j`` (lp) or
+    ``r_i^2 - m^2`` (mlp); the secular harmonic of mode ``j`` is zero; every divisor of the
+    other mode is checked for an internal resonance."""
+    j, k, lams = run.j, run.k, run.lams
+    if run.method == "lp":
+        denom, scale = list(lams), lams[j]
     else:
-        alpha_val = nu_val / (lams[j] + nu_val)
-        factor = 1 + sp.Add(*(delta_val[n] * nu**n / (lams[j] + nu) ** n for n in delta_val))
-        omega2 = ((lams[j] + nu) * factor).xreplace({nu: nu_val})
-        backbone = sp.sqrt(omega2)
-        corrections["nu"] = nu_val
-        corrections["alpha"] = sp.simplify(alpha_val)
-        for n, dv in delta_val.items():
-            corrections[f"delta_{n}"] = _simplify(dv.xreplace({nu: nu_val}))
-        beta = 1 / (lams[j] + nu)
-        modal = []
-        for i in range(2):
-            total = sp.S.Zero
-            for n in range(order + 1):
-                scaled = {m: sp.expand(v * nu**n) for m, v in U[n][i].items()}
-                total += beta**n * _t_expr(scaled, tau, tidy=False)
-            modal.append(total.xreplace({nu: nu_val}))
-        shown_backbone = equation(
-            omega,
+        denom, scale = run.ratio2, sp.S.One
+    out: list[Trig] = [{}, {}]
+    for i in range(2):
+        for m, v in rhs[i].items():
+            if i == j and m == 1:
+                continue  # the secular term, removed by the condition
+            if i == k and m not in run.denominators:
+                d_lin = lams[k] - m**2 * lams[j]
+                _check_resonance(
+                    run.model.system.name, run.mode, m, d_lin, run.omegas, v, run.notes
+                )
+                run.denominators[m] = sp.simplify(d_lin)
+            out[i][m] = _chop(sp.expand(v / (denom[i] - m**2 * scale)))
+    return out
+
+
+def _order_step(run: _Run, n: int, rhs: list[Trig], cond: sp.Equality, secular) -> Step:
+    """The equations of order ``n`` collected by harmonic, the condition and the solution."""
+    tau, j, k, mode = run.tau, run.j, run.k, run.mode
+    ufun = [sp.Function(f"u_{i + 1}") for i in range(2)]
+    if run.method == "lp":
+        scale, diag = run.lams[j], run.lams
+    else:
+        scale, diag = sp.S.One, run.ratio2
+    shown = []
+    for i in range(2):
+        lhs = scale * sp.Derivative(ufun[i](tau), tau, 2) + diag[i] * ufun[i](tau)
+        shown_i = dict(rhs[i])
+        if i == j and secular != 0:  # the unknown correction joins the first harmonic
+            shown_i[1] = sp.expand(shown_i.get(1, sp.S.Zero) + secular)
+        shown.append(equation(lhs, _t_expr(shown_i, tau)))
+    sym = "\\varepsilon" if run.method == "lp" else "\\alpha"
+    if run.method == "lp":
+        gives = f"the frequency correction $\\omega_{n}$"
+        divisor = f"$\\omega_{k + 1}^2 - m^2\\omega_{mode}^2$)."
+    else:
+        gives = "$\\nu$" if n == 1 else f"$\\delta_{n}$"
+        divisor = f"$r^2 - m^2$, $r = \\omega_{k + 1}/\\omega_{mode}$)."
+    return derivation_step(
+        f"Order {n} in ${sym}$",
+        (
+            *shown,
+            cond,
+            *(equation(ufun[i](tau), _t_expr(run.U[n][i], tau)) for i in range(2)),
+        ),
+        f"Collected by harmonic. No secular term in mode {mode}: the coefficient of "
+        f"$\\cos\\tau$ vanishes, which gives {gives}; mode {k + 1} is solved harmonic by "
+        f"harmonic (harmonic $m$ divided by {divisor}",
+    )
+
+
+def _assemble_lp(run: _Run):
+    """Backbone ``sum omega_n``, modal waveforms ``sum u_n`` and the result's equations."""
+    corrections = {f"omega_{n}": wn for n, wn in enumerate(run.w)}
+    modal = [
+        sp.Add(*(_t_expr(run.U[n][i], run.tau, tidy=False) for n in range(run.order + 1)))
+        for i in range(2)
+    ]
+    shown = [equation(run.omega, sp.Add(*(_tidy(x) for x in run.w), evaluate=False))]
+    return sp.Add(*run.w), corrections, modal, shown
+
+
+def _assemble_mlp(run: _Run):
+    """``omega^2 = (omega_j^2 + nu)(1 + sum delta_n alpha^n)``, ``alpha = nu/(omega_j^2 +
+    nu)``; each ``alpha^n u_n`` written as ``beta^n (nu^n u_n)``, ``beta = 1/(omega_j^2 + nu)``,
+    so that nothing is singular where ``nu`` vanishes; then ``nu`` replaced by its value."""
+    lam, nu_val, dv, alpha = run.lams[run.j], run.nu_value, run.delta_val, sp.Symbol("alpha")
+    factor = 1 + sp.Add(*(dv[n] * NU**n / (lam + NU) ** n for n in dv))
+    backbone = sp.sqrt(((lam + NU) * factor).xreplace({NU: nu_val}))
+    corrections = {"nu": nu_val, "alpha": sp.simplify(nu_val / (lam + nu_val))}
+    for n, d in dv.items():
+        corrections[f"delta_{n}"] = _simplify(d.xreplace({NU: nu_val}))
+    beta = 1 / (lam + NU)
+    modal = []
+    for i in range(2):
+        total = sp.S.Zero
+        for n in range(run.order + 1):
+            scaled = {m: sp.expand(v * NU**n) for m, v in run.U[n][i].items()}
+            total += beta**n * _t_expr(scaled, run.tau, tidy=False)
+        modal.append(total.xreplace({NU: nu_val}))
+    deltas = [sp.Symbol(f"delta_{n}") for n in dv]
+    shown = [
+        equation(NU, _tidy(nu_val)),
+        equation(alpha, NU / (lam + NU)),
+        *(equation(sp.Symbol(f"delta_{n}"), corrections[f"delta_{n}"]) for n in dv),
+        equation(
+            run.omega,
             sp.sqrt(
-                (lams[j] + nu)
-                * (1 + sp.Add(*(delta[n] * sp.Symbol("alpha") ** n for n in delta_val)))
+                (lam + NU) * (1 + sp.Add(*(d * alpha**n for n, d in zip(dv, deltas, strict=True))))
             ),
-        )
-        extra = [
-            equation(nu, _tidy(nu_val)),
-            equation(sp.Symbol("alpha"), nu / (lams[j] + nu)),
-            *(equation(delta[n], corrections[f"delta_{n}"]) for n in delta_val),
-        ]
+        ),
+        equation(run.omega, _simplify(backbone)),
+    ]
+    return backbone, corrections, modal, shown
+
+
+def _result(run: _Run, steps: list[Step]) -> NNMBackbone:
+    """The result with the expansion parameter set to one: backbone, waveforms ``q = Phi u``,
+    the result and validity steps, and the :class:`NNMBackbone`."""
+    model, tau = run.model, run.tau
+    backbone, corrections, modal, shown = (
+        _assemble_lp(run) if run.method == "lp" else _assemble_mlp(run)
+    )
     backbone = _simplify(backbone)
     modal = [_simplify_wave(m, tau) for m in modal]
-    q = Phi * sp.Matrix(modal)
-    waves = tuple(_simplify_wave(sp.expand(v), tau) for v in q)
+    waves = tuple(_simplify_wave(sp.expand(v), tau) for v in run.Phi * sp.Matrix(modal))
     params = sorted(
-        (backbone.free_symbols | set().union(*(wv.free_symbols for wv in waves))) - {A, tau},
+        (backbone.free_symbols | set().union(*(wv.free_symbols for wv in waves))) - {run.A, tau},
         key=lambda s: s.name,
     )
-    values = {p.name: system.params.get(p.name) for p in params}
     steps.append(
         derivation_step(
-            "Result with $\\varepsilon = 1$" if method == "lp" else "Result",
+            "Result with $\\varepsilon = 1$" if run.method == "lp" else "Result",
             (
-                *extra,
-                shown_backbone,
-                *((equation(omega, backbone),) if method == "mlp" else ()),
+                *shown,
                 *(
                     equation(sp.Function(nm)(tau), _wave_shown(v, tau))
                     for nm, v in zip(model.names, waves, strict=True)
@@ -1051,43 +1122,46 @@ def _derive(model: _Model, mode: int, order: int, method: str, harmonics: int) -
             "The backbone (frequency-amplitude relation) of the NNM and its waveform in the "
             "physical coordinates, $q = \\Phi u$"
             + (
-                f"; harmonics above {harmonics} of the piecewise-linear force are dropped."
+                f"; harmonics above {run.harmonics} of the piecewise-linear force are dropped."
                 if model.pwl
                 else "."
             ),
         )
     )
-    if rounded:
+    notes = list(run.notes)
+    if run.rounded:
         notes.append(
             "the exact modal data are nested radicals: frequencies and mode shapes are used in "
             f"floating point ({DIGITS} digits; the derivation prints {TEXT_DIGITS})"
         )
-    notes += _validity_notes(model, method, mode, omegas)
-    steps.append(_validity_step(model, method, mode, omegas, denominators, rounded))
-    options = {"mode": mode, "order": order, "method": method}
+    notes += _validity_notes(model, run.method, run.mode, run.omegas)
+    steps.append(
+        _validity_step(model, run.method, run.mode, run.omegas, run.denominators, run.rounded)
+    )
+    options: dict[str, Any] = {"mode": run.mode, "order": run.order, "method": run.method}
     if model.pwl:
-        options["harmonics"] = harmonics
+        options["harmonics"] = run.harmonics
     return NNMBackbone(
-        system=system,
-        method=method,
-        mode=mode,
-        order=order,
+        system=model.system,
+        method=run.method,
+        mode=run.mode,
+        order=run.order,
         options=MappingProxyType(options),
         coordinates=model.names,
         mass=sp.ImmutableMatrix(model.M),
         reference_stiffness=sp.ImmutableMatrix(model.Kbar),
-        natural_frequencies=(omegas[0], omegas[1]),
-        modal_matrix=sp.ImmutableMatrix(Phi),
-        amplitude=A,
+        natural_frequencies=(run.omegas[0], run.omegas[1]),
+        modal_matrix=sp.ImmutableMatrix(run.Phi),
+        amplitude=run.A,
         tau=tau,
-        frequency=omega,
+        frequency=run.omega,
         corrections=MappingProxyType(corrections),
         backbone=backbone,
         modal_waveforms=(modal[0], modal[1]),
         waveforms=waves,
         parameters=tuple(params),
-        values=MappingProxyType(values),
-        resonance_denominators=tuple(sorted(denominators.items())),
+        values=MappingProxyType({p.name: model.system.params.get(p.name) for p in params}),
+        resonance_denominators=tuple(sorted(run.denominators.items())),
         steps=tuple(steps),
         notes=tuple(notes),
     )
