@@ -1363,8 +1363,22 @@ class BalanceCycle:
         if self._dense is None:
             self._dense = self.sample_states(self._SAMPLES)[1]
         if output is None:
-            return np.abs(self._dense).max(axis=1)
-        return float(np.abs(np.asarray(output, dtype=float) @ self._dense).max())
+            return np.array([self._peak(row) for row in self._dense])
+        return self._peak(np.asarray(output, dtype=float) @ self._dense)
+
+    @staticmethod
+    def _peak(values: Any) -> float:
+        """``max |v|`` of periodic samples, the largest refined by the parabola through it and
+        its neighbours (the sampled maximum alone is off by ~(pi/N)^2 of the curvature)."""
+        import numpy as np
+
+        a = np.abs(values)
+        i = int(np.argmax(a))
+        y0, y1, y2 = a[i - 1], a[i], a[(i + 1) % a.size]
+        den = y0 - 2 * y1 + y2
+        if den >= 0:  # a kink or a flat top: the sample is the best there is
+            return float(y1)
+        return float(y1 - 0.125 * (y2 - y0) ** 2 / den)
 
     def __repr__(self) -> str:
         return f"BalanceCycle(period {self.period:.10g}, {self.stability})"

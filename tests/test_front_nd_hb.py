@@ -163,3 +163,45 @@ def test_methods_that_do_not_take_systems_name_those_that_do(nsd2):
         frequency_response(nsd2, "shb", WINDOW, harmonics=(1, 3))
     with pytest.raises(ParameterError, match="order"):
         frequency_response(nsd2, "hb1", WINDOW, order=2)
+
+
+def vdp_cycle_oracle(eps):
+    """Period and max |x| of the van der Pol limit cycle: a long DOP853 run (rtol 1e-12),
+    upward zero crossings of x located on the dense output by brentq."""
+    from scipy.optimize import brentq
+
+    def f(t, y):
+        return [y[1], eps * (1 - y[0] ** 2) * y[1] - y[0]]
+
+    sol = solve_ivp(
+        f, (0, 300), [2.0, 0.0], method="DOP853", rtol=1e-12, atol=1e-12, dense_output=True
+    )
+    t = np.linspace(200, 300, 200001)
+    x = sol.sol(t)[0]
+    idx = np.flatnonzero((x[:-1] < 0) & (x[1:] >= 0))
+    ups = [brentq(lambda s: sol.sol(s)[0], t[i], t[i + 1], xtol=1e-14) for i in idx]
+    period = float(np.mean(np.diff(ups)))
+    tt = np.linspace(ups[-2], ups[-1], 200001)
+    return period, float(np.abs(sol.sol(tt)[0]).max())
+
+
+def test_limit_cycles_by_autonomous_balance():
+    from perturb.model.system import System
+    from perturb.solve import limit_cycles, orbit_columns
+
+    vdp = System.parse(["x'' - eps*(1 - x**2)*x' + x = 0"], {"eps": 1.0})
+    period, amp = vdp_cycle_oracle(1.0)
+    found = limit_cycles(vdp, method="hb", harmonics=31)
+    (cycle,) = found.cycles
+    assert cycle.period == pytest.approx(period, rel=1e-9)
+    assert orbit_columns(vdp, cycle)["amplitude_x"] == pytest.approx(amp, rel=1e-9)
+    assert cycle.stability == "stable"
+    # fewer harmonics: a larger error, still measured against the same oracle
+    coarse = limit_cycles(vdp, method="hb", harmonics=7).cycles[0]
+    assert abs(coarse.period - period) > 1e3 * abs(cycle.period - period)
+    with pytest.raises(ParameterError, match="harmonics"):
+        limit_cycles(vdp, harmonics=7)
+    with pytest.raises(ParameterError, match="grid"):
+        limit_cycles(vdp, method="hb", grid=5)
+    with pytest.raises(ParameterError, match="'exact'.*'hb'"):
+        limit_cycles(vdp, method="shooting")
