@@ -404,3 +404,13 @@ def test_forces_without_a_potential_or_symmetry_are_refused():
     unstable = System.parse(["x1'' - x1 + eps*x1**3 = 0", "x2'' + x2 = 0"])
     with pytest.raises(ModelError, match="eigenvalue omega\\*\\*2 = -1"):
         nnm_backbone(unstable, 1)
+
+
+def test_near_internal_resonance_is_stated_in_the_notes():
+    # omega_2/omega_1 = sqrt(9.3) ~ 3.05: the divisor omega_2^2 - 9 omega_1^2 = 0.3 is small
+    near = System.parse(
+        ["x1'' + x1 + eps*(x1 + x2)**3 = 0", "x2'' + 93/10*x2 + eps*(x1 + x2)**3 = 0"]
+    )
+    r = nnm_backbone(near, 1, 1)
+    assert any("near internal resonance omega_2 ~ 3*omega_1" in n for n in r.notes), r.notes
+    assert dict(r.resonance_denominators)[3] == sp.Rational(3, 10)
