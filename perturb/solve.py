@@ -116,6 +116,8 @@ __all__ = [
     "system_time_history",
     "SystemHistory",
     "derive",
+    "derive_system",
+    "SYSTEM_DERIVATIONS",
     "trace_approximation",
     "ALIASES",
     "MAX_HARMONICS",
@@ -2354,6 +2356,83 @@ def _system_auto(
         system, Omega, rtol, output=output, frequencies=frequencies, **options
     )
     return resp
+
+
+#: The symbolic derivations of a system (:func:`derive_system`): name -> (target, what,
+#: options).
+SYSTEM_DERIVATIONS: dict[str, tuple[str, str, tuple[str, ...]]] = {
+    "hb1": (
+        "perturb.methods.system_harmonic_balance:system_single_harmonic_balance",
+        "single-harmonic balance / describing functions of n coordinates",
+        ("bias",),
+    ),
+    "ms-ir": (
+        "perturb.methods.system_averaging:internal_resonance_slow_flow",
+        "first-order multiple scales / averaging of two coordinates with a 1:1 or 1:3 "
+        "internal resonance (slow flow)",
+        ("resonance", "near", "tolerance"),
+    ),
+    "nnm": (
+        "perturb.methods.system_lindstedt:nnm_backbone",
+        "Lindstedt-Poincare / modified L-P backbone of a nonlinear normal mode of a "
+        "conservative two-coordinate system",
+        ("mode", "order", "method", "harmonics"),
+    ),
+}
+#: Other names of :data:`SYSTEM_DERIVATIONS` entries.
+SYSTEM_DERIVATION_ALIASES = {"shb": "hb1", "internal-resonance": "ms-ir", "nnm-lp": "nnm"}
+
+
+def derive_system(system: Any, method: str, **options: Any) -> Any:
+    """The symbolic derivation ``method`` of a system of several coordinates.
+
+    Parameters
+    ----------
+    system
+        A :class:`~perturb.model.system.System`.
+    method
+        ``"hb1"`` (alias ``"shb"``): :func:`perturb.methods.system_harmonic_balance.
+        system_single_harmonic_balance` (option ``bias``); ``"ms-ir"`` (alias
+        ``"internal-resonance"``): :func:`perturb.methods.system_averaging.
+        internal_resonance_slow_flow` (``resonance`` ``"1:1"``/``"1:3"``, ``near``,
+        ``tolerance``); ``"nnm"``: :func:`perturb.methods.system_lindstedt.nnm_backbone`
+        (``mode``, ``order``, ``method`` ``"lp"``/``"mlp"``, ``harmonics``).
+
+    Returns
+    -------
+    The method's result (``SystemHarmonicBalance``, ``InternalResonanceSlowFlow`` or
+    ``NNMBackbone``): printable, with ``steps`` (``perturb.report.latex.derivation_body``).
+
+    Raises
+    ------
+    ParameterError
+        An unknown method (listing those there are) or an option it does not take.
+    ModelError
+        What the method refuses (its message names the reason).
+    """
+    import importlib
+
+    if not is_system(system):
+        raise ParameterError(
+            f"system = {system!r:.80}: expected a perturb System (an oscillator takes "
+            "perturb.solve.derive)"
+        )
+    name = SYSTEM_DERIVATION_ALIASES.get(method, method) if isinstance(method, str) else method
+    if name not in SYSTEM_DERIVATIONS:
+        aliases = ", ".join(f"{a} = {n}" for a, n in SYSTEM_DERIVATION_ALIASES.items())
+        raise ParameterError(
+            f"method {method!r}: the derivations of a system are "
+            f"{', '.join(SYSTEM_DERIVATIONS)} (aliases {aliases})"
+        )
+    target, _, takes = SYSTEM_DERIVATIONS[name]
+    unknown = sorted(k for k, v in options.items() if k not in takes and v is not None)
+    if unknown:
+        raise ParameterError(
+            f"{', '.join(unknown)}: not options of {name!r} (it takes: {', '.join(takes)})"
+        )
+    module, _, attr = target.partition(":")
+    fn = getattr(importlib.import_module(module), attr)
+    return fn(system, **{k: v for k, v in options.items() if v is not None})
 
 
 #: At most this many HB points of a response are checked against exact orbits

@@ -988,6 +988,8 @@ def _cmd_derive(args: argparse.Namespace) -> int:
     from perturb.solve import derive
 
     _check_outputs(latex=args.latex, json=args.json)
+    if _names_system(args.model):
+        return _derive_system(args)
     method = spec(args.method, what="method")
     if method.kind != "symbolic":
         raise PerturbError(
@@ -1006,6 +1008,50 @@ def _cmd_derive(args: argparse.Namespace) -> int:
     # wrapped to the terminal (at most 100 columns); long equations as one summary line each,
     # the full text is in the --latex / --json files
     print(approx.summary())
+    return 0
+
+
+def _derive_system(args: argparse.Namespace) -> int:
+    """``perturb derive METHOD SYSTEM``: a system's symbolic derivation
+    (:func:`perturb.solve.derive_system`: hb1, ms-ir, nnm), printed; ``--latex`` writes the
+    derivation as a LaTeX document, ``--order`` is the order of ``nnm``."""
+    from perturb.solve import SYSTEM_DERIVATION_ALIASES, SYSTEM_DERIVATIONS, derive_system
+
+    name = SYSTEM_DERIVATION_ALIASES.get(args.method, args.method)
+    if name not in SYSTEM_DERIVATIONS:
+        raise ParameterError(
+            f"method {args.method!r}: {args.model!r} is a system of several coordinates; its "
+            f"derivations are {', '.join(SYSTEM_DERIVATIONS)} ("
+            + "; ".join(f"{k}: {v[1]}" for k, v in SYSTEM_DERIVATIONS.items())
+            + ")"
+        )
+    if args.json:
+        raise ParameterError(
+            "--json: the JSON codec holds one-coordinate approximations; a system's derivation "
+            "is written with --latex"
+        )
+    options = {}
+    if args.order is not None:
+        if name != "nnm":
+            raise ParameterError(f"--order {args.order}: an option of nnm, not of {name}")
+        options["order"] = args.order
+    params = dict(parse_param(p) for p in args.param or ())
+    system = _model_from_arg(args.model, params)
+    result = derive_system(system, name, **options)
+    if args.latex:
+        if hasattr(result, "latex_document"):
+            text = result.latex_document()
+        else:
+            from perturb.report.latex import derivation_body
+
+            title = f"{name} of the system {system.name}".replace("_", r"\_")
+            text = (
+                "\\documentclass[11pt]{article}\n\\usepackage[margin=2cm]{geometry}\n"
+                "\\usepackage{amsmath,amssymb}\n\\allowdisplaybreaks\n\\begin{document}\n"
+                f"\\section*{{{title}}}\n{derivation_body(result.steps)}\n\\end{{document}}\n"
+            )
+        _write_text(args.latex, text)
+    print(str(result))
     return 0
 
 
