@@ -418,7 +418,7 @@ def test_simulate_systems_with_stops_and_drift():
         (("frc", "nsd2", "--method", "mlp"), "mlp.*one coordinate.*--method exact"),
         (("frc", "nsd2", "--harmonics", "5"), "--harmonics.*one coordinate"),
         (("frc", "nsd2", "--param", "Omega=1"), "--omega"),
-        (("derive", "hb1", "nsd2"), "several coordinates"),
+        (("derive", "mlp", "nsd2"), "several coordinates"),
         (("simulate", "nsd2", "--y0", "1,2"), "4 numbers.*x1, x2, x1', x2'"),
         (("simulate", "nsd2", "--method", "lcp"), "one coordinate"),
         (("periodic", "belt", "--omega", "1"), "Omega"),
