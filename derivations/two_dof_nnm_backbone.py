@@ -99,7 +99,9 @@ def shoot(rhs: Rhs, a: float, c0: float, T0: float) -> tuple[float, float]:
         return sol.y[2:, -1]
 
     out = root(res, [c0, T0], method="hybr", options={"xtol": 1e-13})
-    if np.max(np.abs(res(out.x))) > 1e-10 or abs(out.x[1] / T0 - 1) > 0.3:
+    # accepted on the residual, not on hybr's progress test: the device's kinks hold DOP853's
+    # velocities at ~1e-9 (a period error of the same size), the smooth systems at ~1e-13
+    if np.max(np.abs(res(out.x))) > 1e-8 or abs(out.x[1] / T0 - 1) > 0.3:
         raise RuntimeError(f"shooting failed at a = {a}: {out.message}")
     return float(out.x[0]), float(out.x[1])
 

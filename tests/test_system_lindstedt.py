@@ -62,8 +62,9 @@ def shoot(rhs, a: float, c0: float, T0: float) -> tuple[float, float]:
         return sol.y[2:, -1]
 
     out = root(half_period_velocities, [c0, T0], method="hybr", options={"xtol": 1e-13})
-    # an exact guess (an invariant mode) ends with "no progress" at a zero residual
-    assert np.max(np.abs(half_period_velocities(out.x))) < 1e-10, out.message
+    # accepted on the residual: an exact guess (an invariant mode) ends with "no progress" at
+    # a zero residual, and the nsd2 kinks hold DOP853's velocities at ~1e-10..1e-9
+    assert np.max(np.abs(half_period_velocities(out.x))) < 1e-8, out.message
     # v(T/2) = 0 also holds at odd multiples of the half period: stay on the continued orbit
     assert abs(out.x[1] / T0 - 1) < 0.3, (T0, out.x)
     return float(out.x[0]), float(out.x[1])
