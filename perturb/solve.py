@@ -593,6 +593,11 @@ def _hb_solutions_at(
 #: (:mod:`perturb.methods.system_harmonic_balance`: ``"hb1"`` with the bias its derivation
 #: decides, ``"shb"`` with ``bias=`` and the harmonic set ``(1,)``) and the automatic choice.
 SYSTEM_METHODS = ("exact", "hb", "hb1", "shb", "auto")
+#: Methods of systems only (not in the registry of one-coordinate methods): the slow flow of
+#: two coordinates with an internal resonance (:func:`_system_ms_ir`).
+SYSTEM_ONLY_METHODS = ("ms-ir", "internal-resonance")
+#: Options of ``"ms-ir"`` (:func:`_system_ms_ir`).
+SYSTEM_MS_IR_OPTIONS = ("resonance", "near", "tolerance", "stability", "ds_max", "max_points")
 #: Options of the symbolic single-harmonic balance of a system (:func:`_system_shb`).
 SYSTEM_SHB_OPTIONS = ("bias", "harmonics", "stability", "all_branches", "ds_max", "max_points")
 #: Options of ``method="auto"`` for a system (:func:`perturb.auto.auto_system_response`).
@@ -1925,6 +1930,8 @@ def _system_response(
         A method other than ``"exact"`` (the approximations take one coordinate), or an
         option ``"exact"`` does not take.
     """
+    if method in SYSTEM_ONLY_METHODS:
+        return _system_ms_ir(system, Omega, frequencies, output, dict(options))
     spec = registry.spec("exact" if method is None else method)
     if spec.name not in SYSTEM_METHODS:
         raise ParameterError(
@@ -2108,6 +2115,7 @@ def system_method_text() -> str:
     return (
         "exact: continuation of exact orbits; hb: numeric multi-harmonic balance, harmonics=H; "
         "hb1 / shb: symbolic single-harmonic balance (describing functions; shb takes bias=); "
+        "ms-ir: slow flow of two coordinates with a 1:1 or 1:3 internal resonance; "
         "auto: the cheapest of those meeting rtol at exact spot checks"
     )
 
@@ -2356,6 +2364,292 @@ def _system_auto(
         system, Omega, rtol, output=output, frequencies=frequencies, **options
     )
     return resp
+
+
+class SlowFlowSolver:
+    """The fixed points of an internal-resonance slow flow
+    (:class:`~perturb.methods.system_averaging.InternalResonanceSlowFlow`) as numbers: the slow
+    flow ``F(x, Omega)`` in the Cartesian amplitudes ``x = (p_1, q_1, p_2, q_2)``, its Jacobian,
+    ``dF/dOmega``, and the waveforms ``q_i(t)`` they stand for, the parameter values bound.
+
+    Parameters
+    ----------
+    flow
+        The derivation (:func:`derive_system` with ``"ms-ir"``).
+    system
+        The system it was derived from (state names, output combinations).
+    """
+
+    _SAMPLES = 512
+
+    def __init__(self, flow: Any, system: Any) -> None:
+        import sympy as sp
+
+        from perturb.numeric.compile import lambdify
+
+        self.flow, self.system = flow, system
+        args = tuple(flow.arguments)
+        W = args[len(flow.cartesian)]
+        values = []
+        for p in flow.parameters:
+            v = flow.values.get(str(p))
+            if v is None:
+                raise ParameterError(
+                    f"parameter {p} of system {system.name!r} has no value: the slow flow needs "
+                    "numbers to be solved"
+                )
+            values.append(float(v))
+        self._values = values
+        self._F = lambdify(args, list(flow.slow_flow))
+        self._J = lambdify(args, list(sp.ImmutableMatrix(flow.jacobian)))
+        self._dW = lambdify(args, [sp.diff(e, W) for e in flow.slow_flow])
+        t = next(
+            (s for w in flow.waveforms for s in w.free_symbols if s.name == "t"), sp.Symbol("t")
+        )
+        self._wave = lambdify((*args, t), list(flow.waveforms))
+        self._period = lambdify((W, *flow.parameters), flow.period)
+        self.n = len(flow.cartesian)
+
+    def residual(self, x: Any, W: float) -> Any:
+        import numpy as np
+
+        return np.array([float(v) for v in self._F(*x, W, *self._values)])
+
+    def jacobians(self, x: Any, W: float) -> tuple[Any, Any]:
+        import numpy as np
+
+        J = np.array([float(v) for v in self._J(*x, W, *self._values)]).reshape(self.n, self.n)
+        return J, np.array([float(v) for v in self._dW(*x, W, *self._values)])
+
+    def newton(self, x: Any, W: float, iterations: int = 40) -> Any:
+        """A fixed point from ``x`` (damped Newton); None without convergence."""
+        import numpy as np
+
+        x = np.asarray(x, dtype=float).copy()
+        for _ in range(iterations):
+            F = self.residual(x, W)
+            J, _ = self.jacobians(x, W)
+            try:
+                dx = np.linalg.solve(J, -F)
+            except np.linalg.LinAlgError:
+                return None
+            step = 1.0
+            for _ in range(8):  # halvings: the slow flow is polynomial, steps may overshoot
+                if np.linalg.norm(self.residual(x + step * dx, W)) < np.linalg.norm(F) or (
+                    np.linalg.norm(F) < 1e-13
+                ):
+                    break
+                step *= 0.5
+            x = x + step * dx
+            if np.abs(step * dx).max() <= 1e-12 * max(1.0, np.abs(x).max()):
+                return x if np.linalg.norm(self.residual(x, W)) <= 1e-9 else None
+        return None
+
+    def states(self, x: Any, W: float, samples: int | None = None) -> tuple[Any, Any]:
+        """``(t, Y)``: the states ``(q, q')`` of the waveform over one period (velocities by
+        FFT differentiation of the periodic samples)."""
+        import numpy as np
+
+        n = samples or self._SAMPLES
+        T = float(self._period(W, *self._values))
+        t = T * np.arange(n) / n
+        q = np.array([np.broadcast_to(v, t.shape) for v in self._wave(*x, W, *self._values, t)])
+        k = np.fft.rfftfreq(n, d=T / n) * 2 * np.pi
+        v = np.fft.irfft(1j * k * np.fft.rfft(q, axis=1), n=n, axis=1)
+        return t, np.vstack([q, v])
+
+    def measures(self, x: Any, W: float, c: Any) -> tuple[float, dict[str, float], Any, float]:
+        """``max |c . y|``, every coordinate's ``max |.|`` (parabola-refined samples), the
+        state at ``t = 0`` and the output's amplitude at the forcing frequency."""
+        import numpy as np
+
+        _, Y = self.states(x, W)
+        coords = {name: BalanceCycle._peak(Y[j]) for j, name in enumerate(self.system.coordinates)}
+        s = c @ Y
+        # the period spans m forcing periods (m = 3 when the forcing is near the upper mode
+        # of a 1:3 resonance): the forcing frequency is harmonic m of the samples
+        m = max(1, round(float(self._period(W, *self._values)) * W / (2 * np.pi)))
+        z = np.fft.rfft(s) / s.size
+        first = float(2 * abs(z[m])) if m < z.size else 0.0
+        return BalanceCycle._peak(s), coords, Y[:, 0].copy(), first
+
+    def stable(self, x: Any, W: float) -> tuple[bool, float]:
+        """Stable when every eigenvalue of the slow flow's Jacobian has a negative real part;
+        the Floquet multiplier estimate ``max |exp(lambda T)|``."""
+        import numpy as np
+
+        J, _ = self.jacobians(x, W)
+        lam = np.linalg.eigvals(J)
+        T = float(self._period(W, *self._values))
+        return bool(np.max(lam.real) < 0), float(np.max(np.abs(np.exp(lam * T))))
+
+
+def _system_ms_ir(
+    system: Any,
+    Omega: Sequence[float],
+    frequencies: Sequence[float] | None,
+    output: str | None,
+    options: dict[str, Any],
+    seeds: Sequence[tuple[float, Any]] = (),
+) -> Any:
+    """Method ``"ms-ir"`` for a system of two coordinates with a 1:1 or 1:3 internal
+    resonance: the fixed points of the first-order slow flow
+    (:func:`perturb.methods.system_averaging.internal_resonance_slow_flow`) traced over the
+    window by the continuation core (seeds: Newton from the rest state and from scaled copies of
+    the first fixed point at both edges and three interior frequencies, and ``seeds``), or
+    solved at listed frequencies; stability from the slow flow's Jacobian. Amplitudes are
+    ``max |.|`` of the waveforms ``q = Phi eta`` the fixed points stand for.
+
+    Raises
+    ------
+    ParameterError
+        An option it does not take (listing those it does).
+    ModelError
+        What the derivation refuses (not two coordinates, no internal resonance within
+        ``tolerance``, PWL under 1:3, stops, ...).
+    """
+    import numpy as np
+
+    from perturb.numeric.continuation import ContinuationError, continue_curve
+    from perturb.response import Branch
+
+    unknown = sorted(set(options) - set(SYSTEM_MS_IR_OPTIONS))
+    if unknown:
+        raise ParameterError(
+            f"{', '.join(unknown)}: not options of 'ms-ir' (expected: "
+            f"{', '.join(SYSTEM_MS_IR_OPTIONS)})"
+        )
+    stability = _check_stability_flag(options.pop("stability", True))
+    ds_max = options.pop("ds_max", 0.05)
+    max_points = options.pop("max_points", 2000)
+    c, out_text = system_output(system, output)
+    _check_frequency_response(system, frequencies is not None)
+    flow = derive_system(system, "ms-ir", **options)
+    solver = SlowFlowSolver(flow, system)
+    coords = system_coordinates(system)
+
+    def branch_of(xs: Any, ws: Any) -> tuple[Any, dict]:
+        rows = [solver.measures(x, float(w), c) for x, w in zip(xs, ws, strict=True)]
+        st = [
+            solver.stable(x, float(w)) if stability else (False, np.nan)
+            for x, w in zip(xs, ws, strict=True)
+        ]
+        amp = np.array([r[0] for r in rows])
+        br = Branch(
+            np.asarray(ws, dtype=float),
+            amp,
+            np.array([r[3] for r in rows]),
+            np.zeros(len(rows)),
+            np.array([s[0] for s in st]),
+            np.array([s[1] for s in st]),
+        )
+        cols = {f"amplitude_{n}": np.array([r[1].get(n, np.nan) for r in rows]) for n in coords}
+        cols.update({f"mean_{n}": np.zeros(len(rows)) for n in coords})
+        cols["states"] = np.array([r[2] for r in rows])
+        return br, cols
+
+    branches, columns, folds = [], [], []
+    if frequencies is not None:
+        for w in checks.frequencies(frequencies, MAX_FREQUENCIES):
+            found = _slow_flow_solutions(solver, w, [x for ws, x in seeds if ws == w])
+            for x in found:
+                br, cols = branch_of([x], [w])
+                branches.append(br)
+                columns.append(cols)
+    else:
+        lo, hi = checks.window(Omega)
+        traced: list[tuple[Any, Any]] = []
+
+        def on_traced(x: Any, w: float) -> bool:
+            for U, L in traced:
+                j = int(np.argmin(np.abs(L - w)))
+                if abs(L[j] - w) <= 0.02 * (hi - lo) and np.abs(U[j] - x).max() <= 0.02 * max(
+                    1e-9, np.abs(x).max()
+                ):
+                    return True
+            return False
+
+        starts = [(w, x) for w, x in seeds]
+        for w in [hi, lo, *np.linspace(lo, hi, 5)[1:-1]]:
+            starts += [(float(w), x) for x in _slow_flow_solutions(solver, float(w), [])]
+        for w, x in starts[:24]:
+            if on_traced(x, w):
+                continue
+            parts = []
+            for direction in (-1, 1):
+                try:
+                    curve = continue_curve(
+                        solver.residual,
+                        solver.jacobians,
+                        x,
+                        w,
+                        (lo, hi),
+                        direction=direction,
+                        ds_max=ds_max,
+                        max_points=max_points,
+                        u_scale=max(1e-6, float(np.abs(x).max())),
+                        lam_scale=hi - lo,
+                    )
+                except (ContinuationError, PerturbError):
+                    continue
+                parts.append((np.asarray(curve.u), np.asarray(curve.lam, dtype=float), curve))
+            if not parts:
+                continue
+            if len(parts) == 2:
+                U = np.concatenate([parts[0][0][::-1], parts[1][0][1:]])
+                L = np.concatenate([parts[0][1][::-1], parts[1][1][1:]])
+            else:
+                U, L = parts[0][0], parts[0][1]
+            traced.append((U, L))
+            br, cols = branch_of(U, L)
+            branches.append(br)
+            columns.append(cols)
+            for _, _, curve in parts:
+                for f in curve.folds:
+                    j = int(np.argmin(np.abs(L - f.lam)))
+                    folds.append((float(f.lam), float(br.amplitude[j])))
+    notes = (
+        f"{flow.method}: fixed points of the slow flow in "
+        f"{', '.join(map(str, flow.cartesian))} ({len(branches)} branches); amplitudes max |.| "
+        "of the waveforms q = Phi eta, stability from the slow flow's Jacobian",
+        *flow.notes,
+    )
+    cls = _response_class()
+    return cls(
+        tuple(branches),
+        "ms-ir-system",
+        system.name,
+        {k: v for k, v in system.params.items() if k != "Omega" and v is not None},
+        tuple(dict.fromkeys(folds)),
+        tuple(notes),
+        output=out_text,
+        coordinates=coords,
+        columns=tuple(columns),
+    )
+
+
+def _slow_flow_solutions(solver: SlowFlowSolver, W: float, guesses: Sequence[Any]) -> list:
+    """Distinct fixed points of the slow flow at ``W``: Newton from ``guesses``, the rest
+    state and scaled copies of the first fixed point found (at most 12 runs)."""
+    import numpy as np
+
+    out: list = []
+    starts = [np.asarray(g, dtype=float) for g in guesses] + [np.zeros(solver.n)]
+    rng = np.random.default_rng(0)
+    tried = 0
+    while starts and tried < 12:
+        g = starts.pop(0)
+        tried += 1
+        x = solver.newton(g, W)
+        if x is None:
+            continue
+        if any(np.abs(x - y).max() <= 1e-7 * max(1.0, np.abs(y).max()) for y in out):
+            continue
+        out.append(x)
+        if len(out) == 1:
+            size = max(1e-3, float(np.abs(x).max()))
+            starts += [size * f * rng.standard_normal(solver.n) for f in (0.5, 2.0, 4.0, 8.0)]
+    return out
 
 
 #: The symbolic derivations of a system (:func:`derive_system`): name -> (target, what,
