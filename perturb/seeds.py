@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -35,9 +35,12 @@ from perturb.model.oscillator import Oscillator
 from perturb.model.segments import segment_steady_states
 from perturb.numeric.harmonic_balance import HarmonicBalanceSystem
 from perturb.numeric.roots import damped_newton
-from perturb.simulate.flows.base import Flow, as_flow
-from perturb.simulate.flows.factory import FlowFamily
-from perturb.simulate.orbits.search import NODES, default_extent, odd_symmetric
+
+if TYPE_CHECKING:
+    from perturb.simulate.flows.base import Flow
+
+# the reference flows (and scipy.integrate with them, ~0.3 s of CPU per cold process) are
+# imported by the periodic-orbit guesses that use them, not by single_harmonic_seeds
 
 __all__ = [
     "approximation_seeds",
@@ -144,6 +147,9 @@ def periodic_orbit_guesses(
     list of numpy.ndarray
         Arrays of ``NODES`` states ``(x, v)`` over one forcing period from ``t = 0``.
     """
+    from perturb.simulate.flows.factory import FlowFamily
+    from perturb.simulate.orbits.search import default_extent, odd_symmetric
+
     family = FlowFamily(oscillator)
     name = family.parameter
     if Omega is None:
@@ -179,6 +185,8 @@ def single_harmonic_guesses(osc: Oscillator, Omega: float) -> list[np.ndarray]:
         phase_parts = lambdify((A_sym, W_sym), parts)
     except PerturbError:
         return []
+    from perturb.simulate.orbits.search import NODES
+
     guesses = []
     tau = np.linspace(0, 2 * np.pi, NODES, endpoint=False)
     for br in resp.branches:
@@ -269,6 +277,9 @@ def harmonic_balance_guesses(
     found by Newton from a grid of starts (module docstring): ``c + A cos(j theta - phi)``
     for the forcing harmonic ``j = 1`` and, below the natural frequencies ``omega_i`` of the
     linear segments, for the superharmonics ``j`` nearest ``omega_i / Omega``."""
+    from perturb.simulate.flows.base import as_flow
+    from perturb.simulate.orbits.search import NODES
+
     system = as_flow(flow).system
     slopes = np.asarray(system.slopes if system is not None else [1.0], float)
     naturals = np.sqrt(slopes[slopes > 0.0]) if np.any(slopes > 0.0) else np.array([1.0])
