@@ -138,8 +138,12 @@ _DAMPING_SPAN = 20.0
 _BRIDGES = 6
 _BRIDGE_STEPS = (0.05, 0.15, 0.4, 1.0)
 #: Default width of the tanh that replaces a jump: this fraction of the distance from the
-#: equilibrium's signal to the level, divided by H.
-_WIDTH_FACTOR = 0.2
+#: equilibrium's signal to the level, divided by H; the Hopf start is made at
+#: _START_WIDENING times it and the cycle narrowed by continuation.
+_WIDTH_FACTOR = 0.05
+_START_WIDENING = 4.0
+#: Point cap of the continuation that narrows the jumps.
+_NARROW_POINTS = 400
 _SWITCH_TYPES = (sp.Heaviside, sp.Abs, sp.sign, sp.Max, sp.Min, sp.Piecewise)
 
 
@@ -211,7 +215,7 @@ class AutonomousBalance:
         Magnus steps per period of the monodromy (default ``max(128, 16 H)``).
     jump_width : float, optional
         Width ``eps`` (in the element's signal) of the ``tanh`` that replaces each jump of a
-        piecewise-smooth element (friction): default ``0.2 d / H`` (:meth:`auto_jump_width`);
+        piecewise-smooth element (friction): default ``0.05 d / H`` (:meth:`auto_jump_width`);
         ``0`` keeps the exact discontinuous law (module docstring: ill-conditioned while
         the HB orbit chatters across a sticking phase).
 
@@ -867,7 +871,7 @@ class AutonomousBalance:
         )
 
     def auto_jump_width(self, p: float | None = None) -> float:
-        """The default width of the jumps' ``tanh``: ``0.2 d / H`` with ``d`` the distance
+        """The default width of the jumps' ``tanh``: ``0.05 d / H`` with ``d`` the distance
         from the equilibrium's signal to the nearest jump level (the largest level's size
         when there is no equilibrium); 0 without jumps."""
         mdl = self.model(p)
@@ -889,17 +893,76 @@ class AutonomousBalance:
         return _WIDTH_FACTOR * d / self.H
 
     def auto_start(self, p: float | None = None) -> tuple[np.ndarray, int]:
-        """The limit cycle from the Hopf start (:meth:`hopf_start`) at the current
-        :attr:`smoothing`; with the exact law of a jump (``smoothing = 0``), the start is
-        made with the automatic width and Newton on the exact law finishes."""
-        if self.smoothing > 0.0 or not self.jump_elements():
+        """The limit cycle from the Hopf start (:meth:`hopf_start`). With friction jumps
+        narrower than the automatic width (:meth:`auto_jump_width`; ``smoothing = 0``: the
+        exact law), the start is made at the automatic width and the cycle is continued in
+        the width down to the requested one by the continuation core (to a hundredth of the
+        start for the exact law, where Newton on the exact law finishes)."""
+        if not self.jump_elements():
+            return self.hopf_start(p)
+        target = self.smoothing
+        start = _START_WIDENING * self.auto_jump_width(p)
+        if target >= start:
             return self.hopf_start(p)
         try:
-            self.smoothing = self.auto_jump_width(p)
+            self.smoothing = start
             x, j = self.hopf_start(p)
+            x = self._narrow(x, j, p, start, target if target > 0 else start * 1e-2)
         finally:
-            self.smoothing = 0.0
+            self.smoothing = target
         return self.newton(x, p, j), j
+
+    def _narrow(self, x: np.ndarray, j: int, p: float | None, start: float, end: float):
+        """Continue the cycle in the jump width from ``start`` down to ``end`` (the last
+        point, on ``end``)."""
+        p = self.model(p)["p"]
+
+        def res(x, e):
+            self.smoothing = float(e)
+            return self.residual(x, p, j)
+
+        def jac(x, e):
+            self.smoothing = float(e)
+            Jx, _ = self.jacobian(x, p, j, parameter_derivative=False)
+            U, w = self.unpack(x)
+            h = 1e-4 * float(e)
+            self.smoothing = float(e) + h
+            rp = self.evaluate(U, w, p, False)[0]
+            self.smoothing = float(e) - h
+            rm = self.evaluate(U, w, p, False)[0]
+            self.smoothing = float(e)
+            return Jx, np.concatenate([(rp - rm) / (2.0 * h), [0.0]])
+
+        su = np.full(self.n_unknowns, max(1e-8, float(np.abs(x[:-1]).max())))
+        try:
+            curve = continue_curve(
+                res,
+                jac,
+                x,
+                start,
+                (end, start),
+                direction=-1,
+                u_scale=su,
+                lam_scale=start - end,
+                adaptive_scale=True,
+                correct_start=False,
+                ds_max=0.1,
+                tol=1e-10,
+                max_points=_NARROW_POINTS,
+                predictor="hermite",
+            )
+        except (ContinuationError, ParameterError) as exc:
+            raise AutonomousBalanceError(
+                f"narrowing the friction jumps of {self.system.name!r} from width {start:.3g} "
+                f"to {end:.3g} failed ({exc}): give a larger jump_width"
+            ) from exc
+        if curve.stop_reason != "window" or abs(float(curve.lam[-1]) - end) > 1e-9 * start:
+            raise AutonomousBalanceError(
+                f"narrowing the friction jumps of {self.system.name!r} from width {start:.3g} "
+                f"stopped ({curve.stop_reason}) at {float(curve.lam[-1]):.3g}, not {end:.3g}: "
+                "give a larger jump_width"
+            )
+        return np.asarray(curve.u[-1])
 
     def hopf_start(
         self, p: float | None = None, *, max_points: int = 2000
@@ -1056,6 +1119,9 @@ class AutonomousBalance:
                     u_scale=su,
                     lam_scale=delta1,
                     adaptive_scale=True,
+                    # converged by small_orbit; near the Hopf point the Jacobian is nearly
+                    # singular along the amplitude and the core's correction test stalls
+                    correct_start=False,
                     ds_max=0.1,
                     tol=1e-10,
                     max_points=int(max_points),
@@ -1635,8 +1701,9 @@ def autonomous_balance_branch(
     ds_max, max_points
         Continuation step (scaled arclength) and point cap per direction.
     quadrature, jump_width : optional
-        As :class:`AutonomousBalance` (the automatic jump width is the one at the start,
-        kept along the branch).
+        As :class:`AutonomousBalance`; the automatic jump width of a branch is four times an
+        orbit's (``0.2 d / H`` at the start value, kept along the branch: a narrower ``tanh``
+        makes the continuation take several times the points).
 
     Raises
     ------
@@ -1674,6 +1741,10 @@ def autonomous_balance_branch(
         quadrature=quadrature,
         jump_width=jump_width,
     )
+    if jump_width is None:
+        # along a branch the jumps stay at the start width of the Hopf homotopy: with the
+        # narrower default of a single orbit, the continuation takes several times the points
+        ab.smoothing *= _START_WIDENING
     x0, j = _start(ab, start, guess, 1e-10, 50)
 
     def res(x, p):
