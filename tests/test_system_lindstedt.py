@@ -415,3 +415,17 @@ def test_near_internal_resonance_is_stated_in_the_notes():
     r = nnm_backbone(near, 1, 1)
     assert any("near internal resonance omega_2 ~ 3*omega_1" in n for n in r.notes), r.notes
     assert dict(r.resonance_denominators)[3] == sp.Rational(3, 10)
+
+
+def test_gap_element_with_symbolic_clearance_takes_the_parameter_values():
+    """impact_pair: a two-sided gap of clearance d and contact stiffness r on x1 - x2; the
+    reference stiffness is the contact one, [[1 + r, -r], [-r, r]] with M = diag(1, m2)."""
+    r_, m2 = 20.0, 0.2
+    sysm = builtin_system("impact_pair").with_params(mu=0, mu2=0, F=0, r=r_, m2=m2, d=0.5)
+    r = nnm_backbone(sysm, 2, 1, method="mlp")
+    K = np.array([[1 + r_, -r_], [-r_, r_]])
+    Minv_sqrt = np.diag([1.0, 1 / math.sqrt(m2)])
+    expected = np.sqrt(np.linalg.eigvalsh(Minv_sqrt @ K @ Minv_sqrt))
+    assert [float(w) for w in r.natural_frequencies] == pytest.approx(expected, rel=1e-12)
+    # far beyond the clearance the gap is the contact spring: the linear frequency
+    assert float(r.frequency_at(1e4)) == pytest.approx(expected[1], rel=1e-3)

@@ -469,21 +469,21 @@ def _model(system: System) -> _Model:
             "for a conservative system"
         )
     q = (real_symbol(system.coordinates[0]), real_symbol(system.coordinates[1]))
-    Kbar = sp.Matrix(K)
-    elements: list[_Element] = []
-    smooth = sp.zeros(2, 1)
-    for e in system.elements:
-        elements_or_smooth = _element(system, e, q, reps)
-        if isinstance(elements_or_smooth, _Element):
-            el = elements_or_smooth
-            c, w = sp.Matrix(el.c), sp.Matrix(el.w)
-            Kbar += el.slope * w * c.T
-            elements.append(el)
-        else:
-            lin, rest = elements_or_smooth
-            Kbar += lin
-            smooth += rest
-    Kbar = sp.Matrix(Kbar.applyfunc(sp.nsimplify if not Kbar.free_symbols else sp.simplify))
+    # the reference stiffness takes the elements' reference slopes: their parameters (a
+    # contact stiffness r of a gap) join the substituted ones, and the elements are split again
+    for _ in range(2):
+        Kbar, elements, smooth = _split_elements(system, K, q, reps)
+        extra = Kbar.free_symbols - set(reps)
+        if not extra:
+            break
+        free = sorted(x.name for x in extra if x not in given)
+        if free:
+            raise ParameterError(
+                f"system {system.name!r}: the reference stiffness {Kbar.tolist()} has "
+                f"parameters without values ({', '.join(free)}): give them values"
+            )
+        reps.update({x: _exact(given[x]) for x in extra})
+    Kbar = sp.Matrix(Kbar.applyfunc(sp.nsimplify))
     if smooth != sp.zeros(2, 1):
         jac = smooth.jacobian(sp.Matrix(q))
         if sp.simplify(jac - jac.T) != sp.zeros(2, 2):
@@ -503,6 +503,23 @@ def _model(system: System) -> _Model:
         reps=reps,
         pwl=any(el.pwl for el in elements),
     )
+
+
+def _split_elements(system: System, K: sp.Matrix, q, reps):
+    """``(Kbar, elements, smooth)``: the elements split at the parameter values ``reps``."""
+    Kbar = sp.Matrix(K)
+    elements: list[_Element] = []
+    smooth = sp.zeros(2, 1)
+    for e in system.elements:
+        split = _element(system, e, q, reps)
+        if isinstance(split, _Element):
+            Kbar += split.slope * sp.Matrix(split.w) * sp.Matrix(split.c).T
+            elements.append(split)
+        else:
+            lin, rest = split
+            Kbar += lin
+            smooth += rest
+    return Kbar, elements, smooth
 
 
 def _element(system: System, e, q, reps):
@@ -575,6 +592,13 @@ def _element(system: System, e, q, reps):
             )
         slope = poly.coeff_monomial(s)
         return _Element(e.name, c, w, sp.expand(f - slope * s), False, slope)
+    # symbolic switching points (d and -d of a gap) cannot be ordered: the values of the
+    # parameters inside the switches are substituted (those in front may stay symbolic)
+    inside = set().union(
+        *(a.free_symbols for a in f.atoms(sp.Heaviside, sp.Max, sp.Min, sp.Abs, sp.sign))
+    ) - {s}
+    given = {real_symbol(k): v for k, v in system.params.items() if v is not None}
+    f = f.xreplace({x: _exact(given[x]) for x in inside if x in given})
     try:
         pwl = to_pwl(f, s)
     except (NonsmoothError, TypeError, ValueError) as exc:
