@@ -57,9 +57,12 @@ Both keep :math:`A` the amplitude of the first harmonic of :math:`u_j` (every co
 :data:`MAX_ORDER`. Piecewise-linear elements (Heaviside, Max, Min, Abs: the ``nsd2`` device)
 enter at first order only, through the closed-form Fourier coefficients of
 :mod:`perturb.fourier.symbols` of :math:`g_e(S\cos\tau)`, :math:`S = (c_e\cdot\varphi_j) A`
-(for the ``nsd`` device :math:`g_e = (k - 1)\,\mathrm{sat}(s)`, steps
-:math:`a_n = 2\sin n\theta/(n\pi)`, :math:`\theta = \arccos(1/S)`); the second order would need
-products of the truncated series and Dirac coefficients at the switches, and is refused.
+(ramp coefficients :math:`a^R_n` and step coefficients :math:`a^H_n = 2\sin n\theta/(n\pi)`
+with :math:`\theta = \arccos(d/S)` for a switching point :math:`d`; for the ``nsd`` device
+:math:`g_e = (k - 1)\,\mathrm{sat}(s)`, odd, so only odd harmonics enter; the derivation
+prints the first harmonic in its :math:`\theta`-form). Switching points and reference slopes
+take the parameter values. The second order would need products of the truncated series and
+Dirac coefficients at the switches, and is refused.
 
 Internal resonance: when :math:`\omega_k = m\,\omega_j` for a harmonic :math:`m` that the
 nonlinear force of mode :math:`k` contains, the correction of mode :math:`k` has a vanishing
@@ -112,7 +115,7 @@ __all__ = [
 #: The expansions offered.
 METHODS = ("lp", "mlp")
 #: Highest order for polynomial elements (each order multiplies the size of the expressions;
-#: order 4 of a cubic two-coordinate system takes a few seconds).
+#: order 4 of the cubic spring to ground takes 0.4 s (L-P) and 1.3 s (mLP) of CPU).
 MAX_ORDER = 4
 #: Highest order for piecewise-linear elements (first order: the closed-form coefficients).
 PWL_ORDER = 1
