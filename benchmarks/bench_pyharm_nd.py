@@ -24,10 +24,10 @@ use (``GOElement`` masses, ``LinearSpring``, ``LinearDamper``, ``PenaltyUnilater
     x2'' + c (x2' - x1') + k (x2 - x1) + kg (x2 - g) H(x2 - g)         = 0
 
 ``c = 0.02``, ``k = 1``, ``F = 0.3``, contact (one-sided: only for ``x2 > g``) ``g = 1``,
-``kg = 10``: linear modes at W = 0.618 and 1.618, the second mass hits the stop near both;
-window W = 0.3 .. 2.2, H = 15. In perturb the contact is ``pwl_spring("x2", [g], [0, kg])``:
-the same ``kg (s - g) H(s - g)`` as pyHarm's ``PenaltyUnilateralGap`` (contact where
-``x2 >= g``).
+``kg = 10`` (``--kg``; 100 as a second case): linear modes at W = 0.618 and 1.618, the second
+mass hits the stop near both; window W = 0.3 .. 2.2, H = 15. In perturb the contact is
+``pwl_spring("x2", [g], [0, kg])``: the same ``kg (s - g) H(s - g)`` as pyHarm's
+``PenaltyUnilateralGap`` (contact where ``x2 >= g``).
 
 * perturb, in this process: ``system_balance_branch`` (the branch from the high end
   downwards, the analogue of pyHarm's trace) and ``system_balance_response`` (every branch in
@@ -101,7 +101,7 @@ ACCURACY_SLACK = 1.1
 
 
 # --------------------------------------------------------------------------- pyHarm worker --
-def pyharm_problem(ds: float, nti: int) -> dict:
+def pyharm_problem(ds: float, nti: int, kg: float = KG) -> dict:
     """The pyHarm input dictionary of the system (two one-node ``onlydofs`` substructures)."""
 
     def node() -> dict:
@@ -120,7 +120,7 @@ def pyharm_problem(ds: float, nti: int) -> dict:
             "spring12": {"type": "LinearSpring", "k": K, **on("m1", "m2")},
             "damper1": {"type": "LinearDamper", "k": C, **on("m1")},
             "damper12": {"type": "LinearDamper", "k": C, **on("m1", "m2")},
-            "contact": {"type": "PenaltyUnilateralGap", "g": GAP, "k": KG, **on("m2")},
+            "contact": {"type": "PenaltyUnilateralGap", "g": GAP, "k": kg, **on("m2")},
             "force": {"type": "CosinusForcing", "amp": F, **on("m1")},
         },
         "analysis": {
@@ -151,7 +151,7 @@ def _alarm(signum, frame):
 
 
 def worker() -> None:
-    """Serve pyHarm runs: read ``ds nti timeout path`` lines, answer one JSON line each.
+    """Serve pyHarm runs: read ``ds nti timeout kg path`` lines, answer one JSON line each.
 
     The coefficients of the accepted points go to ``path`` (``.npy``: one row per point, the
     coefficients of x1 then x2, ``[a0, a1, b1, ...]``, then W).
@@ -167,14 +167,14 @@ def worker() -> None:
 
     warnings.simplefilter("ignore")
     for line in sys.stdin:
-        ds_s, nti_s, timeout_s, path = line.split()
-        ds, nti, timeout = float(ds_s), int(nti_s), float(timeout_s)
+        ds_s, nti_s, timeout_s, kg_s, path = line.split()
+        ds, nti, timeout, kg = float(ds_s), int(nti_s), float(timeout_s), float(kg_s)
         old = signal.signal(signal.SIGALRM, _alarm)
         signal.setitimer(signal.ITIMER_REAL, timeout)
         t, c = time.perf_counter(), time.process_time()
         reason = ""
         try:
-            M = pyHarm.Maestro(pyharm_problem(ds, nti))
+            M = pyHarm.Maestro(pyharm_problem(ds, nti, kg))
             with contextlib.redirect_stdout(io.StringIO()):
                 M.operate()
             sols = [s.x.copy() for s in M.nls["frf"].SolList if s.flag_accepted]
@@ -214,11 +214,11 @@ class PyHarmWorker:
         self.count = 0
         self.version = "?"
 
-    def run(self, ds: float, nti: int, timeout: float):
+    def run(self, ds: float, nti: int, timeout: float, kg: float = KG):
         """``(rows or None, wall, cpu, reason)`` of one pyHarm frf run."""
         self.count += 1
         path = os.path.join(self.tmp, f"run{self.count}.npy")
-        self.proc.stdin.write(f"{ds} {nti} {timeout} {path}\n")
+        self.proc.stdin.write(f"{ds} {nti} {timeout} {kg!r} {path}\n")
         self.proc.stdin.flush()
         # the worker's own alarm stops a run; this cap also covers imports and a hung worker
         ready, _, _ = select.select([self.proc.stdout], [], [], timeout + 120.0)
@@ -240,14 +240,14 @@ class PyHarmWorker:
 
 
 # --------------------------------------------------------------------------- perturb side --
-def build_system():
+def build_system(kg: float = KG):
     from perturb.model.system import System, pwl_spring
 
     return System.from_matrices(
         [[1.0, 0.0], [0.0, 1.0]],
         [[2 * C, -C], [-C, C]],
         [[2 * K, -K], [-K, K]],
-        elements=[pwl_spring("x2", [GAP], [0, KG], name="contact")],
+        elements=[pwl_spring("x2", [GAP], [0, kg], name="contact")],
         forcing=[f"{F}*cos(Omega*t)", "0"],
         coordinates=list(COORDS),
         params={"Omega": 1.0},
@@ -438,6 +438,7 @@ def main() -> None:
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--timeout", type=float, default=120.0, help="wall seconds per pyHarm run")
+    ap.add_argument("--kg", type=float, default=KG, help="contact stiffness (default 10)")
     ap.add_argument("--venv-python", default="/tmp/aftvenv/bin/python")
     ap.add_argument("--points", type=int, default=16, help="frequencies for 'point' errors")
     ap.add_argument(
@@ -453,14 +454,16 @@ def main() -> None:
         return
     if not 1 <= args.repeat <= 20:
         ap.error(f"--repeat {args.repeat}: expected 1..20")
+    if not 0 < args.kg < 1e6:
+        ap.error(f"--kg {args.kg}: expected a contact stiffness in (0, 1e6)")
     from perturb.numeric.system_balance import system_balance_branch, system_balance_response
 
     print(
         "command: OPENBLAS_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_pyharm_nd.py "
-        f"--repeat {args.repeat} --nti {' '.join(map(str, args.nti))}"
+        f"--repeat {args.repeat} --nti {' '.join(map(str, args.nti))} --kg {args.kg:g}"
     )
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores (start)")
-    system = build_system()
+    system = build_system(args.kg)
     ours = {
         "perturb branch (one trace)": lambda: system_balance_branch(
             system, WINDOW, harmonics=H, direction=-1, stability=True
@@ -476,7 +479,7 @@ def main() -> None:
         )
     ph = PyHarmWorker(args.venv_python)
     try:
-        rows, wall, cpu, why = ph.run(PYHARM_DS[0], args.nti[0], args.timeout + 300.0)
+        rows, wall, cpu, why = ph.run(PYHARM_DS[0], args.nti[0], args.timeout + 300.0, args.kg)
         import scipy
 
         print(
@@ -502,7 +505,7 @@ def main() -> None:
                 results[name] = res
             for nti, ds in ((n, d) for n in args.nti for d in PYHARM_DS):
                 name = f"pyHarm AFT {nti}, ds={ds:g}"
-                rows, wall, cpu, why = ph.run(ds, nti, args.timeout)
+                rows, wall, cpu, why = ph.run(ds, nti, args.timeout, args.kg)
                 times.setdefault(name, []).append((wall, cpu))
                 if rows is not None:
                     results[name] = rows
