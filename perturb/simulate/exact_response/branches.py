@@ -20,6 +20,7 @@ from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
 from perturb.model.system import System
 from perturb.progress import Progress
+from perturb.simulate.exact_response.attractors import attractor_stage
 from perturb.simulate.exact_response.march import Tracer
 from perturb.simulate.exact_response.options import (
     ALL_FIELDS,
@@ -201,6 +202,7 @@ def exact_branches(
             branch_points=o.branch_points,
             period_doubling=o.period_doubling,
             symmetry=o.symmetry,
+            attractors=o.attractors,
             max_branches=max_branches,
             max_periods=max_periods,
             progress=o.progress,
@@ -224,6 +226,7 @@ def _exact_branches(
     max_branches: int,
     max_periods: float,
     progress: bool | None,
+    attractors: bool = True,
 ) -> ExactBranches:
     """The body of :func:`exact_branches` (arguments checked, tracer and pool set up)."""
     family, st = tracer.eng.family, tracer.st
@@ -361,6 +364,13 @@ def _exact_branches(
                 bar,
                 seed2,
             )
+        if attractors and budget_left():
+            # stable orbits no sweep settles on (isolas, stable stretches of branches that fold
+            # back out of the window) and orbits beside the traced ones at the window edges
+            traced = [
+                b for b in range(len(branches)) if mirror_of[b] is None and branches[b].m == 1
+            ]
+            attractor_stage(tracer, internals, traced, try_seed, budget_left)
         # the other branch at every branch point (pitchforks of odd systems)
         done: set[int] = set()
         while branch_points and budget_left():

@@ -79,6 +79,11 @@ class ExactResponseOptions:
     branch_points, period_doubling, symmetry : bool
         Switches of the stages of :func:`exact_branches`: the other branch at branch points,
         period-2 branches, mirror images of odd systems.
+    attractors : bool
+        Stage of :func:`exact_branches` after the sweeps: the stable orbits a vectorised
+        simulation settles on from a grid of states and from beside every unstable traced
+        orbit, and Newton from the traced orbits at the window edges shifted
+        (:mod:`perturb.simulate.exact_response.attractors`).
     max_branches : int
         Budget of branches.
     max_seconds : float, optional
@@ -105,6 +110,7 @@ class ExactResponseOptions:
     max_seconds: float | None = 300.0
     progress: bool | None = None
     workers: int | None = None
+    attractors: bool = True
 
 
 #: The fields of :class:`ExactResponseOptions` that shape one march (:func:`continue_orbits`).
