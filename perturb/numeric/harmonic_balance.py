@@ -79,6 +79,17 @@ harmonic (no dense matrix product), the crossings are isolated on ``4H`` grid in
 O(H) work each. The dense solves (Newton's LU, Hill's pencil) are O(H^3) with a small
 constant; ``benchmarks/bench_scaling_hb.py`` measures both.
 
+Set-up
+------
+A system is built once per process and options (:func:`compiled_system`, which every entry
+point here uses): an equal oscillator built again reuses it. A polynomial force (AFT) is
+evaluated from a numeric monomial table with exact derivatives
+(:class:`perturb.numeric.compile.PolynomialTable`), and a forcing free of the frequency from
+its numbers, so no SymPy code is generated; the dense Newton solves need no SciPy. A cold
+process running one Duffing H = 7 response imports numpy and SymPy (needed to build the
+model) and nothing of SciPy: ``benchmarks/bench_duffing_harmonicbalance.py`` compares such a
+process with the ``harmonicbalance`` package's.
+
 Frequency responses are continued with the Hermite predictor of
 :func:`perturb.numeric.continuation.continue_curve` and acceptance after one Newton
 correction when the measured quadratic convergence allows it: about 1.3 residual and
@@ -143,6 +154,7 @@ window by default, where the response is closest to linear.
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property
@@ -165,6 +177,7 @@ from perturb.fourier.projection import (
 from perturb.model.oscillator import Oscillator
 from perturb.model.pwl import NumericPWL
 from perturb.model.symmetry import mirror_harmonic
+from perturb.numeric.compile import PolynomialTable, polynomial_table
 from perturb.numeric.continuation import (
     BranchPoint,
     ContinuationCurve,
@@ -181,6 +194,7 @@ __all__ = [
     "HarmonicBalanceSolution",
     "HarmonicBalanceBranch",
     "HarmonicBalanceOptions",
+    "compiled_system",
     "harmonic_balance_orbit",
     "harmonic_balance_branch",
     "harmonic_balance_branches",
@@ -340,6 +354,30 @@ def _lambdify(args: Sequence[sp.Symbol], exprs: Sequence[sp.Expr]) -> Callable[.
     return call
 
 
+def _table_function(table: PolynomialTable) -> Callable[..., list]:
+    """``(x, v) -> [g, dg/dx, dg/dv]`` of a polynomial ``g``, broadcast like :func:`_lambdify`."""
+    gx, gv = table.derivative(0), table.derivative(1)
+
+    def call(x: Any, v: Any) -> list:
+        return [table(x, v), gx(x, v), gv(x, v)]
+
+    return call
+
+
+def _numeric_or_lambdify(args: Sequence[sp.Symbol], exprs: Sequence[sp.Expr]) -> Callable:
+    """:func:`_lambdify`, or for expressions that are all numbers (a forcing amplitude and
+    phase free of the frequency: the usual case) their values, with no code generation."""
+    if not all(sp.sympify(e).is_number for e in exprs):
+        return _lambdify(args, exprs)
+    values = [float(e) for e in exprs]
+
+    def call(*given: Any) -> list:
+        shape = np.broadcast_shapes(*(np.shape(g) for g in given))
+        return [np.broadcast_to(np.asarray(c, dtype=float), shape) for c in values]
+
+    return call
+
+
 @dataclass(frozen=True)
 class _ForcingTerm:
     index: int  # position of a_k in u
@@ -460,14 +498,21 @@ class HarmonicBalanceSystem:
             k_lin = float(osc.linear_stiffness.xreplace(subs))
             self.linear_stiffness = k_lin
             g_nl = g - self.damping * v - k_lin * x
-            # sampled derivatives cannot hold the Dirac terms of jumps: dropped, except a jump
-            # of the force across v = 0 (Coulomb friction r sign(x')), added at the velocity
-            # reversals by _reversal_terms
-            gx = _without_dirac(sp.diff(g_nl, x))
-            gv = _without_dirac(sp.diff(g_nl, v))
-            self._g = _lambdify((x, v), [g_nl, gx, gv])
+            table = polynomial_table(g_nl, (x, v))
+            if table is not None:
+                # a polynomial force (Duffing, van der Pol terms): a numeric monomial table
+                # and its exact derivatives, no code generation
+                self._g = _table_function(table)
+                self._dirac_v = None
+            else:
+                # sampled derivatives cannot hold the Dirac terms of jumps: dropped, except a
+                # jump of the force across v = 0 (Coulomb friction r sign(x')), added at the
+                # velocity reversals by _reversal_terms
+                gx = _without_dirac(sp.diff(g_nl, x))
+                gv = _without_dirac(sp.diff(g_nl, v))
+                self._g = _lambdify((x, v), [g_nl, gx, gv])
+                self._dirac_v = _velocity_dirac(g_nl, x, v)
             self.velocity_dependent = bool(g_nl.has(v))
-            self._dirac_v = _velocity_dirac(g_nl, x, v)
             th = _TWO_PI * np.arange(self.samples) / self.samples
             self._Phi = self.basis.design(th)
             self._PhiD = self._Phi @ self.D
@@ -483,7 +528,9 @@ class HarmonicBalanceSystem:
         W = self.frequency
         terms = []
         for h in osc.forcing.harmonics:
-            ratio = sp.nsimplify(sp.simplify(h.frequency / W))
+            ratio = h.frequency / W
+            if not ratio.is_Rational:
+                ratio = sp.nsimplify(sp.simplify(ratio))
             if not ratio.is_Rational or ratio <= 0:
                 raise ModelError(
                     f"forcing frequency {h.frequency} is not a positive rational multiple of {W}"
@@ -508,14 +555,16 @@ class HarmonicBalanceSystem:
                 raise ParameterError(
                     f"forcing amplitude {A} needs values for {sorted(map(str, free))}"
                 )
-            terms.append(_ForcingTerm(pos, _lambdify([W], [A, p, sp.diff(A, W), sp.diff(p, W)])))
+            terms.append(
+                _ForcingTerm(pos, _numeric_or_lambdify([W], [A, p, sp.diff(A, W), sp.diff(p, W)]))
+            )
         self._terms = tuple(terms)
         c = osc.forcing.constant.xreplace(subs)
         if c.free_symbols - {W}:
             raise ParameterError(f"static load {c} needs values for its parameters")
         if c != 0 and not self.basis.bias:
             raise ModelError(f"a static load {c} needs the bias term: odd_only=True drops it")
-        self._constant = _lambdify([W], [c, sp.diff(c, W)])
+        self._constant = _numeric_or_lambdify([W], [c, sp.diff(c, W)])
         depends = c.has(W) or any(
             h.amplitude.xreplace(subs).has(W) or h.phase.xreplace(subs).has(W)
             for h in osc.forcing.harmonics
@@ -787,6 +836,66 @@ class HarmonicBalanceSystem:
         if abs(partner - lam) <= 1e-9 * (abs(lam) + w):
             partner = np.conj(lam)
         return np.array([lam, partner])
+
+
+#: Systems built in this process, by (oscillator, options): the symbolic set-up (derivatives,
+#: the PWL form, compiled functions) is done once per system, not on every call.
+_SYSTEMS: OrderedDict[tuple, HarmonicBalanceSystem] = OrderedDict()
+_SYSTEMS_KEPT = 32
+
+
+def compiled_system(
+    oscillator: Oscillator,
+    *,
+    harmonics: int = 15,
+    m: int = 1,
+    odd_only: bool = False,
+    projection: Projection = "auto",
+    samples: int | None = None,
+) -> HarmonicBalanceSystem:
+    """The :class:`HarmonicBalanceSystem` of ``oscillator`` with these options, built once per
+    process and then reused (the last ``_SYSTEMS_KEPT`` kept).
+
+    The key is what the system is built from: the model's name, equation and parameter
+    values, and the options; so an equal oscillator built again (``builtin_model`` in
+    another call) finds the same system. A system's evaluation memo (the last residual and
+    Jacobian) is only a cache of pure functions of its arguments, so sharing it is safe.
+    Arguments that cannot be keyed (unhashable) are passed to the constructor unkeyed, which
+    checks them.
+    """
+    try:
+        params = tuple(sorted((str(k), v) for k, v in oscillator.params.items()))
+        key = (
+            oscillator.name,
+            oscillator.equation,
+            params,
+            harmonics,
+            m,
+            odd_only,
+            projection,
+            samples,
+        )
+        hash(key)
+    except (AttributeError, TypeError):
+        key = None
+    if key is not None:
+        hit = _SYSTEMS.get(key)
+        if hit is not None:
+            _SYSTEMS.move_to_end(key)
+            return hit
+    system = HarmonicBalanceSystem(
+        oscillator,
+        harmonics=harmonics,
+        m=m,
+        odd_only=odd_only,
+        projection=projection,
+        samples=samples,
+    )
+    if key is not None:
+        _SYSTEMS[key] = system
+        while len(_SYSTEMS) > _SYSTEMS_KEPT:
+            _SYSTEMS.popitem(last=False)
+    return system
 
 
 def _expm2(p: float, q: float, h: float) -> tuple[float, float, float, float]:
@@ -1370,7 +1479,7 @@ def harmonic_balance_orbit(
     PerturbError
         When Newton does not converge.
     """
-    system = HarmonicBalanceSystem(
+    system = compiled_system(
         oscillator,
         harmonics=harmonics,
         m=m,
@@ -1570,7 +1679,7 @@ def harmonic_balance_branch(
     )
     stability, ds_max, max_points, tol = o.stability, o.ds_max, o.max_points, o.tol
     lo, hi = _check_window(Omega_window)
-    system = HarmonicBalanceSystem(
+    system = compiled_system(
         oscillator,
         harmonics=harmonics,
         m=m,
@@ -2195,7 +2304,7 @@ def harmonic_balance_branches(
         if not isinstance(value, bool | np.bool_):
             raise ParameterError(f"{name} = {value!r}: expected True or False")
     window = _check_window(Omega_window)
-    system = HarmonicBalanceSystem(
+    system = compiled_system(
         oscillator,
         harmonics=harmonics,
         m=m,
