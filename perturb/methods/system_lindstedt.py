@@ -859,7 +859,15 @@ def nnm_backbone(
     ):
         raise ParameterError(f"harmonics = {harmonics!r}: expected an integer from 1 to 63")
     order, harmonics = int(order), int(harmonics)
-    model = _model(system)
+    try:
+        model = _model(system)
+    except PerturbError:
+        raise
+    except (TypeError, ValueError, NotImplementedError) as exc:  # pragma: no cover - defensive
+        raise ModelError(
+            f"system {getattr(system, 'name', system)!r}: its linear part or elements could "
+            f"not be split for the NNM expansion ({exc})"
+        ) from None
     if model.pwl and order > PWL_ORDER:
         names = ", ".join(el.name for el in model.elements if el.pwl)
         raise ParameterError(
@@ -872,7 +880,12 @@ def nnm_backbone(
         return _derive(model, mode, order, method, harmonics)
     except PerturbError:
         raise
-    except (TypeError, ValueError, ZeroDivisionError) as exc:  # pragma: no cover - defensive
+    except (
+        TypeError,
+        ValueError,
+        ZeroDivisionError,
+        NotImplementedError,
+    ) as exc:  # pragma: no cover
         raise ModelError(
             f"system {system.name!r}: the {method} expansion of mode {mode} failed ({exc})"
         ) from None
