@@ -1017,6 +1017,9 @@ def _with_notes(choice: AutoChoice, notes: tuple[str, ...]) -> AutoChoice:
 #: the exact solver.
 SYSTEM_LADDER: tuple[Candidate, ...] = (
     Candidate("hb1", "hb1"),
+    # averaging: the slow flow of two coordinates with a 1:1 or 1:3 internal resonance (a
+    # system it does not fit is skipped with the derivation's reason)
+    Candidate("ms-ir", "ms-ir"),
     *(Candidate(f"hb{h}", "hb", harmonics=h) for h in (3, 7, 15, 31, 63)),
     Candidate("exact", "exact"),
 )
@@ -1192,7 +1195,11 @@ def system_candidate_spot_errors(
     residuals of ``derivation`` (:func:`perturb.methods.system_harmonic_balance.
     system_single_harmonic_balance`), zero means when the derivation has no bias.
     """
-    from perturb.solve import system_output, system_single_harmonic_residuals
+    from perturb.solve import (
+        SYSTEM_ONLY_METHODS,
+        system_output,
+        system_single_harmonic_residuals,
+    )
 
     t0 = time.process_time()
     ws = [float(w) for w in frequencies]
@@ -1201,6 +1208,8 @@ def system_candidate_spot_errors(
         return CandidateResult(candidate, zeros, 0.0, time.process_time() - t0, "reference")
     c, _ = system_output(system, output)
     try:
+        if candidate.method in SYSTEM_ONLY_METHODS:
+            return _slow_flow_spot_errors(system, candidate, ws, orbits, c, derivation, t0)
         if candidate.method in ("hb1", "shb"):
             if derivation is None:
                 from perturb.methods.system_harmonic_balance import (
@@ -1237,6 +1246,61 @@ def system_candidate_spot_errors(
     except PerturbError as exc:
         inf = tuple(math.inf for _ in ws)
         return CandidateResult(candidate, inf, math.nan, time.process_time() - t0, str(exc))
+
+
+def _slow_flow_guess(solver: Any, orbit: Any, W: float) -> np.ndarray:
+    """The slow flow's Cartesian amplitudes of an exact orbit: its coordinates in modal form
+    ``eta = Phi^-1 q`` projected on ``cos nu_k t`` and ``sin nu_k t`` of each mode's frame
+    frequency, over the slow flow's period (the orbit's samples repeated to fill it)."""
+    import sympy as sp
+
+    flow = solver.flow
+    Wsym = flow.arguments[len(flow.cartesian)]
+    subs = {Wsym: W, **{p: v for p, v in zip(flow.parameters, solver._values, strict=True)}}
+    nus = [float(sp.sympify(nu).subs(subs)) for nu in flow.frame_frequencies]
+    Phi = np.array(sp.Matrix(flow.modal_matrix).subs(subs).evalf(), dtype=float)
+    n = 512
+    t, Y = orbit.sample_states(n)
+    T = float(orbit.period)
+    reps = max(1, round(2 * np.pi / min(nus) / T))
+    t = np.concatenate([t + k * T for k in range(reps)])
+    q = np.tile(Y[: Phi.shape[0]], reps)
+    eta = np.linalg.solve(Phi, q)
+    out = []
+    for k, nu in enumerate(nus):
+        out += [2 * np.mean(eta[k] * np.cos(nu * t)), 2 * np.mean(eta[k] * np.sin(nu * t))]
+    return np.array(out)
+
+
+def _slow_flow_spot_errors(system, candidate, ws, orbits, c, derivation, t0) -> CandidateResult:
+    """Spot errors of the internal-resonance slow flow (``"ms-ir"``): its fixed point by
+    Newton from each exact orbit's modal amplitudes, measured like a balance solution; the
+    estimate against the balance with H = 3 at the same orbits."""
+    from perturb.solve import SlowFlowSolver
+
+    solver = SlowFlowSolver(derivation, system)
+    errs, est = [], 0.0
+    coord: dict[str, float] = {}
+    for w, spots in zip(ws, orbits, strict=True):
+        found: list[tuple[float, dict[str, float]] | None] = []
+        for sp_ in spots:
+            x = solver.newton(_slow_flow_guess(solver, sp_.orbit, w), w)
+            if x is None:
+                found.append(None)
+                continue
+            amp, coords, _, _ = solver.measures(x, w, c)
+            found.append((amp, coords))
+        e, ce = _spot_errors(spots, found)
+        errs.append(e)
+        for k, v in ce.items():
+            coord[k] = max(coord.get(k, 0.0), v)
+        richer = _system_candidate_at(system, 3, w, spots, c, False)
+        for f, g in zip(found, richer, strict=True):
+            if f is not None and g is not None:
+                est = max(est, _rel(f[0], g[0]))
+    return CandidateResult(
+        candidate, tuple(errs), est, time.process_time() - t0, "", tuple(coord.items())
+    )
 
 
 def system_spot_frequencies(system: Any, window: Sequence[float], n: int = 4) -> tuple[float, ...]:
@@ -1289,12 +1353,14 @@ def _choose_system(
 ):
     """:func:`choose_system_method`; ``known`` caches the exact spot orbits (filled in here),
     ``before`` are results of cheaper rungs already rejected (reported, not re-run)."""
-    from perturb.solve import SYSTEM_METHODS
+    from perturb.solve import SYSTEM_METHODS, SYSTEM_ONLY_METHODS
 
     rtol = check_rtol(rtol)
     lo, hi = checks.window(window)
     ladder = list(ladder)
     for c in ladder:
+        if c.method in SYSTEM_ONLY_METHODS:
+            continue  # not in the registry of one-coordinate methods
         check_candidate(c)
         if c.method not in SYSTEM_METHODS or c.method == "auto":
             raise ParameterError(
@@ -1317,23 +1383,30 @@ def _choose_system(
     orbits = known[ws]
     exact_s = known.get("seconds", 0.0)
     ladder = [c for c in ladder if c.method != "exact"] + [Candidate("exact", "exact")]
-    derivation = None
+    derivations: dict[str, Any] = {}
     tried: list[CandidateResult] = list(before)
     for cand in ladder:
-        if cand.method in ("hb1", "shb") and derivation is None:
-            from perturb.methods.system_harmonic_balance import system_single_harmonic_balance
+        kind = "ms-ir" if cand.method in SYSTEM_ONLY_METHODS else cand.method
+        if kind in ("hb1", "shb", "ms-ir") and kind not in derivations:
+            from perturb.solve import derive_system
 
             try:
-                derivation = system_single_harmonic_balance(system)
+                derivations[kind] = derive_system(system, "hb1" if kind == "shb" else kind)
             except PerturbError as exc:
-                res = CandidateResult(
-                    cand, tuple(math.inf for _ in ws), math.nan, 0.0, f"not derived: {exc}"
-                )
-                tried.append(res)
-                if log is not None:
-                    log(f"{cand.name}: {res.note}")
-                continue
-        res = system_candidate_spot_errors(system, cand, ws, orbits, output, derivation)
+                derivations[kind] = exc
+        if isinstance(derivations.get(kind), PerturbError):
+            res = CandidateResult(
+                cand,
+                tuple(math.inf for _ in ws),
+                math.nan,
+                0.0,
+                f"not derived: {derivations[kind]}",
+            )
+            tried.append(res)
+            if log is not None:
+                log(f"{cand.name}: {res.note}")
+            continue
+        res = system_candidate_spot_errors(system, cand, ws, orbits, output, derivations.get(kind))
         if log is not None:
             log(
                 f"{cand.name}: spot error {res.error:.2e}, estimate {res.estimate:.2e}, "
