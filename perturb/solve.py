@@ -2793,7 +2793,8 @@ def system_errors(
         if abs(hb[0] - ex[0]) > 0.5 * max(abs(ex[0]), 1e-300):
             continue  # shooting fell onto another orbit
         for k, a, e in zip(keys, hb, ex, strict=True):
-            out[k][r] = abs(a - e) / e if e != 0 else np.inf
+            # a coordinate at rest in both (not excited): no error
+            out[k][r] = abs(a - e) / e if e != 0 else (0.0 if a == 0 else np.inf)
     done = int(np.sum(np.isfinite(out["rel_error"])))
     parts = [
         f"{k.removeprefix('rel_error_') if k != 'rel_error' else 'output'} {np.nanmax(out[k]):.3g}"

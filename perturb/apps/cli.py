@@ -530,38 +530,45 @@ def _frc_system(args: argparse.Namespace) -> int:
     CSV with the SDOF columns of ``--output`` and ``amplitude_<name>``, ``mean_<name>`` of
     every coordinate; ``--compare exact`` (hb only) adds ``rel_error`` (of ``--output``'s
     max |.|) and ``rel_error_<name>`` per coordinate against the exact response."""
-    from perturb.methods.registry import check_points, spec
-    from perturb.solve import SYSTEM_METHODS
+    from types import SimpleNamespace
 
-    method = spec("exact" if args.method is None else args.method, what="--method")
-    if method.name not in SYSTEM_METHODS:
+    from perturb.methods.registry import check_points, spec
+    from perturb.solve import SYSTEM_METHODS, SYSTEM_ONLY_METHODS
+
+    if args.method in SYSTEM_ONLY_METHODS:
+        # the slow flow of an internal resonance: a method of systems only (no registry entry)
+        method = SimpleNamespace(name="ms-ir", kind="symbolic", title="internal resonance")
+    else:
+        method = spec("exact" if args.method is None else args.method, what="--method")
+    if method.name not in (*SYSTEM_METHODS, "ms-ir"):
         raise ParameterError(
             f"--method {args.method}: {method.title} is a method for one coordinate; a system "
-            f"of several coordinates ({args.model!r}) takes --method exact, hb, hb1, shb or "
-            "auto (exact orbits; numeric multi-harmonic balance; symbolic single-harmonic "
-            "balance; the cheapest meeting rtol 1e-3)"
+            f"of several coordinates ({args.model!r}) takes --method exact, hb, hb1, shb, "
+            "ms-ir or auto (exact orbits; numeric multi-harmonic balance; symbolic "
+            "single-harmonic balance; internal-resonance slow flow; the cheapest meeting "
+            "rtol 1e-3)"
         )
     options: dict = {}
     if args.compare not in (None, "exact"):
         raise PerturbError(f"--compare {args.compare!r}: expected exact")
-    if method.name in ("hb", "hb1", "shb", "auto"):
+    if method.name in ("hb", "hb1", "shb", "auto", "ms-ir"):
         if args.order is not None:
             raise ParameterError(
                 f"--order: not an option of --method {method.name} for a system (an "
                 "expansion order belongs to the methods of one coordinate)"
             )
         if args.harmonics is not None:
-            if method.name in ("hb1", "auto"):
+            if method.name in ("hb1", "auto", "ms-ir"):
                 raise ParameterError(
                     f"--harmonics: --method {method.name} chooses its harmonics itself (hb1: "
                     "one; auto: the ladder's); give --method hb --harmonics H"
                 )
             options["harmonics"] = _harmonics_option(method.name, args.harmonics)
         if args.one_branch:
-            if method.name == "auto":
+            if method.name in ("auto", "ms-ir"):
                 raise ParameterError(
-                    "--one-branch applies to --method hb, hb1 and shb; auto traces every branch "
-                    "its chosen method finds"
+                    "--one-branch applies to --method hb, hb1 and shb; auto and ms-ir trace "
+                    "every branch they find"
                 )
             options["all_branches"] = False
     else:
