@@ -84,10 +84,16 @@ of its segments (those that stay inside their segments are exact orbits, and exa
 solutions for any ``H``), the linearisation about zero, the frozen slopes through the origin;
 at most six capped Newton runs, then a Newton homotopy :math:`R(u) - (1 - \lambda) R(u_g)` from
 two of them by the continuation core. A branch starts from a stable one when there is one.
-Known limit: a clearance that leaves a coordinate without stiffness away from contact (the
-``impact_pair`` off resonance) has a family of non-isolated orbits there (any position of the
-free mass in the gap): the HB Jacobian is singular, and neither the start nor the continuation
-works in that regime; give a guess of the impacting orbit.
+Every branch in a window (:func:`system_balance_response`) also starts from the
+describing-function orbits (each PWL element replaced by its equivalent slope at the
+self-consistent signal level): they reach the impacting orbits of the impact pair, which no
+frozen segment does. Known limit: a clearance that leaves a coordinate without stiffness away
+from contact (the ``impact_pair`` off resonance) has a family of non-isolated orbits there
+(any position of the free mass in the gap): the HB Jacobian is singular, and neither the start
+nor the continuation works in that regime (the impacting branches are traced up to it). The
+multi-impact orbits of the lightly damped pair (``mu2 = 0.01``, Omega 0.8..1.0: asymmetric
+pairs and loops with 8-12 switches per period) are not all reached: over (0.8, 1.3) 62 of 874
+exact points (every 8th) have no HB solution near them.
 
 Measured (``benchmarks/bench_system_balance.py``): nsd2, H = 15, the branch from the high end
 over (0.5, 2) with multipliers at every point, ~0.21 s CPU; every branch
@@ -100,6 +106,7 @@ a few per cent for H = 3..63, the other coordinate's error stays below that floo
 from __future__ import annotations
 
 import math
+import warnings
 import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -158,6 +165,8 @@ _PROJECTION_CACHE = 4
 #: frequency factors a dense matrix (below this a sparse LU costs more than it saves:
 #: measured 0.23 ms sparse vs 0.14 ms dense per evaluation on nsd2, H = 15, 62 unknowns).
 _DENSE_LIMIT = 400
+#: Signal levels scanned by the describing-function starting guesses.
+_DF_LEVELS = 16
 
 
 class SystemBalanceError(PerturbError):
@@ -742,22 +751,61 @@ class SystemBalance:
             return u0
         return u0 + du if np.all(np.isfinite(du)) else u0
 
+    def _frozen_solve(
+        self, Omega: float, frozen: dict[int, tuple[float, float]]
+    ) -> np.ndarray | None:
+        """The steady state (flat coefficients) of the linear system with each element
+        ``idx`` of ``frozen`` replaced by ``slope * s + offset``, the other AFT elements
+        linearised at zero and terms in the states left out; None when it is singular."""
+        w = self._omega(Omega)
+        F, _ = self.forcing(Omega)
+        k = self.basis.k.astype(float)
+        lin = self._lin_vals[0] + w * self._lin_vals[1] + (w * w) * self._lin_vals[2]
+        size = self.size
+        ii, jj = self._block_index
+        eye = np.eye(size)
+        rows, cols, vals = [self._lin_rows], [self._lin_cols], [lin]
+        rhs = F.copy()
+        for idx, el in enumerate(self.elements):
+            if idx in frozen:
+                slope, offset = frozen[idx]
+                rhs[:, 0] -= el.w * offset
+                Js = slope * eye
+            elif el.kind == "aft_s":
+                P, Js = self._aft_s(el, np.zeros(size), True)
+                rhs -= np.outer(el.w, P)
+            else:
+                continue  # a term in the states: left out of the guess
+            JsD = self._jd(Js, k)
+            for j in el.cols:
+                Jj = el.alpha[j] * Js + (w * el.beta[j]) * JsD
+                for i in el.rows:
+                    rows.append(i * size + ii)
+                    cols.append(j * size + jj)
+                    vals.append(el.w[i] * Jj.reshape(-1))
+        A = sps.csc_matrix(
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+            shape=(self.n_unknowns, self.n_unknowns),
+        )
+        with warnings.catch_warnings():
+            # a frozen free segment of a clearance leaves a coordinate without stiffness:
+            # singular, skipped (the result is not finite)
+            warnings.simplefilter("ignore", spla.MatrixRankWarning)
+            try:
+                u = spla.spsolve(A, rhs.reshape(-1))
+            except (RuntimeError, ValueError):
+                return None
+        return u if np.all(np.isfinite(u)) else None
+
     def segment_guesses(self, Omega: float, limit: int = 64) -> list[tuple[np.ndarray, bool]]:
         """Steady states of the linear systems obtained by freezing every PWL element on one
         of its segments (at most ``limit`` combinations), each with a flag telling whether
         every element's signal stays inside its frozen segment (then it is an exact orbit
         and an exact HB solution for any ``H``). Non-PWL elements are linearised at 0."""
         w = self._omega(Omega)
-        F, _ = self.forcing(Omega)
-        k = self.basis.k.astype(float)
         exact = [i for i, el in enumerate(self.elements) if el.kind == "exact"]
         counts = [self.elements[i].pwl.slopes.size for i in exact]
         total = int(np.prod(counts)) if counts else 1
-        lin = self._lin_vals[0] + w * self._lin_vals[1] + (w * w) * self._lin_vals[2]
-        size = self.size
-        ii, jj = np.meshgrid(np.arange(size), np.arange(size), indexing="ij")
-        ii, jj = ii.reshape(-1), jj.reshape(-1)
-        eye = np.eye(size)
         out = []
         # every combination of segments with their offsets (candidate exact orbits), then the
         # same slopes through the origin: for a clearance whose free segment leaves a
@@ -768,42 +816,17 @@ class SystemBalance:
             segs, rest = {}, combo % total
             for i, cnt in zip(exact, counts, strict=True):
                 segs[i], rest = rest % cnt, rest // cnt
-            rows, cols, vals = [self._lin_rows], [self._lin_cols], [lin]
-            rhs = F.copy()
-            zero = np.zeros(self.n_unknowns)
-            for idx, el in enumerate(self.elements):
-                if idx in segs:
-                    slope = float(el.pwl.slopes[segs[idx]])
-                    if with_offset:
-                        rhs[:, 0] -= el.w * float(el.pwl.offsets[segs[idx]])
-                    Js = slope * eye
-                elif el.kind == "aft_s":
-                    P, Js = self._aft_s(el, np.zeros(size), True)
-                    rhs -= np.outer(el.w, P)
-                else:
-                    continue  # a term in the states: left out of the guess
-                JsD = self._jd(Js, k)
-                for j in range(self.neq):
-                    a, b = el.alpha[j], el.beta[j]
-                    if a == 0.0 and b == 0.0:
-                        continue
-                    Jj = a * Js + (w * b) * JsD
-                    for i in np.flatnonzero(el.w):
-                        rows.append(i * size + ii)
-                        cols.append(j * size + jj)
-                        vals.append(el.w[i] * Jj.reshape(-1))
-            A = sps.csc_matrix(
-                (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                shape=(self.n_unknowns, self.n_unknowns),
-            )
-            try:
-                u = spla.spsolve(A, rhs.reshape(-1))
-            except (RuntimeError, ValueError):
+            frozen = {
+                idx: (
+                    float(self.elements[idx].pwl.slopes[seg]),
+                    float(self.elements[idx].pwl.offsets[seg]) if with_offset else 0.0,
+                )
+                for idx, seg in segs.items()
+            }
+            u = self._frozen_solve(Omega, frozen)
+            if u is None:
                 continue
-            if not np.all(np.isfinite(u)):
-                continue
-            del zero
-            U = u.reshape(self.neq, size)
+            U = u.reshape(self.neq, self.size)
             UD = self._DT(U)
             inside = with_offset
             for idx, seg in segs.items() if with_offset else ():
@@ -815,6 +838,78 @@ class SystemBalance:
                     break
             out.append((u, inside))
         out.sort(key=lambda p: not p[1])
+        return out
+
+    def describing_guesses(
+        self, Omega: float, levels: int = _DF_LEVELS, limit: int = 4
+    ) -> list[np.ndarray]:
+        """Starting guesses for orbits that cross the breakpoints, from the describing
+        function of every PWL element: with each element replaced by its equivalent slope
+        at the signal ``S cos theta`` (the first cosine coefficient of its exact projection
+        over ``S``) and its mean force, the linear steady state gives the element's signal
+        a first-harmonic amplitude ``A(S)``; the guesses are the linear steady states at the
+        self-consistent levels ``A(S) = S`` (sign changes of ``log(A/S)`` on a geometric grid
+        of ``levels`` values of ``S / b`` from 1.001 to 30, ``b`` the element's largest
+        breakpoint magnitude, refined by four regula falsi steps; with several elements the
+        mean of their ``log(A/S)``), at most ``limit`` of them. These reach the impacting
+        orbits of a clearance whose free segment leaves a coordinate without stiffness (the
+        impact pair), which no frozen segment does."""
+        pwl = [i for i, el in enumerate(self.elements) if el.kind == "exact"]
+        if not pwl:
+            return []
+        w = self._omega(Omega)
+        ia = self.basis.a_index[0]
+        ib = self.basis.b_index[0]
+        scales = []
+        for idx in pwl:
+            bps = self.elements[idx].pwl.breakpoints
+            scales.append(float(np.abs(bps).max()) if bps.size else 1.0)
+
+        def at(level: float) -> tuple[float, np.ndarray | None]:
+            frozen = {}
+            for idx, b in zip(pwl, scales, strict=True):
+                el = self.elements[idx]
+                S = level * b
+                s = np.zeros(self.size)
+                s[ia] = S
+                P, _, _ = el.projector.project(s, False)
+                frozen[idx] = (float(P[ia]) / S, float(P[0]) if self.basis.bias else 0.0)
+            u = self._frozen_solve(Omega, frozen)
+            if u is None:
+                return math.nan, None
+            U = u.reshape(self.neq, self.size)
+            UD = self._DT(U)
+            logs = []
+            for idx, b in zip(pwl, scales, strict=True):
+                el = self.elements[idx]
+                s = el.alpha @ U + w * (el.beta @ UD)
+                amp = math.hypot(float(s[ia]), float(s[ib]))
+                logs.append(math.log(max(amp, 1e-300) / (level * b)))
+            return float(np.mean(logs)), u
+
+        grid = np.geomspace(1.001, 30.0, int(levels))
+        values = [at(float(v)) for v in grid]
+        out: list[np.ndarray] = []
+        for i in range(len(grid) - 1):
+            (g0, _), (g1, _) = values[i], values[i + 1]
+            if not (math.isfinite(g0) and math.isfinite(g1)) or (g0 > 0) == (g1 > 0):
+                continue
+            lo, hi, glo, ghi = math.log(grid[i]), math.log(grid[i + 1]), g0, g1
+            u_best = values[i][1] if abs(g0) < abs(g1) else values[i + 1][1]
+            for _ in range(4):
+                x = lo - glo * (hi - lo) / (ghi - glo)
+                gx, ux = at(math.exp(x))
+                if not math.isfinite(gx) or ux is None:
+                    break
+                u_best = ux
+                if (gx > 0) == (glo > 0):
+                    lo, glo = x, gx
+                else:
+                    hi, ghi = x, gx
+            if u_best is not None:
+                out.append(u_best)
+            if len(out) >= limit:
+                break
         return out
 
     def solve(
@@ -880,19 +975,27 @@ class SystemBalance:
         abandon=None,
         abandon_after: int = 3,
         halvings: int = 12,
+        extend: bool = False,
     ) -> tuple[np.ndarray | None, int, float]:
         """Damped Newton from ``u``: ``(solution or None, last step index, best |R|)``;
         ``abandon(u)`` (when given) is asked after each step from ``abandon_after`` on whether
         to give up (the iterate is heading for a solution already known); at most
-        ``halvings`` Armijo halvings per step."""
+        ``halvings`` Armijo halvings per step. With ``extend`` a run that reaches its cap
+        having reduced ``|R|`` by more than three decades gets ``max_iterations`` more steps
+        once (a damped run closing in on a solution: the impact pair's impacting orbit at
+        Omega = 1.0 from its describing-function guess reached |R| = 2e-6 in 12 steps)."""
         scale = max(1e-12, float(np.abs(u).max()))
         best = np.inf
+        first = None
         it = 0
-        for it in range(int(max_iterations)):  # noqa: B007 -- reported by the caller
+        cap = int(max_iterations)
+        while it < cap:
             if abandon is not None and it >= abandon_after and abandon(u):
                 return None, it, best
             du, r = self._newton_step(u, Omega)
             nr = float(np.linalg.norm(r))
+            if first is None:
+                first = nr
             # Armijo halving: a poor guess may overshoot across a switching angle
             lam = 1.0
             decreased = False
@@ -915,7 +1018,10 @@ class SystemBalance:
             scale = max(scale, float(np.abs(u).max()))
             if float(np.abs(lam * du).max()) <= tol * scale:
                 return u, it, best
-        return None, it, best
+            it += 1
+            if it == cap == int(max_iterations) and extend and best < 1e-3 * first:
+                cap += int(max_iterations)
+        return None, max(0, it - 1), best
 
     def _newton_step(self, u: np.ndarray, Omega: float) -> tuple[np.ndarray, np.ndarray]:
         """``(-J^-1 R, R)`` at ``u``: a dense LU for small balances, SuperLU on the sparse
@@ -1765,6 +1871,9 @@ def _solutions_at(sb: SystemBalance, W: float, skip, max_starts: int, near=None)
         V = L.copy()
         V[:, 0] = b
         starts.append(V.reshape(-1))
+    # describing-function guesses: orbits across the breakpoints that no frozen segment
+    # reaches (the impacting orbits of the impact pair)
+    starts += sb.describing_guesses(W)
     starts += [u for u, inside in seg if not inside]
     starts += [c * lin for c in _MULTI_START_SCALES]
     out: list[np.ndarray] = []
@@ -1787,6 +1896,7 @@ def _solutions_at(sb: SystemBalance, W: float, skip, max_starts: int, near=None)
             abandon=near,
             abandon_after=1,
             halvings=_SEED_HALVINGS,
+            extend=True,
         )[0]
         if u is None:
             continue
@@ -1973,7 +2083,9 @@ def system_balance_response(
 
     1. Seeds at both window edges and at ``interior`` frequencies evenly inside: at each,
        every HB solution that Newton reaches from the frozen-segment linear orbits of every
-       region, the linearisation about zero and a bounded multi-start (the linear guess moved
+       region, the linearisation about zero, the describing-function orbits
+       (:meth:`SystemBalance.describing_guesses`: orbits across the breakpoints, such as the
+       impacting orbits of the impact pair) and a bounded multi-start (the linear guess moved
        onto the mean of each frozen-segment orbit, then scaled by 0.5, 2, 4), at most
        ``max_starts`` Newton runs per frequency (a run whose iterate comes within 0.05 of a
        traced branch from its second step on is abandoned). Each solution that lies on no
