@@ -245,3 +245,86 @@ def test_bad_input():
         autonomous_balance_orbit(forced, 5)
     with pytest.raises(ParameterError, match="start"):
         autonomous_balance_branch(vdp(1.0), "eps", (0.5, 1.0), 5, start=2.0)
+
+
+def settled_cycle(f, jac, y0, idx):
+    """DOP853 (rtol = atol = 1e-12): settle from y0, locate two upward zero crossings of
+    state idx (the period), and integrate the variational equations over that period from
+    the first crossing: (period, max |y_idx|, multipliers)."""
+    n = len(y0)
+
+    def ev(t, y):
+        return y[idx]
+
+    ev.direction = 1.0
+    sol = solve_ivp(f, (0, 150), y0, method="DOP853", rtol=1e-12, atol=1e-12, events=ev)
+    tc = sol.t_events[0]
+    T = float(tc[-1] - tc[-2])
+    ys = sol.y_events[0][-1]
+
+    def g(t, z):
+        y, Phi = z[:n], z[n:].reshape(n, n)
+        return np.concatenate([f(t, y), (jac(y) @ Phi).reshape(-1)])
+
+    z0 = np.concatenate([ys, np.eye(n).reshape(-1)])
+    out = solve_ivp(g, (0, T), z0, method="DOP853", rtol=1e-12, atol=1e-12, dense_output=True)
+    tt = np.linspace(0, T, 40001)  # spacing 1.5e-4: max found to ~1e-8
+    amp = float(np.abs(out.sol(tt)[idx]).max())
+    mu = np.linalg.eigvals(out.y[n:, -1].reshape(n, n))
+    return T, amp, mu[np.argsort(-np.abs(mu))]
+
+
+def test_several_coordinates_and_first_order_states_against_dop853():
+    # two coupled coordinates (van der Pol driving a damped one) and a first-order state
+    c2 = System.parse(
+        [
+            "x1'' - eps*(1 - x1**2)*x1' + x1 + k*(x1 - 2*x2) = 0",
+            "x2'' + 0.3*x2' + 2*x2 + k*(2*x2 - x1) = 0",
+        ],
+        {"eps": 0.8, "k": 0.3},
+    )
+    mix = System.parse(["x'' - eps*(1 - x**2)*x' + x + p = 0", "p' + p - 0.5*x = 0"], {"eps": 1.0})
+
+    def f_c2(t, y):
+        x1, x2, v1, v2 = y
+        return np.array(
+            [
+                v1,
+                v2,
+                0.8 * (1 - x1**2) * v1 - x1 - 0.3 * (x1 - 2 * x2),
+                -0.3 * v2 - 2 * x2 - 0.3 * (2 * x2 - x1),
+            ]
+        )
+
+    def j_c2(y):
+        x1, _, v1, _ = y
+        return np.array(
+            [
+                [0, 0, 1, 0],
+                [0, 0, 0, 1],
+                [-1.6 * x1 * v1 - 1.3, 0.6, 0.8 * (1 - x1**2), 0],
+                [0.3, -2.6, 0, -0.3],
+            ]
+        )
+
+    def f_mix(t, y):
+        x, v, p = y
+        return np.array([v, (1 - x * x) * v - x - p, -p + 0.5 * x])
+
+    def j_mix(y):
+        x, v, _ = y
+        return np.array([[0, 1, 0], [-2 * x * v - 1, 1 - x * x, -1], [0.5, 0, -1]])
+
+    for system, f, jac, y0, name in (
+        (c2, f_c2, j_c2, [0.1, 0, 0, 0], "x1"),
+        (mix, f_mix, j_mix, [0.1, 0, 0], "x"),
+    ):
+        sol = autonomous_balance_orbit(system, 31)
+        T, amp, mu = settled_cycle(f, jac, y0, 0)
+        assert sol.period == pytest.approx(T, rel=1e-8)
+        assert sol.amplitudes[name] == pytest.approx(amp, rel=1e-7)
+        assert abs(sol.trivial_multiplier - 1) < 1e-4
+        nontrivial = np.sort(np.abs(sol.nontrivial_multipliers))
+        ref = np.sort(np.abs(mu))[:-1]  # drop the exact trivial multiplier (modulus 1)
+        assert np.allclose(nontrivial, ref, rtol=1e-3, atol=1e-6)
+        assert sol.stable is True
