@@ -1,0 +1,141 @@
+"""Bad input to the harmonic balance of systems (perturb.numeric.system_balance), issue 16:
+harmonics that cannot represent the requested subharmonic, an element on a combination that
+is identically zero, an output that is not a coordinate -- each a PerturbError naming the
+value and what was expected, raised before any solving. Beside each refusal, the accepted
+neighbour (so the check is not refusing everything)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from perturb.errors import ModelError, ParameterError, PerturbError
+from perturb.model.system import System, gap, polynomial
+from perturb.model.system_builtins import builtin_system
+from perturb.numeric.system_balance import (
+    SystemBalance,
+    system_balance_branch,
+    system_balance_orbit,
+    system_balance_response,
+    system_balance_solutions_at,
+)
+
+
+def _pair(on: str, element=gap, params=None) -> System:
+    """Two unit masses, one element on ``on`` (forcing on the first)."""
+    el = element(on, 0.2, 4.0) if element is gap else element(on, [0, 0, 0, 1.0])
+    return System.from_matrices(
+        np.eye(2).tolist(),
+        (0.05 * np.eye(2)).tolist(),
+        [[1.5, -0.5], [-0.5, 1.0]],
+        elements=[el],
+        forcing=["0.05*cos(Omega*t)", "0"],
+        coordinates=["x1", "x2"],
+        params={"Omega": 1.1, **(params or {})},
+        name="pair",
+    )
+
+
+# ------------------------------------------------------------------ subharmonics ----------
+@pytest.mark.parametrize(("H", "m", "harmonic"), [(1, 2, "2"), (3, 4, "4"), (2, 3, "3")])
+def test_harmonics_that_cannot_hold_the_subharmonic(H, m, harmonic):
+    """The forcing at Omega is harmonic m of the response frequency Omega/m: H < m cannot
+    represent it."""
+    system = builtin_system("nsd2")
+    with pytest.raises(ModelError) as info:
+        SystemBalance(system, H, m=m)
+    msg = str(info.value)
+    assert f"harmonic {harmonic} of the response frequency Omega/{m}" in msg
+    assert f"1..{H}" in msg and "harmonics=" in msg
+    # the same through the front functions, before any solving
+    with pytest.raises(ModelError, match=f"Omega/{m}"):
+        system_balance_orbit(system, 1.0, harmonics=H, m=m)
+    with pytest.raises(ModelError, match=f"Omega/{m}"):
+        system_balance_response(system, (1.0, 2.0), harmonics=H, m=m)
+    # enough harmonics: accepted
+    assert SystemBalance(system, m, m=m).H == m
+
+
+def test_forcing_rate_that_no_whole_harmonic_matches():
+    """A forcing at 1.5 Omega is harmonic 1.5 of Omega (m = 1): refused; with m = 2 it is
+    harmonic 3 of Omega/2 and accepted."""
+    system = System.parse(
+        ["x1'' + 0.1*x1' + x1 + (x1 - 1)*Heaviside(x1 - 1) = cos(1.5*Omega*t)"],
+        {"Omega": 1.0},
+    )
+    with pytest.raises(ModelError, match=r"harmonic 1\.5 of the response frequency Omega/1"):
+        SystemBalance(system, 5)
+    assert SystemBalance(system, 5, m=2).m == 2
+
+
+@pytest.mark.parametrize("m", [0, -1, 2.5, True, "2"])
+def test_bad_m(m):
+    with pytest.raises(ParameterError, match=f"m = {m!r}"):
+        SystemBalance(builtin_system("nsd2"), 5, m=m)
+
+
+# ------------------------------------------------------------------ zero combinations -----
+@pytest.mark.parametrize(("on", "element"), [("x1 - x1", gap), ("0*x1", polynomial)])
+def test_element_on_an_identically_zero_combination(on, element):
+    with pytest.raises(ModelError) as info:
+        SystemBalance(_pair(on, element), 3)
+    msg = str(info.value)
+    assert repr(on) in msg and "identically zero" in msg
+    # a nonzero combination is accepted
+    assert SystemBalance(_pair("x1 - x2", element), 3).n_unknowns == 14
+
+
+def test_element_whose_combination_vanishes_for_the_parameter_values():
+    """(a x1 - 1) H(a x1 - 1) with a = 0: the switching function is the constant -1."""
+    zero = System.parse(
+        ["x1'' + 0.1*x1' + x1 + (a*x1 - 1)*Heaviside(a*x1 - 1) = cos(Omega*t)"],
+        {"a": 0.0, "Omega": 1.0},
+    )
+    with pytest.raises(ModelError, match="never changes sign") as info:
+        SystemBalance(zero, 3)
+    assert "nonsmooth(x1)" in str(info.value)
+    assert SystemBalance(zero.with_params(a=1.0), 3).neq == 1
+
+
+# ------------------------------------------------------------------ outputs ---------------
+@pytest.mark.parametrize(
+    ("output", "expected"),
+    [
+        ("x3", r"output 'x3'.*unknown name\(s\) \['x3'\]"),
+        ("t", r"output 't'.*unknown name"),
+        ("x1 - x1", r"output 'x1 - x1'.*identically zero"),
+        ("Omega", r"output 'Omega'.*constant term"),
+        ("x1**2", r"output 'x1\*\*2'.*not linear"),
+        ([0, 0, 0, 0], r"output vector \[0, 0, 0, 0\].*not all zero"),
+        ([1.0, 0.0], r"output vector \[1.0, 0.0\]: expected 4 finite numbers"),
+        (3, r"output vector 3"),
+    ],
+)
+def test_output_that_is_not_a_coordinate(output, expected):
+    system = builtin_system("nsd2")
+    for call in (
+        lambda: system_balance_branch(system, (1.0, 2.0), harmonics=3, output=output),
+        lambda: system_balance_response(system, (1.0, 2.0), harmonics=3, output=output),
+        lambda: system_balance_solutions_at(system, [1.0], harmonics=3, output=output),
+    ):
+        with pytest.raises(PerturbError, match=expected) as info:
+            call()
+        assert "expected" in str(info.value)
+
+
+def test_outputs_that_are_accepted():
+    """A coordinate, a velocity, a combination and a vector: the branch's output amplitude
+    is that signal's max |.| (x1 - x2 checked against the two coordinates' series)."""
+    system = builtin_system("nsd2")
+    sb = SystemBalance(system, 3)
+    for output in ("x2", "x1'", "x1 - x2", [1.0, -1.0, 0.0, 0.0]):
+        sols = system_balance_solutions_at(
+            system, [1.9], harmonics=3, output=output, balance=sb, stability=False
+        )
+        b = sols.branches[0]
+        if output in ("x1 - x2", [1.0, -1.0, 0.0, 0.0]):
+            th = np.linspace(0, 2 * np.pi, 2001)
+            k = np.arange(1, 4)
+            D = b.U[0, 0] - b.U[0, 1]
+            vals = D[0] + D[1::2] @ np.cos(np.outer(k, th)) + D[2::2] @ np.sin(np.outer(k, th))
+            assert b.output_amplitude[0] == pytest.approx(np.abs(vals).max(), rel=1e-6)
