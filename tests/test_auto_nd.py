@@ -132,3 +132,84 @@ def test_bad_input(nsd2):
         frequency_response(nsd2, "auto", WINDOW, output="x3")
     with pytest.raises(ParameterError, match="mlp.*does not take a system"):
         auto_system_response(nsd2, WINDOW, 1e-2, ladder=[Candidate("mlp1", "mlp", order=1)])
+
+
+# a weakly nonlinear pair with a 1:1 internal resonance (x2 couples through g x1 x2^2; with
+# x2 at rest the motion is x1's hardening Duffing response)
+PAIR = {"w2sq": 1.02, "c": 0.02, "g": 0.5, "h": 0.2, "a": 0.1, "F": 0.01}
+
+
+def pair_system():
+    from perturb.model.system import System
+
+    return System.parse(
+        [
+            "x1'' + c*x1' + x1 + a*x1**3 + g*x1*x2**2 = F*cos(Omega*t)",
+            "x2'' + c*x2' + w2sq*x2 + h*x2**3 + g*x1**2*x2 = 0",
+        ],
+        {**PAIR, "Omega": 1.0},
+        name="pair11",
+    )
+
+
+def pair_orbit_max(W, y0):
+    """max |x1| of the pair's periodic orbit, shot here (DOP853 1e-12, fsolve)."""
+    p = PAIR
+
+    def f(t, y):
+        x1, x2, v1, v2 = y
+        return [
+            v1,
+            v2,
+            p["F"] * np.cos(W * t) - p["c"] * v1 - x1 - p["a"] * x1**3 - p["g"] * x1 * x2**2,
+            -p["c"] * v2 - p["w2sq"] * x2 - p["h"] * x2**3 - p["g"] * x1**2 * x2,
+        ]
+
+    T = 2 * np.pi / W
+
+    def flow(y):
+        return solve_ivp(f, (0, T), y, method="DOP853", rtol=1e-12, atol=1e-12).y[:, -1]
+
+    y = fsolve(lambda y: flow(y) - y, np.asarray(y0, float), xtol=1e-12)
+    assert np.abs(flow(y) - y).max() <= 1e-9 * (1 + np.abs(y).max())
+    t = np.linspace(0, T, 4000, endpoint=False)
+    sol = solve_ivp(f, (0, T), y, method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t)
+    return float(np.abs(sol.y[0]).max())
+
+
+def test_averaging_rung_chosen_for_a_weak_internal_resonance():
+    system = pair_system()
+    resp, choice = auto_system_response(system, (0.95, 1.05), 0.1, spots=(1.0,), curve_checks=3)
+    assert choice.chosen.candidate.name == "ms-ir"
+    # hb1 cannot take a smooth term of several states: skipped with the reason
+    (hb1,) = [r for r in choice.rejected if r.candidate.name == "hb1"]
+    assert "several states" in hb1.note
+    assert resp.method == "ms-ir-system" and resp.branches
+    br, cols = resp.branches[0], resp.columns[0]
+    errs = []
+    for j in np.linspace(0, len(br) - 1, 3).round().astype(int):
+        ex = pair_orbit_max(float(br.omega[j]), cols["states"][j])
+        errs.append(abs(float(br.amplitude[j]) - ex) / ex)
+    # first order in the small terms: within rtol, and not exact (it is an approximation)
+    assert max(errs) <= 0.1
+    assert max(errs) > 1e-4
+
+
+def test_system_derivations_reachable():
+    from perturb.model.system import System
+    from perturb.solve import derive_system
+
+    # the NNM of x1'' + 2 x1 - x2 + g x1^3 = 0, x2'' + 2 x2 - x1 = 0 along mode 1
+    # (x1 = x2 = u/sqrt 2): u'' + u + (g/4) u^3 = 0, first-order L-P: 1 + 3 (g/4) A^2 / 8
+    conservative = System.parse(
+        ["x1'' + 2*x1 - x2 + g*x1**3 = 0", "x2'' + 2*x2 - x1 = 0"], {"g": 0.1}
+    )
+    nnm = derive_system(conservative, "nnm", order=1)
+    for A in (0.3, 1.0):
+        assert float(nnm.frequency_at(A)) == pytest.approx(1 + 3 * 0.1 * A**2 / 32, rel=1e-12)
+    slow = derive_system(pair_system(), "internal-resonance")
+    assert len(slow.slow_flow) == 4
+    with pytest.raises(ParameterError, match="hb1, ms-ir, nnm"):
+        derive_system(pair_system(), "mlp")
+    with pytest.raises(ParameterError, match="order.*bias"):
+        derive_system(pair_system(), "hb1", order=2)
