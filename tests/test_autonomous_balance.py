@@ -328,3 +328,18 @@ def test_several_coordinates_and_first_order_states_against_dop853():
         ref = np.sort(np.abs(mu))[:-1]  # drop the exact trivial multiplier (modulus 1)
         assert np.allclose(nontrivial, ref, rtol=1e-3, atol=1e-6)
         assert sol.stable is True
+
+
+def test_branch_ends_at_the_hopf_point():
+    # x'' - (mu - x^2) x' + x = 0: the equilibrium's pair crosses the imaginary axis at
+    # mu = 0 (closed form: lambda = mu/2 +- i sqrt(1 - mu^2/4)); averaging: amplitude
+    # 2 sqrt(mu) for small mu. The branch must stop there, not come back as the same cycles
+    # shifted by half a period.
+    hopf = System.parse(["x'' - (mu - x**2)*x' + x = 0"], {"mu": 1.0})
+    br = autonomous_balance_branch(hopf, "mu", (-0.5, 1.0), 9, stability=False)
+    assert br.stop_reasons[0].startswith("hopf at mu = ")
+    assert abs(float(br.stop_reasons[0].split("=")[1])) < 1e-6
+    assert np.all(br.values > 0) and np.all(np.diff(br.values) > 0)
+    i = int(np.argmin(np.abs(br.values - 0.02)))
+    mu = float(br.values[i])
+    assert br.amplitudes["x"][i] == pytest.approx(2 * math.sqrt(mu), rel=2e-2)

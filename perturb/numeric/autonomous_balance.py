@@ -1631,7 +1631,9 @@ class AutonomousBalanceBranch:
     folds : tuple of float
         Parameter values of the folds the continuation located.
     stop_reasons : tuple of str
-        Why each run (down, up from the start) stopped (``'window'``: at the window edge).
+        Why each run (down, up from the start) stopped: ``'window'`` (at the window edge),
+        ``'hopf at <parameter> = <value>'`` (the cycle shrank to the equilibrium; the run is
+        cut there), or the continuation core's other reasons.
     """
 
     system: str
@@ -1812,9 +1814,25 @@ def autonomous_balance_branch(
             runs.append((x0[None, :], np.array([start])))
             reasons.append(f"failed ({exc})")
             continue
-        runs.append((np.asarray(curve.u), np.asarray(curve.lam)))
-        reasons.append(curve.stop_reason)
-        folds += [float(f.lam) for f in curve.folds]
+        u_run, l_run = np.asarray(curve.u), np.asarray(curve.lam)
+        reason = curve.stop_reason
+        # through a Hopf point the curve passes zero amplitude (a1 of the phase coordinate
+        # changes sign) and comes back as the same cycles shifted by half a period: cut there
+        a1 = u_run[:, j * ab.size + 1]
+        flip = np.flatnonzero(a1 * a1[0] <= 0.0)
+        keep = u_run.shape[0]
+        if flip.size:
+            keep = int(flip[0])
+            k = keep
+            # near the Hopf point lam - lam_H ~ c a1^2: the parabola through both neighbours
+            d2 = a1[k - 1] ** 2 - a1[k] ** 2
+            c = (l_run[k - 1] - l_run[k]) / d2 if d2 != 0.0 else 0.0
+            lam_h = float(l_run[k - 1] - c * a1[k - 1] ** 2)
+            reason = f"hopf at {parameter} = {lam_h:.6g}"
+            u_run, l_run = u_run[:keep], l_run[:keep]
+        runs.append((u_run, l_run))
+        reasons.append(reason)
+        folds += [float(f.lam) for f in curve.folds if f.index + 1 < keep]
     (u_dn, l_dn), (u_up, l_up) = runs
     X = np.concatenate([u_dn[::-1], u_up[1:] if u_dn.size else u_up])
     lam = np.concatenate([l_dn[::-1], l_up[1:] if l_dn.size else l_up])
