@@ -117,8 +117,15 @@ def nsd_exact():
 @functools.cache
 def nsd_hb(branch_points: bool = True):
     osc = builtin_model("nsd", **NSD_K3)
+    # without branch switching: the other stages as they were before it (the attractor and
+    # window-edge search, added later, finds some of the same branches another way)
     return harmonic_balance_branches(
-        osc, WINDOW, harmonics=15, branch_points=branch_points, seeds=single_harmonic_seeds
+        osc,
+        WINDOW,
+        harmonics=15,
+        branch_points=branch_points,
+        attractors=branch_points,
+        seeds=single_harmonic_seeds,
     )
 
 
@@ -258,11 +265,21 @@ def test_nsd_k3_in_well_branches_that_were_missed_now_match_exact():
     in_well = _exact_in_well(eb)
     assert len(in_well) == 2
     ref_index = {i for i, b in enumerate(eb.branches) if any(b is e for e, _ in in_well)}
-    matched = [r for r, ref in cmp.matches.items() if ref in ref_index]
-    assert matched
-    for r in matched:
-        assert cmp.branches[r].max_error < 5e-3
     hb = nsd_hb()
+    # each in-well exact branch is reproduced by its HB twin (same mean range), compared
+    # alone: compare's matching of the whole response may pair an in-well exact branch with
+    # another HB branch of equal amplitude (a real orbit family found by the attractor and
+    # window-edge search, e.g. Omega 0.2-0.4834, mean 1.6-3.96, checked by shooting)
+    for _, br in in_well:
+        twins = [
+            h
+            for h in hb
+            if abs(h.mean.min() - br.mean.min()) < 2e-2 and abs(h.mean.max() - br.mean.max()) < 2e-2
+        ]
+        assert len(twins) == 1
+        sub = compare(twins[0].to_response(), exact)
+        assert sub.matches[0] in ref_index
+        assert sub.branches[0].max_error < 5e-3
     for b, br in in_well:
         fold = [s.parameter for s in b.special_points if s.kind == "fold"]
         twins = [
@@ -285,7 +302,8 @@ def test_nsd_k3_branch_point_and_switched_branch_match_exact():
     without branch switching it is not found."""
     eb = nsd_exact()
     osc = builtin_model("nsd", **NSD_K3)
-    loop = [b for b in eb.branches if b.branch_points]
+    # the cross-well loop (max|x| ~ 43); smaller branches may have branch points of their own
+    loop = [b for b in eb.branches if b.branch_points and b.to_branch().amplitude.max() > 40.0]
     assert len(loop) == 1
     sp = loop[0].branch_points[0]
     a, c = loop[0].points[sp.index], loop[0].points[sp.index + 1]
@@ -302,7 +320,11 @@ def test_nsd_k3_branch_point_and_switched_branch_match_exact():
     assert rel < 5e-4
     assert hb_loops[0].branch_point_records[0].refined
 
-    switched = [h for h in hb if h.origin == "branch point"]
+    # the branch switched onto at the loop's branch point folds there (other branches found
+    # at the window's edge have branch points of their own)
+    switched = [
+        h for h in hb if h.origin == "branch point" and abs(h.omega.max() - W_hb) <= 1e-3 * W_hb
+    ]
     assert len(switched) == 1
     sw = switched[0]
     # the exact branch through both sides of the branch point: mean of both signs
