@@ -393,6 +393,7 @@ class SystemBalance:
         self._eig_cache: dict = {}
         self._forcing_last: tuple | None = None
         self._all_pwl = all(el.kind == "exact" for el in self.elements)
+        self._df_cache: dict = {}
         self.evaluations = 0
 
     # ---------------------------------------------------------------- set-up ----------
@@ -760,11 +761,9 @@ class SystemBalance:
         w = self._omega(Omega)
         F, _ = self.forcing(Omega)
         k = self.basis.k.astype(float)
-        lin = self._lin_vals[0] + w * self._lin_vals[1] + (w * w) * self._lin_vals[2]
         size = self.size
-        ii, jj = self._block_index
         eye = np.eye(size)
-        rows, cols, vals = [self._lin_rows], [self._lin_cols], [lin]
+        blocks: list[tuple[int, int, np.ndarray]] = []
         rhs = F.copy()
         for idx, el in enumerate(self.elements):
             if idx in frozen:
@@ -780,9 +779,24 @@ class SystemBalance:
             for j in el.cols:
                 Jj = el.alpha[j] * Js + (w * el.beta[j]) * JsD
                 for i in el.rows:
-                    rows.append(i * size + ii)
-                    cols.append(j * size + jj)
-                    vals.append(el.w[i] * Jj.reshape(-1))
+                    blocks.append((i, j, el.w[i] * Jj))
+        if self._lin_dense is not None:
+            D0, D1, D2 = self._lin_dense
+            A = D0 + w * D1 + (w * w) * D2
+            for i, j, blk in blocks:
+                A[i * size : (i + 1) * size, j * size : (j + 1) * size] += blk
+            try:
+                u = np.linalg.solve(A, rhs.reshape(-1))
+            except np.linalg.LinAlgError:
+                return None  # a frozen free segment of a clearance: singular, skipped
+            return u if np.all(np.isfinite(u)) else None
+        lin = self._lin_vals[0] + w * self._lin_vals[1] + (w * w) * self._lin_vals[2]
+        ii, jj = self._block_index
+        rows, cols, vals = [self._lin_rows], [self._lin_cols], [lin]
+        for i, j, blk in blocks:
+            rows.append(i * size + ii)
+            cols.append(j * size + jj)
+            vals.append(blk.reshape(-1))
         A = sps.csc_matrix(
             (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
             shape=(self.n_unknowns, self.n_unknowns),
@@ -868,12 +882,19 @@ class SystemBalance:
         def at(level: float) -> tuple[float, np.ndarray | None]:
             frozen = {}
             for idx, b in zip(pwl, scales, strict=True):
-                el = self.elements[idx]
-                S = level * b
-                s = np.zeros(self.size)
-                s[ia] = S
-                P, _, _ = el.projector.project(s, False)
-                frozen[idx] = (float(P[ia]) / S, float(P[0]) if self.basis.bias else 0.0)
+                key = (idx, level)
+                if key not in self._df_cache:  # independent of Omega: once per balance
+                    S = level * b
+                    s = np.zeros(self.size)
+                    s[ia] = S
+                    P, _, _ = self.elements[idx].projector.project(s, False)
+                    mean = float(P[0]) if self.basis.bias else 0.0
+                    if len(self._df_cache) < 4096:
+                        self._df_cache[key] = (float(P[ia]) / S, mean)
+                    else:
+                        frozen[idx] = (float(P[ia]) / S, mean)
+                        continue
+                frozen[idx] = self._df_cache[key]
             u = self._frozen_solve(Omega, frozen)
             if u is None:
                 return math.nan, None
@@ -1872,8 +1893,12 @@ def _solutions_at(sb: SystemBalance, W: float, skip, max_starts: int, near=None)
         V[:, 0] = b
         starts.append(V.reshape(-1))
     # describing-function guesses: orbits across the breakpoints that no frozen segment
-    # reaches (the impacting orbits of the impact pair)
-    starts += sb.describing_guesses(W)
+    # reaches (the impacting orbits of the impact pair), asked for where some frozen segment
+    # leaves the system singular (a free segment of a clearance: no stiffness); where every
+    # frozen system is regular (nsd2) its orbits already cover the segments
+    counts = [el.pwl.slopes.size for el in sb.elements if el.kind == "exact"]
+    if len(seg) < min(2 * int(np.prod(counts)), 64) if counts else False:
+        starts += sb.describing_guesses(W)
     starts += [u for u, inside in seg if not inside]
     starts += [c * lin for c in _MULTI_START_SCALES]
     out: list[np.ndarray] = []
