@@ -78,6 +78,7 @@ import contextlib  # noqa: E402
 import io  # noqa: E402
 import json  # noqa: E402
 import select  # noqa: E402
+import shutil  # noqa: E402
 import signal  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
@@ -218,8 +219,13 @@ class PyHarmWorker:
         """``(rows or None, wall, cpu, reason)`` of one pyHarm frf run."""
         self.count += 1
         path = os.path.join(self.tmp, f"run{self.count}.npy")
-        self.proc.stdin.write(f"{ds} {nti} {timeout} {kg!r} {path}\n")
-        self.proc.stdin.flush()
+        if self.proc.poll() is not None:
+            return None, float("nan"), float("nan"), "worker not running"
+        try:
+            self.proc.stdin.write(f"{ds} {nti} {timeout} {kg!r} {path}\n")
+            self.proc.stdin.flush()
+        except BrokenPipeError:
+            return None, float("nan"), float("nan"), "worker exited (pyHarm-os not importable?)"
         # the worker's own alarm stops a run; this cap also covers imports and a hung worker
         ready, _, _ = select.select([self.proc.stdout], [], [], timeout + 120.0)
         if not ready:
@@ -237,6 +243,7 @@ class PyHarmWorker:
         if self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait(timeout=10)
+        shutil.rmtree(self.tmp, ignore_errors=True)
 
 
 # --------------------------------------------------------------------------- perturb side --
@@ -506,7 +513,9 @@ def main() -> None:
             for nti, ds in ((n, d) for n in args.nti for d in PYHARM_DS):
                 name = f"pyHarm AFT {nti}, ds={ds:g}"
                 rows, wall, cpu, why = ph.run(ds, nti, args.timeout, args.kg)
-                times.setdefault(name, []).append((wall, cpu))
+                times.setdefault(name, [])
+                if np.isfinite(cpu):
+                    times[name].append((wall, cpu))
                 if rows is not None:
                     results[name] = rows
                 if why:
@@ -532,8 +541,8 @@ def main() -> None:
     print("|" + "---|" * 14)
     stats: dict[str, tuple[float, tuple[float, ...], tuple[float, ...]]] = {}
     for name, tw in times.items():
-        cpu = min(c for _, c in tw)
-        wall = min(w for w, _ in tw)
+        cpu = min((c for _, c in tw), default=float("nan"))
+        wall = min((w for w, _ in tw), default=float("nan"))
         if name not in results:
             print(f"| {name} | - | - | - | {cpu:.3f} | {wall:.3f} | | | {notes.get(name, '')} |")
             continue
