@@ -8,6 +8,7 @@ Part of :mod:`perturb.simulate.exact_response` (the method is described there).
 
 from __future__ import annotations
 
+import bisect
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -574,7 +575,12 @@ class Tracer:
         # back on this branch, far along the curve: a closed loop
         s_new = cum[-1] + h
         gap = 6 * st.ds_max + 3 * h
-        n_far = int(np.searchsorted(np.asarray(cum), s_new - gap, side="right"))
+        if cum[-1] == cum[-1]:
+            # (cum is non-decreasing: bisect on the list, not a new array of the whole branch
+            # at every step, which made this test quadratic in the branch length)
+            n_far = bisect.bisect_right(cum, s_new - gap)
+        else:
+            n_far = int(np.searchsorted(np.asarray(cum), s_new - gap, side="right"))  # NaN
         n_far = min(n_far, len(pts) - 3)
         if own_loop and n_far >= 2 and on(own, 0, n_far - 1):
             return "closed loop", True

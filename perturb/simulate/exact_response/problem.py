@@ -115,7 +115,7 @@ class Pt:
         n = self.Z.shape[1]
         if t is None:
             return np.zeros(n + 1)
-        v = np.array([t[0], t[1], t[-1]]) if n == 2 else np.r_[t[:n], t[-1]]
+        v = np.array([t[0], t[1], t[-1]]) if n == 2 else np.append(t[:n], t[-1])
         n = np.linalg.norm(v)
         return v / n if n > 0 else v
 
@@ -230,6 +230,7 @@ class Engine:
             self._nd_rates = None if scaled is None or self.affine0 is None else scaled[1]
             self._modal: dict[tuple[int, ...], tuple[np.ndarray, ...] | None] = {}
             self._rate_cache: dict[tuple[Any, ...], tuple[Any, ...] | None] = {}
+            self._rate_sources: dict[tuple[int, ...], tuple[list, float]] = {}
             return
         # own sensitivities from the trajectory pieces where saltation is the identity
         self._continuous = self.exact and bool(np.all(self.system0.continuous_at()))
@@ -578,15 +579,25 @@ class Engine:
         out = None
         if modes is not None:
             _, lam, V, Vinv = modes
+            # the modal sources V^-1 c_k do not depend on the frequencies: once per region
+            src = self._rate_sources.get(key)
+            if src is None:
+                src = self._rate_sources[key] = (
+                    [
+                        Vinv @ (1j * rk * (h.u - 1j * h.v))
+                        for h, rk in zip(pas.inputs, self._nd_rates, strict=True)
+                    ],
+                    float(np.max(np.abs(lam))),
+                )
             forced = []
-            for h, rk in zip(pas.inputs, self._nd_rates, strict=True):
+            for h, c in zip(pas.inputs, src[0], strict=True):
                 w = h.omega
                 den = 1j * w - lam
-                if np.min(np.abs(den)) <= 1e-12 * max(1.0, w, float(np.max(np.abs(lam)))):
+                if np.min(np.abs(den)) <= 1e-12 * max(1.0, w, src[1]):
                     forced = None  # undamped resonance in a region: no particular solution
                     break
-                c = Vinv @ (1j * rk * (h.u - 1j * h.v))
-                forced.append((w, V @ (c / den), V @ (c / (den * den))))
+                q = c / den
+                forced.append((w, V @ q, V @ (q / den)))
             if forced is not None:
                 out = (lam, V, Vinv, tuple(forced))
         if len(cache) >= 64:
@@ -620,12 +631,19 @@ class Engine:
             a = float(starts[k])
             b = float(starts[k + 1]) if k + 1 < len(keys) else tb
             E = ((V * np.exp(lam * (b - a))) @ Vinv).real
-            inc = np.zeros(n)
-            for w, w1, w2 in forced:
-                za = ((w1 * a - w2) * np.exp(1j * w * a)).real
-                zb = ((w1 * b - w2) * np.exp(1j * w * b)).real
-                inc += zb - E @ za
-            zeta = E @ zeta + inc
+            if len(forced) == 1:
+                # (one input, the common case: scalar phases, one product with E)
+                w, w1, w2 = forced[0]
+                za = ((w1 * a - w2) * cmath.exp(complex(0.0, w * a))).real
+                zb = ((w1 * b - w2) * cmath.exp(complex(0.0, w * b))).real
+                zeta = E @ (zeta - za) + zb
+            else:
+                inc = np.zeros(n)
+                for w, w1, w2 in forced:
+                    za = ((w1 * a - w2) * np.exp(1j * w * a)).real
+                    zb = ((w1 * b - w2) * np.exp(1j * w * b)).real
+                    inc += zb - E @ za
+                zeta = E @ zeta + inc
             if k + 1 < len(keys):
                 ev = cross[k]
                 j = ev.surface

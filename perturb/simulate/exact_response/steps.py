@@ -338,7 +338,7 @@ def chord3(a: Pt, b: Pt, Sp: float) -> np.ndarray:
     """Scaled chord on (x0, v0, p) (on ``(y0, p)`` for n states)."""
     R = max(a.R, b.R)
     if a.Z.shape[1] != 2:
-        return np.r_[(b.Z[0] - a.Z[0]) / R, (b.p - a.p) / Sp]
+        return np.append((b.Z[0] - a.Z[0]) / R, (b.p - a.p) / Sp)
     return np.array([(b.Z[0, 0] - a.Z[0, 0]) / R, (b.Z[0, 1] - a.Z[0, 1]) / R, (b.p - a.p) / Sp])
 
 
@@ -352,5 +352,5 @@ def orient(pt: Pt, t: np.ndarray, prev: Pt | None, ref3: np.ndarray | None, Sp: 
     if ref3 is None:
         return t
     n = pt.Z.shape[1]
-    t3 = np.array([t[0], t[1], t[-1]]) if n == 2 else np.r_[t[:n], t[-1]]
+    t3 = np.array([t[0], t[1], t[-1]]) if n == 2 else np.append(t[:n], t[-1])
     return -t if float(t3 @ ref3) < 0 else t

@@ -474,10 +474,6 @@ class _RegionCore:
         self.lamj = [lam[j] for j in range(n)]
         self.Vcols = [V[:, j] for j in range(n)]
         self.lam_max = float(np.max(np.abs(lam))) if n else 0.0
-        # the sources as one (K, n) array and where they excite a mode (the vectorised
-        # particular solution of _ModalRegion, when no mode is resonant)
-        self.B = np.array(self.betas, dtype=complex).reshape(len(self.betas), n)
-        self.Bnz = self.B != 0.0
         self.C, self.d = model.C, model.d
         self.lamc = lam.astype(complex)
         self.CV = model.C @ V
@@ -544,29 +540,19 @@ class _ModalRegion:
         res, yconst, ycol = core.constant(rho)
         res = list(res)  # (lambda, sigma, V_j beta_jm)
         C = model.C
-        ZW = None
-        if om.size:
-            # Z[k] = sum_j V_j beta_kj / (i w_k - lambda_j), and C Z[k], in one product when no
-            # excited mode is resonant (else the loop below, which sets the resonant pairs
-            # apart)
-            den = (1j * om)[:, None] - core.lamc[None, :]
-            if not np.any(core.Bnz & (np.abs(den) < _RESONANCE_BAND * om[:, None])):
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    R = np.where(core.Bnz, core.B / den, 0.0)
-                ZW = core.YWV @ R.T  # (n + ns, K)
-                Z = ZW[:n].T
-        if ZW is None:
-            lamj, Vcols = core.lamj, core.Vcols
-            Z = np.zeros((om.size, n), dtype=complex)
-            for k, w in enumerate(om):
-                beta = core.betas[k]
-                s = 1j * w
-                for j in core.nz[k]:
-                    if abs(lamj[j] - s) < _RESONANCE_BAND * w:
-                        res.append((complex(lamj[j]), s, Vcols[j] * beta[j]))
-                    else:
-                        Z[k] += Vcols[j] * (beta[j] / (s - lamj[j]))
-            ZW = np.concatenate([Z.T, (Z @ C.T).T])
+        # (the loop's order of operations is kept: the propagation is bit-for-bit that of the
+        # loop, and chaotic transients, e.g. the impact pair's, amplify any rounding change)
+        lamj, Vcols = core.lamj, core.Vcols
+        Z = np.zeros((om.size, n), dtype=complex)
+        for k, w in enumerate(om):
+            beta = core.betas[k]
+            s = 1j * w
+            for j in core.nz[k]:
+                if abs(lamj[j] - s) < _RESONANCE_BAND * w:
+                    res.append((complex(lamj[j]), s, Vcols[j] * beta[j]))
+                else:
+                    Z[k] += Vcols[j] * (beta[j] / (s - lamj[j]))
+        ZW = np.concatenate([Z.T, (Z @ C.T).T])
         self.yconst = yconst
         self.Z = Z
         self.res = res
