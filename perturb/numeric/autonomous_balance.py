@@ -795,8 +795,8 @@ class AutonomousBalance:
                 return x
         raise AutonomousBalanceError(
             f"autonomous harmonic balance of {self.system.name!r} (H = {self.H}) did not "
-            f"converge in {max_iterations} Newton steps (|R| = {best:.3g}): give a better guess "
-            "(frequency and coefficients) or more iterations"
+            f"converge (damped Newton, at most {max_iterations} steps; best |R| = {best:.3g}): "
+            "give a better guess (frequency and coefficients) or more iterations"
         )
 
     def _check_nontrivial(self, x: np.ndarray, p: float, phase_index: int) -> None:
