@@ -23,8 +23,10 @@ the unknown :math:`\omega`,
 and one more equation fixes the phase (an autonomous orbit shifted in time is an orbit): the
 ``sin theta`` coefficient of the *phase coordinate* (default: the coordinate with the largest
 first harmonic in the start) is zero, ``b_1 = 0``. Unknowns ``x = (U flattened, omega)``,
-``n (2H + 1) + 1`` equations. The Jacobian is exact: ``dR/dU`` by blocks as in
-``SystemBalance``, ``dR/d omega`` in closed form.
+``n (2H + 1) + 1`` equations. The Jacobian is analytic: ``dR/dU`` by coordinate blocks
+(``w_i J_e (alpha_j I + omega beta_j D_theta)`` per element, assembled dense: the
+continuation core takes dense matrices), ``dR/d omega`` in closed form; a jump's one-sided
+values are extrapolated from ``1e-6`` beside the level (error ~1e-12).
 
 Why not ``SystemBalance`` itself: it continues a forcing frequency and refuses a parameter
 that enters the matrices or elements (a limit cycle is continued in a damping, a belt speed,
@@ -257,6 +259,8 @@ class AutonomousBalance:
         Coefficients per coordinate, ``2 H + 1``.
     n_unknowns : int
         ``len(coordinates) * size + 1`` (the frequency last).
+    smoothing : float
+        The width of the ``tanh`` of the jumps in force (0: exact law or no jumps).
 
     Raises
     ------
