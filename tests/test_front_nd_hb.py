@@ -205,3 +205,25 @@ def test_limit_cycles_by_autonomous_balance():
         limit_cycles(vdp, method="hb", grid=5)
     with pytest.raises(ParameterError, match="'exact'.*'hb'"):
         limit_cycles(vdp, method="shooting")
+
+
+def test_stepped_sine_sweep_of_a_system(nsd2):
+    from perturb.simulate.studies import system_frequency_sweep
+
+    sw = system_frequency_sweep(nsd2, [1.1, 1.125, 1.175], output="x2")
+    states = sw.up.states
+    periodic = [s for s in states if s.period == 1]
+    assert len(periodic) >= 2
+    for st in periodic:
+        # the settled state at forcing phase 0 is on the period-1 orbit: shoot it here
+        m1, m2 = exact_orbit_max(st.omega, st.y_end)
+        assert st.amplitude == pytest.approx(m2, rel=1e-6)
+        assert st.coordinates["x1"] == pytest.approx(m1, rel=1e-6)
+        assert st.coordinates["x2"] == st.amplitude
+    # at 1.175 the attractor reached from below is no period-1 orbit (a slow period-3 or a
+    # motion not settled in 400 periods): reported, and left out of the response's branch
+    assert states[-1].period != 1
+    notes = sw.to_response().notes
+    assert any("subharmonic" in n or "no periodic response" in n for n in notes)
+    with pytest.raises(PerturbError, match="x3"):
+        system_frequency_sweep(nsd2, [1.1], output="x3")

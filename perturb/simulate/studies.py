@@ -75,6 +75,7 @@ __all__ = [
     "SweepBranch",
     "SweepResult",
     "frequency_sweep",
+    "system_frequency_sweep",
     "PoincareSection",
     "poincare_section",
     "BifurcationDiagram",
@@ -560,6 +561,8 @@ class SteadyState:
     transient_periods: int
     max_multiplier: float
     y_end: np.ndarray
+    #: A system's sweep (:func:`system_frequency_sweep`): ``max |.|`` of every coordinate.
+    coordinates: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
 
     @property
     def periodic(self) -> bool:
@@ -944,6 +947,140 @@ def frequency_sweep(
     return SweepResult(
         branches=tuple(branches),
         model=osc.name,
+        params=MappingProxyType(params),
+        settings=MappingProxyType(settings),
+    )
+
+
+def _peak(values: np.ndarray) -> float:
+    """``max |v|`` of periodic samples, the largest refined by the parabola through it and its
+    neighbours (a kink or flat top keeps the sample)."""
+    a = np.abs(values)
+    i = int(np.argmax(a))
+    y0, y1, y2 = a[i - 1], a[i], a[(i + 1) % a.size]
+    den = y0 - 2 * y1 + y2
+    if den >= 0:
+        return float(y1)
+    return float(y1 - 0.125 * (y2 - y0) ** 2 / den)
+
+
+def system_frequency_sweep(
+    system: Any,
+    omegas: ArrayLike,
+    *,
+    output: str | None = None,
+    direction: Direction = "up",
+    y0: ArrayLike | None = None,
+    transient_periods: int = 400,
+    record_periods: int = 4,
+    tol: float = 1e-8,
+    max_period: int = 8,
+    samples_per_period: int = 1024,
+    method: FlowMethod = "auto",
+    progress: bool = False,
+) -> SweepResult:
+    r"""Stepped-sine sweep of a system of several coordinates
+    (:class:`~perturb.model.system.System` with a forcing-frequency parameter ``Omega``).
+
+    As :func:`frequency_sweep`: at each frequency the state the previous one ended in (at
+    forcing phase 0) is integrated period by period (:func:`make_flow`: exact when piecewise
+    affine, event-driven with stops or friction, else DOP853) until the stroboscopic points
+    repeat with a period :math:`m \le` ``max_period`` to ``tol`` (at most
+    ``transient_periods``), then ``record_periods`` periods (a whole number of the detected
+    period) are sampled at ``samples_per_period`` points each. ``amplitude`` is ``max |.|``
+    of ``output`` (a coordinate or a combination, default the first coordinate; the sampled
+    peak refined by a parabola), ``first_harmonic_amplitude`` and ``mean`` its Fourier
+    coefficients over whole periods, ``coordinates`` every coordinate's ``max |.|``;
+    ``max_multiplier`` the decay of the transient residuals.
+
+    Raises
+    ------
+    ParameterError
+        Bad arguments, an ``output`` that is not a coordinate or combination (naming the
+        states).
+    ModelError
+        A system without the parameter ``Omega``.
+    """
+    from perturb.model.system import System
+
+    if not isinstance(system, System):
+        raise ParameterError(f"system = {system!r:.80}: expected a perturb System")
+    if "Omega" not in system.params:
+        raise ModelError(
+            f"system {system.name!r} has no forcing-frequency parameter 'Omega' to sweep "
+            f"(its parameters: {', '.join(system.params) or 'none'})"
+        )
+    if direction not in ("up", "down", "both"):
+        raise ParameterError(f"direction = {direction!r}: expected 'up', 'down' or 'both'")
+    w = np.unique(_values("omegas", omegas, positive=True))
+    tp, rp, mp, tl = _check_common(transient_periods, record_periods, max_period, tol)
+    N = _int("samples_per_period", samples_per_period, 16)
+    names = system.state_names
+    coords = (*system.coordinates, *system.first_order)
+    c = np.asarray(system.output(output if output is not None else coords[0]), dtype=float)
+    y = np.zeros(len(names)) if y0 is None else np.asarray(y0, dtype=float)
+    if y.shape != (len(names),) or not np.all(np.isfinite(y)):
+        raise ParameterError(
+            f"y0 = {y0!r}: expected {len(names)} finite numbers ({', '.join(names)})"
+        )
+    eye = np.eye(len(names))
+    dirs = ["up", "down"] if direction == "both" else [direction]
+    branches = []
+    flow_name = ""
+    with Progress(len(w) * len(dirs), f"sweep {direction}", enabled=progress) as bar:
+        for d in dirs:
+            states = []
+            for om in w if d == "up" else w[::-1]:
+                flow = make_flow(system.with_params(Omega=float(om)), method=method)
+                flow_name = type(flow).__name__
+                T = _TWO_PI / float(om)
+                try:
+                    settled = _settle(flow, y, 0.0, T, max_periods=tp, tol=tl, max_period=mp)
+                    R = max(rp, settled.period)
+                    R = settled.period * (R // settled.period) if settled.period else R
+                    te = settled.t + T * np.arange(R * N + 1) / N
+                    te[-1] = settled.t + R * T
+                    rec = _step(flow, settled.y, settled.t, settled.t + R * T, t_eval=te)
+                except PerturbError as err:
+                    raise type(err)(f"sweep {d} at Omega = {om:.6g}: {err}") from None
+                if rec.ys is None or rec.ys.shape[0] != te.size:
+                    raise PerturbError("the flow did not return the requested samples (t_eval)")
+                Y = rec.ys[:-1]  # R whole periods
+                out = Y @ c
+                z = np.fft.rfft(out) / out.size
+                states.append(
+                    SteadyState(
+                        omega=float(om),
+                        amplitude=_peak(out),
+                        first_harmonic_amplitude=float(2.0 * abs(z[R])) if R < z.size else 0.0,
+                        mean=float(z[0].real),
+                        period=settled.period,
+                        residual=float(settled.residual),
+                        poincare=_frozen(rec.ys[::N][:-1]),
+                        transient_periods=settled.periods,
+                        max_multiplier=_decay_multiplier(settled.history),
+                        y_end=_frozen(rec.y),
+                        coordinates=MappingProxyType(
+                            {n: _peak(Y @ eye[names.index(n)]) for n in coords}
+                        ),
+                    )
+                )
+                y = np.array(rec.y)
+                bar.update()
+            branches.append(SweepBranch(d, tuple(states)))
+    params = {k: float(v) for k, v in system.params.items() if v is not None and k != "Omega"}
+    settings = {
+        "transient_periods": tp,
+        "record_periods": rp,
+        "tol": tl,
+        "max_period": mp,
+        "samples_per_period": N,
+        "flow": flow_name,
+        "output": output if output is not None else coords[0],
+    }
+    return SweepResult(
+        branches=tuple(branches),
+        model=system.name,
         params=MappingProxyType(params),
         settings=MappingProxyType(settings),
     )
