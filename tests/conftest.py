@@ -18,6 +18,13 @@ from types import ModuleType
 
 import pytest
 
+# One BLAS thread per test process, set before anything imports numpy: pytest-xdist already
+# runs one worker per core, and OpenBLAS threads spinning beside the other worker made a test
+# file cost 3x its CPU on a loaded two-core machine (28 s vs 8.2 s for
+# tests/test_autonomous_balance.py). Subprocesses of the tests inherit it.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
 
 @pytest.fixture(autouse=True, scope="session")
 def _isolated_cache(tmp_path_factory):
