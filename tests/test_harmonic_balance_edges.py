@@ -1,6 +1,6 @@
 """Every branch of the exact response has numeric-HB points near it, branches that lie in the
-window only near an edge (nsd k = -0.5 from 0.3, k = -3 from 0.2) and a stable isola (k = 2)
-included.
+window only near an edge (nsd k = -0.5 from 0.3, k = -3 from 0.2) and stable isolas (nsd k =
+2, clearance) included.
 
 Oracle: the exact response (continuation of exact periodic orbits of the piecewise-linear
 flow), computed here. HB with H = 15 is within its truncation error of it: 2 % of the amplitude
@@ -49,11 +49,17 @@ def _near(hb, W: float, a: float, mean: float) -> bool:
 
 
 @pytest.mark.parametrize(
-    ("k", "window", "exact_at_least"),
-    [(-0.5, (0.3, 2.0), 5), (-3.0, (0.2, 2.0), 11), (2.0, (0.2, 2.5), 2)],
+    ("model", "params", "window", "exact_at_least"),
+    [
+        ("nsd", {"k": -0.5, "mu": 0.05, "F": 2.0}, (0.3, 2.0), 5),
+        ("nsd", {"k": -3.0, "mu": 0.05, "F": 2.0}, (0.2, 2.0), 11),
+        ("nsd", {"k": 2.0, "mu": 0.05, "F": 2.0}, (0.2, 2.5), 2),
+        # the bench problem: a superharmonic isola on Omega 0.508-0.654 beside the main branch
+        ("clearance", {"r": 10.0, "d": 0.5, "mu": 0.02, "F": 0.3}, (0.5, 1.6), 1),
+    ],
 )
-def test_every_exact_branch_has_hb_points(k, window, exact_at_least):
-    osc = builtin_model("nsd", k=k, mu=0.05, F=2.0)
+def test_every_exact_branch_has_hb_points(model, params, window, exact_at_least):
+    osc = builtin_model(model, **params)
     exact = perturb.frequency_response(osc, "exact", Omega=window)
     # the exact solver finds the branches the issue names (else the comparison is weaker)
     assert len(exact.branches) >= exact_at_least
@@ -63,7 +69,7 @@ def test_every_exact_branch_has_hb_points(k, window, exact_at_least):
         hits = [_near(hb, w, a, m) for w, a, m in zip(W, A, M, strict=True)]
         share = float(np.mean(hits))
         assert share >= MIN_SHARE, (
-            f"k = {k}: exact branch {i} (Omega {W.min():.4f}-{W.max():.4f}, amplitude "
+            f"{model} {params}: exact branch {i} (Omega {W.min():.4f}-{W.max():.4f}, amplitude "
             f"{A.min():.3f}-{A.max():.3f}, mean {M.min():.3f}..{M.max():.3f}) has HB points "
             f"near only {share:.0%} of its points"
         )

@@ -2000,8 +2000,9 @@ _LINEAR_SEED_FREQUENCIES = 5
 _ATTRACTOR_GRID_EDGE = 5
 _ATTRACTOR_GRID = 3
 #: Most state-steps (RK4 steps times trajectories) of the simulation of
-#: :func:`_attractor_guesses`: beyond it (light damping, stiff segments) it is skipped.
-_ATTRACTOR_MAX_WORK = 4_000_000
+#: :func:`_attractor_guesses` (~0.11 us each: 6e6 is ~0.7 s): beyond it (very light damping,
+#: stiff segments, a very wide window) it is skipped.
+_ATTRACTOR_MAX_WORK = 6_000_000
 #: Largest ratio of neighbouring frequencies of the attractor search across the window, and
 #: most frequencies: a stable isola narrower than that ratio can be missed.
 _ATTRACTOR_RATIO = 1.02
@@ -2041,7 +2042,8 @@ def _attractor_guesses(
     trajectory that has settled (``x(t)`` and ``x(t - P)`` within 5 % of its amplitude) is
     resampled on ``4 K + 4`` phases and projected onto the basis. Only a guess for Newton on
     the HB residual, so the step is coarse (0.15 over the largest natural frequency, and at
-    least ``2 K + 2`` steps per shortest period): the stable orbits, of whatever branch, are
+    least 32 steps per shortest period, whatever ``K``): the stable orbits, of whatever
+    branch, are
     reached without any approximation's help, where Newton from a generic guess rarely
     converges (the basins of a non-smooth force are small). Nothing for an undamped system
     (no attractor to settle on) or when the work would exceed ``_ATTRACTOR_MAX_WORK``
@@ -2068,10 +2070,10 @@ def _attractor_guesses(
     w_orbit = W / system.m
     P = _TWO_PI / w_orbit
     kmax = max(system.basis.kmax, 1)
-    h = min(
-        0.15 / max(math.sqrt(float(gx.max())), float(w_orbit.max()), mu),
-        float(P.min()) / (2 * kmax + 2),
-    )
+    w_max = max(math.sqrt(float(gx.max())), float(w_orbit.max()), mu)
+    # the step resolves the dynamics, not the basis: the guess's high harmonics are only as
+    # good as the interpolation, and Newton corrects them (so the cost does not grow with H)
+    h = min(0.15 / w_max, float(P.min()) / 32.0)
     t_end = max(8.0 / mu, 3.0 * float(P.max()))
     steps = math.ceil(t_end / h)
     n_keep = math.ceil(2.0 * float(P.max()) / h) + 2
