@@ -140,7 +140,9 @@ across the window (PWL forces), and at both edges from the solutions found there
 bias shifted. CPU time of a repeated call, bench windows (0.2, 2.5), H = 15, loaded machine:
 nsd k = -0.5 0.64 -> 0.93 s (4 branches, as before), k = -3 0.74 -> 1.9 s (7 -> 19
 branches: the 6 that the exact solver finds and HB missed, and 6 more, each checked to be an
-exact orbit by shooting), k = 2 0.25 -> 0.65 s (1 -> 2: the stable isola on 0.5915-0.6151).
+exact orbit by shooting), k = 2 0.25 -> 0.65 s (1 -> 2: the stable isola on 0.5915-0.6151);
+clearance (window (0.5, 1.6)) 0.13 -> 0.80 s (1 -> 2: the stable superharmonic isola on
+0.508-0.654).
 
 Starting without a guess
 ------------------------
@@ -2225,10 +2227,12 @@ def harmonic_balance_branches(
        on no branch found so far (nor, for an odd system, its mirror image) starts a
        branch, traced both ways and searched for branch points. This finds what neither a
        seed nor a branch point inside the window reaches: a stable isola (nsd, k = 2: the
-       one on Omega 0.5915-0.6151), an isola that straddles an edge (k = -0.5: the
-       asymmetric pair on 0.2991-0.3021, window from 0.3), a branch that enters at an edge
-       and folds back out (k = -3, window from 0.2: the stable pair on 0.2-0.2116 and,
-       from bias shifts, the unstable one on 0.2-0.4073).
+       one on Omega 0.5915-0.6151; clearance: 0.508-0.654), an isola that straddles an
+       edge (k = -0.5: the asymmetric pair on 0.2991-0.3021, window from 0.3), a branch
+       that enters at an edge and folds back out (k = -3, window from 0.2: the stable pair
+       on 0.2-0.2116 and, from bias shifts, the unstable one on 0.2-0.4073). PWL forces
+       only (:func:`_attractor_guesses`); skipped without damping or when the simulation
+       would exceed ``_ATTRACTOR_MAX_WORK`` state-steps.
     4. Mirror images (``mirror``, odd systems: :func:`odd_symmetry`, ``origin='mirror'``):
        each branch that is not its own image under ``x(t) -> -x(t + T/2)`` gets its image,
        exactly and without continuation.
