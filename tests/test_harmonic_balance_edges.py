@@ -73,3 +73,12 @@ def test_every_exact_branch_has_hb_points(model, params, window, exact_at_least)
             f"{A.min():.3f}-{A.max():.3f}, mean {M.min():.3f}..{M.max():.3f}) has HB points "
             f"near only {share:.0%} of its points"
         )
+
+
+def test_attractors_option_must_be_a_flag():
+    from perturb.errors import ParameterError
+    from perturb.numeric.harmonic_balance import harmonic_balance_branches
+
+    osc = builtin_model("nsd", k=-0.5, mu=0.05, F=2.0)
+    with pytest.raises(ParameterError, match="attractors = 'yes'"):
+        harmonic_balance_branches(osc, (0.3, 2.0), harmonics=3, attractors="yes")
