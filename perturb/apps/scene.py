@@ -1582,7 +1582,7 @@ def _state_table(source: str, value: object) -> tuple[float, ...] | Mapping[str,
 
 #: Methods of a system's frequency response whose points [compare] checks against exact
 #: orbits.
-_SYSTEM_COMPARED = ("hb", "hb1", "shb", "auto")
+_SYSTEM_COMPARED = ("hb", "hb1", "shb", "auto", "ms-ir")
 
 
 def _system_method(source: str, table: dict, ask: dict, kind: str) -> str:
@@ -1606,8 +1606,11 @@ def _system_method(source: str, table: dict, ask: dict, kind: str) -> str:
         raise _scene_error(source, "[ask] method and [method] name are one setting: give one")
     if kind == "frequency_response":
         name = table.get("name", "exact")
+        from perturb.solve import SYSTEM_METHODS, SYSTEM_ONLY_METHODS, system_method_text
+
+        if name in SYSTEM_ONLY_METHODS:
+            return "ms-ir"  # a method of systems only (not in the registry)
         spec = _method_spec(source, "[method] name =", name)
-        from perturb.solve import SYSTEM_METHODS, system_method_text
 
         if spec.name not in SYSTEM_METHODS:
             raise _scene_error(
@@ -1813,6 +1816,7 @@ def _run_system_frequency_response(scene: Scene, system, out: Path, paths: dict,
         "hb": "harmonic-balance response",
         "hb1": "single-harmonic balance response",
         "shb": "single-harmonic balance response",
+        "ms-ir": "internal-resonance slow-flow response",
         "auto": "response by the cheapest method meeting rtol",
     }[method]
     say(f"[perturb] tracing the {what} of {system.name} over Omega in {scene.omega} ...")
