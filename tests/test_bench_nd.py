@@ -65,7 +65,9 @@ def test_bench_rows_of_a_system(monkeypatch):
         ["nsd2_small"], ["hb-exact-H3", "hb1"], repeat=1, timeout=0, log=None
     )
     by = {r.method: r for r in rows}
-    assert set(by) == {"exact", "hb-exact-H3", "hb1"}
+    assert set(by) == {"exact", "sweep", "hb-exact-H3", "hb1"}
+    # the time unit: the system's stepped-sine sweep, every row's ratio to it
+    assert by["sweep"].status == "ok" and by["hb-exact-H3"].time_vs_sweep > 0
     ex = frequency_response(builtin_system("nsd2"), "exact", WINDOW)
     assert by["exact"].matched == f"{len(ex.branches)}/{len(ex.branches)}"
     h3 = by["hb-exact-H3"]

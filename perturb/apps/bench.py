@@ -27,8 +27,8 @@ The systems ``nsd2`` (2-DOF structure with the negative-stiffness device) and ``
 (impact damper / backlash pair) are answered by the methods that take a system (``hb1``,
 ``shb``, numeric HB with H = 1 ... 63, exact or AFT projection, ``auto``): the output's
 (``x1``) error is in the row's columns, every coordinate's in its note, ``missed`` says which
-exact branches a method did not find; there is no brute-force sweep of a system (no time
-ratios).
+exact branches a method did not find; the time unit is the system's stepped-sine sweep
+(:func:`perturb.simulate.studies.system_frequency_sweep`).
 
 Outputs into ``--out``: ``work_precision.md``, ``work_precision.csv`` and one log-log PNG per
 problem (``work_precision_<problem>.png``).
@@ -440,7 +440,7 @@ def _run_problem(
     if prob.kind == "limit_cycle":
         return _run_limit_cycle(prob, pats, rep, timeout, say)
     if prob.kind == "system":
-        return _run_system(prob, pats, rep, timeout, say)
+        return _run_system(prob, pats, rep, timeout, say, n_full, n_measured)
     from perturb.simulate.studies import frequency_sweep
     from perturb.solve import frequency_response
 
@@ -553,12 +553,19 @@ def _run_system(
     rep: int,
     timeout: float | None,
     say: Callable[[str], None],
+    n_full: int = 100,
+    n_measured: int = 3,
 ) -> list[Row]:
     """A system of several coordinates: the exact response (every branch by continuation of
     exact orbits) is the reference; each method's output error is in the row's columns, every
-    coordinate's in its note, ``missed`` says whether it found every exact branch. There is no
-    brute-force sweep of a system (no time ratios)."""
+    coordinate's in its note, ``missed`` says whether it found every exact branch. The time
+    unit of the ratios is the brute-force stepped-sine sweep of the system
+    (:func:`perturb.simulate.studies.system_frequency_sweep`, up and down, timed on
+    ``n_measured`` of ``n_full`` frequencies and extrapolated, as for one coordinate)."""
+    import numpy as np
+
     from perturb.comparison import compare
+    from perturb.simulate.studies import system_frequency_sweep
     from perturb.solve import frequency_response
 
     name = prob.name
@@ -578,7 +585,28 @@ def _run_system(
     except Exception as exc:  # noqa: BLE001 - recorded in the table
         ex.status = _reason(exc)
     say(f"   exact: {ex.time_s:.3g} s {ex.status} {ex.note}")
-    rows = [ex]
+    grid = np.linspace(lo, hi, n_full)
+    sub = grid[sweep_subset(n_full, n_measured)]
+    sw = Row(
+        name,
+        "sweep",
+        f"stepped sine up+down (system_frequency_sweep), {n_full} frequencies"
+        + (f" (time EXTRAPOLATED from {sub.size})" if sub.size != n_full else ""),
+    )
+    sres = _run_setting(
+        sw, lambda: system_frequency_sweep(system, sub, direction="both"), 1, None, say
+    )
+    sweep_time = math.nan
+    if sres is not None:
+        sweep_time = sw.time_s = sw.first_s = sw.time_s * n_full / sub.size
+        if ref is not None:
+            try:
+                _fill_errors(sw, sres.to_response(), ref)
+            except Exception as exc:  # noqa: BLE001 - recorded in the table
+                _note(sw, f"comparison failed: {_reason(exc)[4:-1]}")
+        _note(sw, "stable branches only; errors over the measured frequencies")
+        _say_row(say, sw)
+    rows = [ex, sw]
     for s in method_settings("system"):
         if not _selected(s.key, pats):
             continue
@@ -608,6 +636,9 @@ def _run_system(
                 _note(row, text)
         explain_row(row)
         _say_row(say, row)
+    for r in rows:
+        if r.status == "ok" and np.isfinite(sweep_time) and sweep_time > 0:
+            r.time_vs_sweep = r.time_s / sweep_time
     return rows
 
 
