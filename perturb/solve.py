@@ -43,13 +43,17 @@ and the scenes:
 Systems of several coordinates
 ------------------------------
 :func:`frequency_response` and :func:`periodic_orbits` also take a
-:class:`~perturb.model.system.System` (method ``"exact"`` only for now: the approximations
-take one coordinate and refuse a system by name). ``output=`` (a coordinate or a linear
-combination such as ``"x1 - x2"``, default the first coordinate) is what the ``amplitude``,
-``first_harmonic_amplitude`` and ``mean`` columns measure; every coordinate's ``max |.|`` and
-mean come as ``amplitude_<name>`` / ``mean_<name>`` (:class:`SystemResponse`,
-:func:`orbit_columns`). :func:`system_time_history` integrates a system (exact piecewise-affine
-flow, DOP853, or event-driven with stops and friction contacts).
+:class:`~perturb.model.system.System`, answered by the methods of :data:`SYSTEM_METHODS`
+(``"exact"``, numeric ``"hb"``, the symbolic single-harmonic balance ``"hb1"`` / ``"shb"``,
+``"auto"``) and the internal-resonance slow flow ``"ms-ir"`` (:data:`SYSTEM_ONLY_METHODS`);
+the other approximations take one coordinate and refuse a system naming those.
+:func:`derive_system` gives a system's symbolic derivations (``hb1``, ``ms-ir``, ``nnm``).
+``output=`` (a coordinate or a linear combination such as ``"x1 - x2"``, default the first
+coordinate) is what the ``amplitude``, ``first_harmonic_amplitude`` and ``mean`` columns
+measure; every coordinate's ``max |.|`` and mean come as ``amplitude_<name>`` /
+``mean_<name>`` (:class:`SystemResponse`, :func:`orbit_columns`). :func:`system_time_history`
+integrates a system (exact piecewise-affine flow, DOP853, or event-driven with stops and
+friction contacts).
 
 An autonomous system (no harmonic forcing, :func:`is_forced`: the belt, the drill string) has
 limit cycles of their own period instead: :func:`limit_cycles` (cycles, equilibria, notes;
@@ -148,8 +152,9 @@ def frequency_response(
     ----------
     oscillator
         An :class:`~perturb.model.oscillator.Oscillator`, or a
-        :class:`~perturb.model.system.System` of several coordinates (method ``"exact"``
-        only, for now: the answer is a :class:`SystemResponse`, see :func:`_system_response`).
+        :class:`~perturb.model.system.System` of several coordinates (methods ``"exact"``,
+        ``"hb"``, ``"hb1"``, ``"shb"``, ``"ms-ir"``, ``"auto"``: the answer is a
+        :class:`SystemResponse`, see :func:`_system_response`).
     method
         A name (or alias) of :data:`perturb.methods.registry.REGISTRY`: ``"exact"``
         (continuation of exact periodic orbits), ``"hb"`` (numeric multi-harmonic balance,
