@@ -351,3 +351,24 @@ def test_branch_ends_at_the_hopf_point():
     i = int(np.argmin(np.abs(br.values - 0.02)))
     mu = float(br.values[i])
     assert br.amplitudes["x"][i] == pytest.approx(2 * math.sqrt(mu), rel=2e-2)
+
+
+def test_huge_harmonics_and_bad_tol_are_refused_by_name():
+    # H = 10**6 used to reach numpy's allocator (MemoryError for a 29 TiB Jacobian), and a
+    # tol given as text or NaN was accepted silently (the Hopf start never read it)
+    with pytest.raises(ParameterError, match="harmonics = 1000000"):
+        autonomous_balance_orbit(vdp(1.0), 10**6)
+    for bad in ("1e-8", float("nan"), -1.0, 0.0):
+        with pytest.raises(ParameterError, match="tol"):
+            autonomous_balance_orbit(vdp(1.0), 3, tol=bad)
+
+
+def test_solution_refuses_times_that_are_not_finite_numbers():
+    sol = autonomous_balance_orbit(vdp(1.0), 3, stability=False)
+    for bad in ("a", float("nan"), [0.0, float("inf")]):
+        with pytest.raises(ParameterError, match="t = "):
+            sol(bad, "x")
+    with pytest.raises(ParameterError, match="t = "):
+        sol.state("a")
+    # the series at t = 0 and one period later agree (a periodic answer, not a NaN)
+    assert sol(sol.period, "x") == pytest.approx(sol(0.0, "x"), abs=1e-12)

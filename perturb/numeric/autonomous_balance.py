@@ -175,6 +175,9 @@ _WIDTH_FACTOR = 0.05
 _START_WIDENING = 4.0
 #: Point cap of the continuation that narrows the jumps.
 _NARROW_POINTS = 400
+#: Largest H accepted: the Jacobian is dense (n (2H + 1) + 1 unknowns) and every evaluation
+#: samples 8H + 1 points; at H = 200 one van der Pol cycle already takes ~23 s CPU.
+MAX_HARMONICS = 256
 _SWITCH_TYPES = (sp.Heaviside, sp.Abs, sp.sign, sp.Max, sp.Min, sp.Piecewise)
 
 
@@ -236,7 +239,7 @@ class AutonomousBalance:
         Autonomous (no harmonic forcing); every parameter needs a value (``parameter`` too,
         as its default). An SDOF ``Oscillator`` is converted by ``System.from_oscillator``.
     harmonics : int
-        ``H >= 1``.
+        ``1 <= H <= MAX_HARMONICS`` (256).
     parameter : str, optional
         The parameter to continue in (kept as an argument of the compiled functions).
     quadrature : int, optional
@@ -283,6 +286,11 @@ class AutonomousBalance:
     ) -> None:
         system = _as_system(system)
         self.basis = HarmonicBasis.make(harmonics)  # ParameterError for H < 1
+        if harmonics > MAX_HARMONICS:
+            raise ParameterError(
+                f"harmonics = {harmonics!r}: expected at most {MAX_HARMONICS} (the Jacobian "
+                "is dense, n (2H + 1) + 1 unknowns)"
+            )
         self.H = int(harmonics)
         if parameter is not None:
             if not isinstance(parameter, str) or parameter not in system.params:
@@ -1463,14 +1471,14 @@ class AutonomousBalanceSolution:
         return {c: float(self.coefficients[j, 0]) for j, c in enumerate(self.coordinates)}
 
     def __call__(self, t: ArrayLike, coordinate: str | int = 0) -> np.ndarray:
-        """The series of one coordinate at times ``t``."""
+        """The series of one coordinate at finite times ``t`` (ParameterError otherwise)."""
         j = _coordinate_index(self.coordinates, coordinate)
-        th = np.asarray(t, dtype=float) * self.frequency
+        th = _times(t) * self.frequency
         return self.basis.evaluate(self.coefficients[j], th.reshape(-1)).reshape(np.shape(th))
 
     def state(self, t: float = 0.0) -> np.ndarray:
         """The state ``y = (q, q', p)`` at time ``t`` (an initial state for shooting)."""
-        th = np.array([float(t) * self.frequency])
+        th = np.array([checks.finite(t, "t") * self.frequency])
         ph, dph = self.basis.design(th)[0], self.basis.design(th, 1)[0]
         n2 = self.n2
         U = self.coefficients
@@ -1495,6 +1503,17 @@ class AutonomousBalanceSolution:
             tail += f"; friction jumps spread into tanh of width {self.jump_width:.3g}"
         lines.append(tail)
         return "\n".join(lines)
+
+
+def _times(t: ArrayLike) -> np.ndarray:
+    """``t`` as a float array of finite times (a NaN would give a silent NaN series)."""
+    try:
+        out = np.asarray(t, dtype=float)
+    except (TypeError, ValueError):
+        raise ParameterError(f"t = {t!r}: expected finite real times") from None
+    if not np.all(np.isfinite(out)):
+        raise ParameterError(f"t = {t!r}: expected finite real times")
+    return out
 
 
 def _coordinate_index(coordinates: tuple[str, ...], coordinate: str | int) -> int:
@@ -1552,7 +1571,9 @@ def _as_system(system: Any) -> System:
 
 def _start(ab: AutonomousBalance, p: float, guess: Any, tol: float, max_iterations: int):
     if guess is None:
-        return ab.auto_start(p)
+        x, j = ab.auto_start(p)
+        # the Hopf start converges its own Newton at 1e-10; finish at the caller's tol
+        return ab.newton(x, p, j, tol=tol, max_iterations=max_iterations), j
     x0 = ab.guess_from(guess)
     j = ab.phase_index_of(x0)
     if np.hypot(*ab.unpack(x0)[0][j, 1:3]) == 0.0:
@@ -1579,7 +1600,7 @@ def autonomous_balance_orbit(
     system : System or Oscillator
         Autonomous, every parameter valued.
     harmonics : int
-        ``H >= 1``.
+        ``1 <= H <= MAX_HARMONICS`` (256).
     guess : AutonomousBalanceSolution or (frequency, coefficients), optional
         A start (a solution at another ``H`` or parameter; coefficients ``(n, 2H' + 1)``).
         Default: the Hopf start from the equilibrium's unstable complex pair (module
@@ -1587,7 +1608,8 @@ def autonomous_balance_orbit(
     stability : bool
         Compute the Floquet multipliers.
     tol, max_iterations
-        Newton's scaled correction and iteration cap.
+        Newton's scaled correction ``0 < tol < 1`` and iteration cap (from the guess, or
+        the final Newton after the Hopf start).
     quadrature, jump_width : optional
         As :class:`AutonomousBalance`.
 
@@ -1607,6 +1629,9 @@ def autonomous_balance_orbit(
     """
     ab = AutonomousBalance(system, harmonics, quadrature=quadrature, jump_width=jump_width)
     checks.whole(max_iterations, "max_iterations", 1, 10_000)
+    tol = checks.finite(tol, "tol")
+    if not 0.0 < tol < 1.0:
+        raise ParameterError(f"tol = {tol!r}: expected a number in (0, 1)")
     x, _ = _start(ab, ab.value, guess, tol, max_iterations)
     return _solution(ab, x, ab.value, stability)
 
