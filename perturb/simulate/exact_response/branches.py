@@ -364,23 +364,27 @@ def _exact_branches(
                 bar,
                 seed2,
             )
-        if attractors and budget_left():
-            # stable orbits no sweep settles on (isolas, stable stretches of branches that fold
-            # back out of the window) and orbits beside the traced ones at the window edges
-            traced = [
-                b for b in range(len(branches)) if mirror_of[b] is None and branches[b].m == 1
-            ]
-            attractor_stage(tracer, internals, traced, try_seed, budget_left)
-        # the other branch at every branch point (pitchforks of odd systems)
+        # the other branch at every branch point (pitchforks of odd systems); then, once, the
+        # attractor stage (stable orbits no sweep settles on: isolas, stable stretches of
+        # branches that fold back out of the window) and the branch points of its branches.
+        # Last, so the branches of the stages before are traced as without it
         done: set[int] = set()
-        while branch_points and budget_left():
+        scan_pending = attractors
+        while budget_left():
             todo = [
                 b
                 for b in range(len(branches))
-                if b not in done and mirror_of[b] is None and branches[b].m == 1
+                if branch_points and b not in done and mirror_of[b] is None and branches[b].m == 1
             ]
             if not todo:
-                break
+                if not scan_pending:
+                    break
+                scan_pending = False
+                primary = [
+                    b for b in range(len(branches)) if mirror_of[b] is None and branches[b].m == 1
+                ]
+                attractor_stage(tracer, internals, primary, try_seed, budget_left)
+                continue
             for b in todo:
                 done.add(b)
                 for sp_ in branches[b].branch_points:
