@@ -429,3 +429,18 @@ def test_bad_input_is_refused_with_the_value():
         internal_resonance_slow_flow(static, "1:1")
     with pytest.raises(PerturbError, match="tolerance"):
         internal_resonance_slow_flow(PAIR_13, "1:3", tolerance=2)
+
+
+def test_resonance_and_near_of_the_wrong_type_are_refused_or_read():
+    # a list for resonance raised a bare "unhashable type" TypeError; near=2.0 indexed a
+    # tuple with a float (bare TypeError)
+    s = System.parse(
+        ["x1'' + 0.01*x1' + x1 + x1**3 = F*cos(Omega*t)", "x2'' + 0.01*x2' + 1.02*x2 = 0"]
+    )
+    with pytest.raises(ParameterError, match="resonance"):
+        internal_resonance_slow_flow(s, ["1:1"])
+    with pytest.raises(ParameterError, match="near"):
+        internal_resonance_slow_flow(s, "1:1", near="2")
+    as_float = internal_resonance_slow_flow(s, "1:1", near=2.0)
+    as_int = internal_resonance_slow_flow(s, "1:1", near=2)
+    assert as_float.slow_flow == as_int.slow_flow

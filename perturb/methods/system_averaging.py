@@ -463,13 +463,14 @@ def internal_resonance_slow_flow(
             f"({', '.join(system.coordinates)}): expected exactly 2 for a 1:1 or 1:3 internal "
             "resonance"
         )
-    if resonance is not None and resonance not in RESONANCES:
+    if resonance is not None and (not isinstance(resonance, str) or resonance not in RESONANCES):
         raise ParameterError(
             f"resonance = {resonance!r}: expected one of {', '.join(map(repr, RESONANCES))} "
             "(or None to pick the nearer)"
         )
-    if isinstance(near, bool) or near not in (1, 2):
+    if isinstance(near, bool) or not isinstance(near, (int, float)) or near not in (1, 2):
         raise ParameterError(f"near = {near!r}: expected the mode 1 or 2 the forcing is near")
+    near = int(near)  # 2.0 indexes the frame tuples below
     if (
         isinstance(tolerance, bool)
         or not isinstance(tolerance, (int, float))
