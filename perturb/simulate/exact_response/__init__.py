@@ -120,6 +120,11 @@ Exact frequency response
     skips it when it lies on a traced branch, switches at every branch point, completes
     branches by the symmetry :math:`(x, t) \to (-x, t + T/2)` of odd systems (an image branch
     costs at most half a propagation per point), and, on request, follows period doublings.
+    Last, the *attractor stage* (``attractors=True``, :mod:`.attractors`): one vectorised RK4
+    simulation of the piecewise-affine field at frequencies 2 % apart, from a grid of states
+    and from both sides of every unstable traced orbit, whose settled states not on a traced
+    branch seed Newton on the exact map — the stable isolas and the branches that lie in the
+    window only near an edge and are stable on short stretches, which no sweep reaches.
     The sweeps are *virtual* where possible: a sweep follows the stable part of a traced
     branch without integrating, and integrates (``transient_periods``, then Newton from a
     nearly periodic state) only where that branch ends or loses stability — where a real
