@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from perturb import builtin_model
+from perturb import ParameterError, builtin_model
 from perturb.simulate.exact_response import exact_branches
 
 K, MU, F = -3.0, 0.05, 2.0
@@ -165,3 +165,9 @@ def test_branch_through_each_pair(response, Om, start, mean):
     assert image is not None and image.parameter == q.parameter
     assert abs(image.amplitude - amp) <= tol
     assert abs(image.mean + m) <= tol
+
+
+@pytest.mark.parametrize("bad", ["yes", 1, None])
+def test_attractors_option_must_be_a_flag(bad):
+    with pytest.raises(ParameterError, match="attractors"):
+        exact_branches(builtin_model("nsd", k=-0.5), (0.9, 1.0), attractors=bad, progress=False)

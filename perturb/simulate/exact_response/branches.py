@@ -159,6 +159,8 @@ def exact_branches(
     ):
         if isinstance(v, bool) or not isinstance(v, int) or v < 0:
             raise ParameterError(f"{name} = {v!r}: expected a non-negative integer")
+    if not isinstance(o.attractors, bool):
+        raise ParameterError(f"attractors = {o.attractors!r}: expected True or False")
     if max_seconds is not None and not (
         isinstance(max_seconds, int | float)
         and not isinstance(max_seconds, bool)
