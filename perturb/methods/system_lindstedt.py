@@ -544,26 +544,7 @@ def _element(system: System, e, q, reps):
                 f"element {e.name!r} of system {system.name!r} depends on the velocities "
                 f"{sorted(map(str, bad))}: not a conservative force of the position"
             )
-        if not all(v.is_polynomial(*q) for v in vec):
-            raise ModelError(
-                f"element {e.name!r} of system {system.name!r}: {e.function} is not a "
-                "polynomial in the coordinates: expected polynomial or piecewise-linear forces"
-            )
-        lin = sp.zeros(2, 2)
-        rest = sp.zeros(2, 1)
-        for i in range(2):
-            poly = sp.Poly(sp.expand(vec[i]), *q)
-            for (a, b), coeff in poly.terms():
-                if a + b == 0:
-                    raise ModelError(
-                        f"element {e.name!r} has a static load {coeff} in equation {i + 1}: "
-                        "expected forces that vanish at rest (the NNM is expanded about q = 0)"
-                    )
-                if a + b == 1:
-                    lin[i, 0 if a else 1] += coeff
-                else:
-                    rest[i] += coeff * q[0] ** a * q[1] ** b
-        return lin, rest
+        return _polynomial_force(system, e, vec, q)
     comb = tuple(sp.sympify(v).xreplace(reps) for v in e.combination)
     if any(not _vanishes(v, {}) for v in comb[n:]):
         raise ModelError(
@@ -571,15 +552,21 @@ def _element(system: System, e, q, reps):
             f"({e.describe(system.state_names)}): not a conservative force"
         )
     c = (comb[0], comb[1])
-    # conservative: the force is distributed along its own combination (w parallel to c)
+    f = e.function.xreplace(reps)
+    s = ELEMENT_SYMBOL
+    # conservative alone: the force is distributed along its own combination (w parallel to
+    # c). A polynomial force that is not (x1**2/2 in the second equation of a pair with
+    # x1*x2 in the first) may still be one part of a potential: it joins the smooth forces
+    # of several coordinates, whose sum _model checks for a symmetric Jacobian.
     if sp.simplify(w[0] * c[1] - w[1] * c[0]) != 0:
+        if f.is_polynomial(s):
+            along = f.xreplace({s: c[0] * q[0] + c[1] * q[1]})
+            return _polynomial_force(system, e, sp.Matrix([w[i] * along for i in range(2)]), q)
         raise ModelError(
             f"element {e.name!r} of system {system.name!r}: its force w = {list(w)} is not "
             f"along its combination c = {list(c)}, so it derives from no potential (not "
             "conservative)"
         )
-    f = e.function.xreplace(reps)
-    s = ELEMENT_SYMBOL
     if e.kind == "smooth" or not f.has(sp.Heaviside, sp.Max, sp.Min, sp.Abs, sp.sign, sp.Piecewise):
         if not f.is_polynomial(s):
             raise ModelError(
@@ -625,6 +612,39 @@ def _element(system: System, e, q, reps):
     if f.subs(s, 0) != 0:
         raise ModelError(f"element {e.name!r}: f(0) = {f.subs(s, 0)}, expected 0")
     return _Element(e.name, c, w, f - slope * s, True, slope)
+
+
+def _polynomial_force(system: System, e, vec: sp.Matrix, q):
+    """``(linear part matrix, remainder vector)`` of a polynomial force ``vec`` of the
+    coordinates ``q``.
+
+    Raises
+    ------
+    ModelError
+        ``vec`` is no polynomial in ``q``, or has a nonzero constant (a static load).
+    """
+    if not all(sp.sympify(v).is_polynomial(*q) for v in vec):
+        raise ModelError(
+            f"element {e.name!r} of system {system.name!r}: {e.function} is not a "
+            "polynomial in the coordinates: expected polynomial or piecewise-linear forces"
+        )
+    lin = sp.zeros(2, 2)
+    rest = sp.zeros(2, 1)
+    for i in range(2):
+        poly = sp.Poly(sp.expand(vec[i]), *q)
+        for (a, b), coeff in poly.terms():
+            if coeff == 0:  # Poly(0).terms() is ((0, 0), 0): no force in this equation
+                continue
+            if a + b == 0:
+                raise ModelError(
+                    f"element {e.name!r} has a static load {coeff} in equation {i + 1}: "
+                    "expected forces that vanish at rest (the NNM is expanded about q = 0)"
+                )
+            if a + b == 1:
+                lin[i, 0 if a else 1] += coeff
+            else:
+                rest[i] += coeff * q[0] ** a * q[1] ** b
+    return lin, rest
 
 
 # ------------------------------------------------------------------------------ modal part --
@@ -842,8 +862,10 @@ def nnm_backbone(
         ``mode`` not 1 or 2, ``method`` unknown, ``order`` not an integer in range (for
         piecewise-linear elements: 1), ``harmonics`` not an integer in 1..63.
     """
-    if isinstance(mode, bool) or mode not in (1, 2):
+    real = isinstance(mode, int | float | np.number) and not isinstance(mode, bool)
+    if not real or mode not in (1, 2):
         raise ParameterError(f"mode = {mode!r}: expected 1 or 2 (the linear mode continued)")
+    mode = int(mode)  # 2.0 indexes the modes
     if method not in METHODS:
         raise ParameterError(f"method = {method!r}: expected one of {', '.join(METHODS)}")
     if (
@@ -1024,6 +1046,15 @@ def _order_mlp(run: _Run, n: int, N: list[Trig]):
         rhs.append(_t_add(*terms, (r2[i], U[n - 1][i]), (-1 / NU, N[i])))
     if n == 1:  # A - nhat_j1/nu = 0
         run.nu_value = sp.simplify(N[j].get(1, sp.S.Zero) / run.A)
+        if run.nu_value == 0:
+            # alpha = nu/(omega_j**2 + nu) would be 0 and every later order divides by nu
+            # (delta_n = zoo): mLP needs a first-order frequency correction
+            raise ModelError(
+                f"system {run.model.system.name!r}, mode {run.mode}: the first-harmonic "
+                "force of the mode vanishes at first order (nu = 0, e.g. only quadratic "
+                "terms), so mLP's alpha = nu/(omega**2 + nu) is 0 and its corrections divide "
+                "by zero: use method='lp'"
+            )
         return rhs, equation(NU, _tidy(run.nu_value)), sp.S.Zero
     # delta_n enters as -delta_n u_0'' = delta_n A cos(tau)
     run.delta_val[n] = sp.simplify(-sp.expand(rhs[j].get(1, sp.S.Zero)) / run.A)
