@@ -19,6 +19,9 @@ in part 1; minimum over ``--repeat`` runs; one BLAS thread):
    (0.2, 2.0) (6), multipliers at every point, beside the one-branch trace of part 1 in the
    same process (the ratio is the price of the seeds, the branch-point test and switching,
    and tracing the other branches). Target (issue 16): <= 0.5 s.
+1c. **Stability per point**: the Floquet multipliers from the monodromy of the linearisation
+   (one point at a time, and a whole branch with its crossings found at once), beside the
+   eigenvalue problem of a Hill matrix of the same balance (``2 x unknowns`` square).
 2. **Accuracy at fixed Omega** (nsd2, Omega = 1.2): error of each coordinate's max|.| against
    the exact orbit (``periodic_orbit`` on ``AffineExactFlow``, 2^14 samples), exact
    projection and AFT with 4H + 1 samples (``projection="aft"``) beside the truncation floor
@@ -119,6 +122,27 @@ def nsd2_every_branch(repeat: int) -> None:
             f"  every branch {window}: {len(r)} branches, {pts} points, CPU {c:.3f} s "
             f"(wall {w:.3f} s){ratio}\n    [{desc}]"
         )
+
+
+def stability_cost(repeat: int) -> None:
+    print("== 1c. stability per point: monodromy (the method used) vs a Hill matrix")
+    system = builtin_system("nsd2")
+    sb = SystemBalance(system, 15)
+    br = system_balance_branch(system, (0.5, 2.0), balance=sb, stability=False)
+    Us, Ws = br.U.reshape(len(br), -1), br.Omega
+    c_one, _ = timed(lambda: [sb.multipliers(Us[p], Ws[p]) for p in range(len(br))], repeat)[1:]
+    c_branch, _ = timed(lambda: sb._max_multipliers(Us, Ws), repeat)[1:]
+    # Hill: eigenvalues of the first-order Hill matrix (2 x unknowns square); the eigenvalue
+    # problem alone, its assembly left out -- a lower bound of its cost
+    n = 2 * sb.n_unknowns
+    A = np.random.default_rng(1).standard_normal((n, n))
+    _, c_hill, _ = timed(lambda: np.linalg.eigvals(A), repeat)
+    print(
+        f"  {len(br)} points, H = 15: monodromy per point {c_one / len(br) * 1e3:.3f} ms "
+        f"(one point at a time), {c_branch / len(br) * 1e3:.3f} ms (crossings of the whole "
+        f"branch at once, as system_balance_response does); Hill eigenvalues of a {n} x {n} "
+        f"matrix alone {c_hill * 1e3:.2f} ms ({c_hill / (c_branch / len(br)):.0f}x)"
+    )
 
 
 def _peak(x):
@@ -246,10 +270,12 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     print(
         f"python {sys.version.split()[0]}, numpy {np.__version__}, scipy {scipy.__version__}, "
-        f"{platform.machine()}, {os.cpu_count()} cpus"
+        f"{platform.machine()}, {os.cpu_count()} cpus, load average "
+        + " ".join(f"{v:.2f}" for v in os.getloadavg())
     )
     nsd2_response(args.repeat)
     nsd2_every_branch(args.repeat)
+    stability_cost(args.repeat)
     accuracy((1, 3, 7, 15, 31) if args.quick else (1, 3, 7, 15, 31, 63))
     ns = (2, 4, 8) if args.quick else (2, 4, 8, 16, 32)
     chain_table(ns, (3, 7, 15), args.repeat, 300 if args.quick else 500)

@@ -95,12 +95,19 @@ multi-impact orbits of the lightly damped pair (``mu2 = 0.01``, Omega 0.8..1.0: 
 pairs and loops with 8-12 switches per period) are not all reached: over (0.8, 1.3) 62 of 874
 exact points (every 8th) have no HB solution near them.
 
-Measured (``benchmarks/bench_system_balance.py``): nsd2, H = 15, the branch from the high end
-over (0.5, 2) with multipliers at every point, ~0.21 s CPU; every branch
-(:func:`system_balance_response`: 4 branches, 702 points) 0.79 s CPU (3.8x), (0.2, 2) (6
-branches) 1.4 s; the error of the max of the coordinate
-carrying the PWL force equals the truncation floor (exact orbit's series cut at H) within
-a few per cent for H = 3..63, the other coordinate's error stays below that floor.
+Measured (``benchmarks/bench_system_balance.py``, CPU, one process, load average ~9 on 2
+cores): nsd2, H = 15, every branch over (0.5, 2) with multipliers at every point
+(:func:`system_balance_response`: 4 branches, ~700 points) 0.51 s against 0.78 s for the code
+before the changes of issue 16's speed item, which was 0.79 s at low load (the cuts: cached
+projections, dense algebra below 400 unknowns, branch points watched only on symmetric
+branches of an odd system, prepared polylines, a whole branch's crossings at once for the
+multipliers). Stability by the monodromy costs ~0.06 ms a point; the eigenvalue problem of a
+Hill matrix of the same balance (124 x 124) alone ~2 ms. A chain of n masses with a gap each
+(``bench_system_balance_chain.py``): the assembly (residual, exact projections, Jacobian)
+grows linearly in n; the dense bordered LU of the continuation core (it takes dense
+matrices) is the cubic term from n ~ 16 at H = 15. Accuracy
+(``bench_system_balance_accuracy.py``, H = 1..63): nsd2's max|x_j| errors within 1.35x of the
+orbit's truncation floor at every H; the impact pair's within 2x from H ~ 31 on.
 """
 
 from __future__ import annotations
