@@ -21,8 +21,9 @@ largest over its coordinates):
   frequency) is resolved from H ~ 31 on; below it the Galerkin solution is not the best
   approximation the floor measures. H = 1 and 2 have no HB solution near the exact orbit
   (least squares from its series stops at |R|^2 = 0.013).
-* AFT with 4H + 1 samples (``projection="aft"``): 11-1160x the floor on nsd2 x1, 9-2600x on
-  the impact pair x1 for H >= 3.
+* AFT with 4H + 1 samples (``projection="aft"``) at H = 3, 7, 15, 31, 63: 11-1160x the floor
+  on nsd2 x1; on the impact pair x1 86-2570x at H = 7..63 (no AFT solution at H = 3). Over all
+  H = 3..63 it is sometimes accurate by chance (down to 0.09x the floor on nsd2 at one H).
 
 Tolerances: 2x the floor where the issue's criterion holds (measured <= 1.35), 1.5x for x1
 against its own floor (measured <= 1.35); the impact pair's H = 3, 7, 15 at 1.5x their
