@@ -444,3 +444,17 @@ def test_resonance_and_near_of_the_wrong_type_are_refused_or_read():
     as_float = internal_resonance_slow_flow(s, "1:1", near=2.0)
     as_int = internal_resonance_slow_flow(s, "1:1", near=2)
     assert as_float.slow_flow == as_int.slow_flow
+
+
+def test_resonance_defaults_to_the_nearer_ratio():
+    # the default was "1:1": a 1:3 pair without resonance= was refused as "+200% from the
+    # declared 1:1 ratio" though nothing was declared
+    s = System.parse(
+        [
+            "x1'' + 2*mu*x1' + x1 + a*x1**3 = F*cos(Omega*t)",
+            "x2'' + 2*mu*x2' + 9*x2 + b*(x2 - x1)**3 = 0",
+        ]
+    )
+    r = internal_resonance_slow_flow(s)
+    assert r.resonance == "1:3"
+    assert r.frame_frequencies == (sp.Symbol("Omega", real=True), 3 * sp.Symbol("Omega", real=True))

@@ -409,7 +409,7 @@ def _exp_to_trig(expr: sp.Expr) -> sp.Expr:
 
 def internal_resonance_slow_flow(
     system: System,
-    resonance: str | None = "1:1",
+    resonance: str | None = None,
     *,
     near: int = 1,
     tolerance: float = 0.15,
@@ -426,7 +426,8 @@ def internal_resonance_slow_flow(
         Damping, forcing and elements are the small terms.
     resonance
         ``"1:1"`` (:math:`\omega_2 \approx \omega_1`) or ``"1:3"``
-        (:math:`\omega_2 \approx 3\omega_1`); ``None`` picks the nearer of the two.
+        (:math:`\omega_2 \approx 3\omega_1`); ``None`` (default) picks the nearer of the
+        two, relative to the ratio.
     near
         The mode the forcing frequency is near: ``Omega ~ omega_near`` (1 or 2).
     tolerance
