@@ -102,7 +102,7 @@ before the changes of issue 16's speed item, which was 0.79 s at low load (the c
 projections, dense algebra below 400 unknowns, branch points watched only on symmetric
 branches of an odd system, prepared polylines, a whole branch's crossings at once for the
 multipliers). Stability by the monodromy costs ~0.06 ms a point; the eigenvalue problem of a
-Hill matrix of the same balance (124 x 124) alone ~2 ms. A chain of n masses with a gap each
+Hill matrix of the same balance (124 x 124) alone ~3 ms (53x). A chain of n masses with a gap each
 (``bench_system_balance_chain.py``): the assembly (residual, exact projections, Jacobian)
 grows linearly in n; the dense bordered LU of the continuation core (it takes dense
 matrices) is the cubic term from n ~ 16 at H = 15. Accuracy
