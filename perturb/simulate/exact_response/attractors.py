@@ -36,8 +36,9 @@ INNER_GRID = 3
 FREQUENCY_RATIO = 1.02
 MAX_FREQUENCIES = 128
 #: Most state-steps (RK4 steps times trajectories times states) of the simulation; beyond
-#: it (light damping, stiff segments) the scan is skipped.
-MAX_WORK = 40_000_000
+#: it (light damping, stiff segments) the scan is skipped (~1e7 state-steps per CPU second:
+#: nsd2 over (0.5, 2) needs 8.8e6, nsd k = -3 over (0.2, 2.5) 4e6).
+MAX_WORK = 20_000_000
 #: Settling time of the simulation in slowest decay times (a transient decays by e^-4) and
 #: its least number of forcing periods.
 DECAY_TIMES = 4.0
