@@ -375,8 +375,9 @@ def attractor_states(
 # =============================================================================================
 def on_traced(internals: Sequence[Sequence[Pt]], p: float, y: np.ndarray, tol: float) -> bool:
     """Whether state ``y`` at ``p`` lies within ``tol`` (relative to ``max(1, |y|)``) of the
-    first node of a traced period-1 branch, interpolated linearly in ``p`` between
-    consecutive points (every crossing of ``p`` by a branch that folds)."""
+    first node of a traced branch, interpolated linearly in ``p`` between consecutive points
+    (every crossing of ``p`` by a branch that folds).  A cheap test before Newton; the exact
+    orbit is tested again by the registry's signatures."""
     size = max(1.0, float(np.max(np.abs(y))))
     for pts in internals:
         if not pts or pts[0].Z.shape[1] != y.size:
@@ -400,10 +401,12 @@ def attractor_stage(
     try_seed: Callable[[Pt], bool],
     budget_left: Callable[[], bool],
 ) -> tuple[int, int]:
-    """Trace the branches of the attractors of :func:`attractor_states` and of the edge starts
-    of :func:`edge_states` that lie on no traced branch (checked against ``internals`` before
-    Newton, then by ``try_seed`` on the exact orbit).  Returns (starts polished, branches
-    added) for the caller's notes."""
+    """Trace the branches of the attractors of :func:`attractor_states`, started from the grid
+    and from :func:`saddle_starts` beside the unstable orbits of the branches ``traced`` (their
+    indices into ``internals``; mirror images left out: their attractors are the images),
+    that lie on no traced branch (checked against ``internals`` before Newton, then by
+    ``try_seed`` on the exact orbit, which traces the branch).  Returns (states polished,
+    branches added)."""
     eng = tracer.eng
     polished = added = 0
 
