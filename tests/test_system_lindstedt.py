@@ -490,3 +490,19 @@ def test_mode_given_as_a_whole_float_is_the_mode():
     assert nnm_backbone(s, 2.0, 1).backbone == nnm_backbone(s, 2, 1).backbone
     with pytest.raises(ParameterError, match="mode"):
         nnm_backbone(s, "2", 1)
+
+
+def test_numeric_evaluation_refuses_text_nan_and_negative_amplitudes_by_name():
+    # displacement_at("x") raised a bare ValueError, displacement_at(0.5, nan) returned NaN
+    # silently, and frequency_at("0.5") read text as a number
+    r = nnm_backbone(ground(0.5), 1, 2)
+    for bad in ("0.5", None, float("nan"), -0.5, [0.1, float("inf")]):
+        with pytest.raises(ParameterError, match="A = "):
+            r.frequency_at(bad)
+        with pytest.raises(ParameterError, match="A = "):
+            r.displacement_at(bad)
+    for bad in ("a", float("nan")):
+        with pytest.raises(ParameterError, match="tau = "):
+            r.displacement_at(0.5, bad)
+    # the turning point at tau = 0 and at tau = 2 pi are the same state
+    assert np.allclose(r.displacement_at(0.3, 0.0), r.displacement_at(0.3, 2 * math.pi))

@@ -247,9 +247,7 @@ class NNMBackbone:
         """
         if invalid not in ("raise", "nan"):
             raise ParameterError(f"invalid = {invalid!r}: expected 'raise' or 'nan'")
-        A = np.asarray(A, dtype=float)
-        if not np.all(np.isfinite(A)) or np.any(A < 0):
-            raise ParameterError(f"A = {A!r}: expected finite amplitudes >= 0")
+        A = _finite_array(A, "A", nonnegative=True)
         f = self._compiled("omega", self.backbone)
         with np.errstate(invalid="ignore"):
             out = np.broadcast_to(np.asarray(f(A, 0.0), dtype=float), A.shape).copy()
@@ -267,8 +265,17 @@ class NNMBackbone:
 
     def displacement_at(self, A: Any, tau: Any = 0.0) -> np.ndarray:
         """``q(tau)`` in numbers, shape ``(2,) + broadcast(A, tau).shape``; at ``tau = 0`` the
-        turning point (all velocities vanish there)."""
-        A, tau = np.broadcast_arrays(np.asarray(A, float), np.asarray(tau, float))
+        turning point (all velocities vanish there). ``A >= 0`` and ``tau`` finite numbers
+        (ParameterError otherwise)."""
+        A = _finite_array(A, "A", nonnegative=True)
+        tau = _finite_array(tau, "tau")
+        try:
+            A, tau = np.broadcast_arrays(A, tau)
+        except ValueError:
+            raise ParameterError(
+                f"A of shape {A.shape} and tau of shape {tau.shape}: expected shapes that "
+                "broadcast together"
+            ) from None
         rows = []
         for i, w in enumerate(self.waveforms):
             f = self._compiled(f"q{i}", w)
@@ -289,6 +296,29 @@ class NNMBackbone:
             lines.append(f"  {name}({self.tau}) = {_clip(w)}")
         lines += [f"  note: {n}" for n in self.notes]
         return "\n".join(lines)
+
+
+def _finite_array(value: Any, what: str, nonnegative: bool = False) -> np.ndarray:
+    """``value`` (numbers, not text) as a float array of finite entries (``>= 0`` with
+    ``nonnegative``).
+
+    Raises
+    ------
+    ParameterError
+        Naming ``what`` and the value given.
+    """
+    expected = "finite numbers" + (" >= 0" if nonnegative else "")
+    arr = None
+    if not isinstance(value, str | bytes | bool) and value is not None:
+        try:
+            arr = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            arr = None
+        if arr is not None and arr.dtype.kind != "f":  # pragma: no cover - defensive
+            arr = None
+    if arr is None or not np.all(np.isfinite(arr)) or (nonnegative and np.any(arr < 0)):
+        raise ParameterError(f"{what} = {value!r}: expected {expected}")
+    return arr
 
 
 def _clip(expr: Any, width: int = 240) -> str:
