@@ -1492,7 +1492,11 @@ def auto_system_response(
     ladder = list(ladder)
     before: tuple[CandidateResult, ...] = ()
     extra: list[str] = []
-    for attempt in range(max_climbs + 1):
+    resp = None
+    climbs = 0
+    # the climbs after a curve check, plus one per rung whose trace fails (each such rung
+    # leaves the ladder, so the loop ends at the exact solver at the latest)
+    for _ in range(max_climbs + 1 + len(ladder)):
         choice, _ = _choose_system(
             system, window, rtol, output, spots, n_spots, ladder, log, known, before
         )
@@ -1505,10 +1509,28 @@ def auto_system_response(
                 system, method, frequencies=targets, output=output, **settings
             )
             break
-        resp = frequency_response(system, method, choice.window, output=output, **settings)
         if method == "exact":
+            resp = frequency_response(system, method, choice.window, output=output, **settings)
             break
-        worst, at = _curve_check(system, resp, output, curve_checks)
+        try:
+            resp = frequency_response(system, method, choice.window, output=output, **settings)
+        except PerturbError as exc:
+            # verified at the spots from the exact orbits, but its own start over the window
+            # failed (the impact pair's balance off resonance): the next rung answers
+            worst, at, failed_trace = math.inf, math.nan, str(exc)
+        else:
+            failed_trace = ""
+            worst, at = _curve_check(system, resp, output, curve_checks)
+        if failed_trace:
+            msg = f"{cand.name}: tracing the window failed ({failed_trace})"
+            extra.append(msg + ": the next rung is tried")
+            if log is not None:
+                log(msg)
+            i = next(j for j, c in enumerate(ladder) if c == cand)
+            failed = dataclasses.replace(choice.chosen, note="trace failed")
+            before = (*choice.rejected, failed)
+            ladder = ladder[i + 1 :]
+            continue
         if not worst > rtol:
             if math.isfinite(worst):
                 extra.append(
@@ -1520,12 +1542,13 @@ def auto_system_response(
             f"{cand.name}: error {worst:.2e} > rtol against the exact orbit at Omega = "
             f"{at:.6g} on the traced curve (between the spot frequencies)"
         )
-        if attempt == max_climbs:
+        if climbs == max_climbs:
             extra.append(msg + "; kept (no more climbs): tighten rtol or give spots there")
             break
         extra.append(msg + ": the next rung is tried")
         if log is not None:
             log(msg)
+        climbs += 1
         i = next(j for j, c in enumerate(ladder) if c == cand)
         failed = dataclasses.replace(choice.chosen, note=f"curve check {worst:.2e} at {at:.6g}")
         before = (*choice.rejected, failed)
