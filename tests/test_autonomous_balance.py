@@ -372,3 +372,25 @@ def test_solution_refuses_times_that_are_not_finite_numbers():
         sol.state("a")
     # the series at t = 0 and one period later agree (a periodic answer, not a NaN)
     assert sol(sol.period, "x") == pytest.approx(sol(0.0, "x"), abs=1e-12)
+
+
+def test_relaxation_oscillation_starts_from_an_unstable_node():
+    # at eps >= 2 the equilibrium of van der Pol is an unstable node (real eigenvalues
+    # 0.38, 2.62 at eps = 3): refused before as "no self-excited oscillation"
+    sol = autonomous_balance_orbit(vdp(3.0), 25)
+
+    def f(t, y):
+        return [y[1], 3.0 * (1 - y[0] ** 2) * y[1] - y[0]]
+
+    def up(t, y):
+        return y[0]
+
+    up.direction = 1.0
+    ref = solve_ivp(f, (0, 120), [2.0, 0.0], method="DOP853", rtol=1e-12, atol=1e-12, events=up)
+    crossings = ref.t_events[0]
+    T = float(crossings[-1] - crossings[-2])
+    assert sol.period == pytest.approx(T, rel=1e-6)
+    assert sol.stable
+    saddle = System.parse(["x'' + 0.1*x' - x = 0"], name="saddle")
+    with pytest.raises(AutonomousBalanceError, match="no self-excited oscillation"):
+        autonomous_balance_orbit(saddle, 5)

@@ -1024,6 +1024,16 @@ class AutonomousBalance:
         lam = np.linalg.eigvals(A)
         scale_t = max(1e-300, float(np.abs(lam).max()))
         cand = [z for z in lam if z.imag > 1e-9 * scale_t and z.real > 1e-12 * scale_t]
+        shift = 0.0
+        if not cand and lam.real.max() > 1e-12 * scale_t:
+            # an unstable node (van der Pol at eps >= 2: real eigenvalues): the artificial
+            # damping that first stabilises the equilibrium may put a complex pair on the
+            # imaginary axis, and the homotopy then starts there
+            shift = self._node_shift(A, scale_t)
+            if shift > 0.0:
+                A = A - shift * self._damping_projection()
+                lam = np.linalg.eigvals(A)
+                cand = [z for z in lam if z.imag > 1e-9 * scale_t and z.real > -1e-9 * scale_t]
         if not cand:
             listed = ", ".join(f"{z.real:.4g}{z.imag:+.4g}j" for z in lam)
             raise AutonomousBalanceError(
@@ -1056,7 +1066,7 @@ class AutonomousBalance:
         U[:, 1] = A0 * rows.real
         U[:, 2] = -A0 * rows.imag
         w0 = float(z.imag)
-        delta0 = (2.0 if self.n2 else 1.0) * float(z.real)
+        delta0 = shift + (2.0 if self.n2 else 1.0) * float(z.real)
         k_b, k_a = self.phase_row(j), j * self.size + 1
         nU = self.neq * self.size
 
@@ -1201,6 +1211,40 @@ class AutonomousBalance:
             f"artificial damping {reached:.4g}, not 0 (started at {delta1:.4g}): give guess= "
             "(frequency and coefficients)"
         )
+
+    def _damping_projection(self) -> np.ndarray:
+        """``P`` with ``A - delta P`` the linearisation with the artificial damping
+        ``delta G`` (``G = M q'``, ``D p``): the identity on the rows of ``q'`` and ``p``."""
+        n = 2 * self.n2 + self.n1
+        P = np.zeros((n, n))
+        idx = np.arange(self.n2, n)
+        P[idx, idx] = 1.0
+        return P
+
+    def _node_shift(self, A: np.ndarray, scale_t: float) -> float:
+        """The smallest artificial damping ``delta`` at which the largest real part of the
+        eigenvalues of ``A - delta P`` reaches zero, when a complex pair crosses there
+        (0 otherwise): a grid of 400 steps up to ``4 |lambda|_max``, then 60 bisections."""
+        P = self._damping_projection()
+
+        def top(d: float) -> float:
+            return float(np.linalg.eigvals(A - d * P).real.max())
+
+        grid = np.linspace(0.0, 4.0 * scale_t, 401)
+        lo = 0.0
+        for d in grid[1:]:
+            if top(d) <= 0.0:
+                hi = float(d)
+                break
+            lo = float(d)
+        else:
+            return 0.0
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if top(mid) > 0.0 else (lo, mid)
+        lam = np.linalg.eigvals(A - hi * P)
+        crit = lam[int(np.argmax(lam.real))]
+        return hi if abs(crit.imag) > 1e-9 * scale_t else 0.0
 
     # ---------------------------------------------------------------- stability -------
     def monodromy(self, x: ArrayLike, p: float | None = None) -> np.ndarray:
