@@ -83,7 +83,10 @@ Starting without a guess (the Hopf start)
    state and from the linear part's equilibrium.
 2. Its linearisation ``A = df/dy`` (central differences of the vector field): the complex
    pair with the largest positive real part gives the frequency ``omega_0 = Im lambda`` and
-   the shape of a small orbit (eigenvector). No unstable complex pair: no self-excited
+   the shape of a small orbit (eigenvector). An unstable node (real eigenvalues only: van
+   der Pol at ``eps >= 2``): the smallest artificial damping ``delta`` of step 3 that makes
+   the equilibrium neutral is found (grid and bisection); when a complex pair crosses the
+   imaginary axis there, it is the start (at that ``delta``). Otherwise no self-excited
    oscillation is found there, and :class:`AutonomousBalanceError` asks for a guess.
 3. Artificial damping ``delta``: the residual ``R + delta G`` with ``G = M q'`` (second-order
    rows) and ``D p`` (first-order rows) has a small orbit of amplitude ``A_0`` (a thousandth
@@ -1014,8 +1017,9 @@ class AutonomousBalance:
         Raises
         ------
         AutonomousBalanceError
-            No unstable complex pair (no self-excited oscillation from this equilibrium),
-            or the homotopy does not reach zero artificial damping.
+            No unstable complex pair, and none that artificial damping brings onto the
+            imaginary axis from an unstable node (no self-excited oscillation from this
+            equilibrium), or the homotopy does not reach zero artificial damping.
         """
         mdl = self.model(p)
         p = mdl["p"]
