@@ -394,3 +394,25 @@ def test_relaxation_oscillation_starts_from_an_unstable_node():
     saddle = System.parse(["x'' + 0.1*x' - x = 0"], name="saddle")
     with pytest.raises(AutonomousBalanceError, match="no self-excited oscillation"):
         autonomous_balance_orbit(saddle, 5)
+
+
+def test_mass_towards_zero_ends_the_branch_with_a_reason_not_a_linalg_error():
+    # m x'' - eps (1 - x**2) x' + x = 0 continued in m towards 0: the variational equation
+    # stiffens until its monodromy overflows; this raised numpy's LinAlgError ("Array must
+    # not contain infs or NaNs") from inside the branch
+    m = System.parse(["m*x'' - eps*(1 - x**2)*x' + x = 0"], {"eps": 0.5, "m": 1.0}, name="m")
+    cheap = autonomous_balance_branch(m, "m", (-1.0, 1.0), 5, stability=False)
+    k = int(np.argmin(abs(cheap.values - 1e-5)))
+    guess = (float(cheap.frequency[k]), cheap.coefficients[k])
+    start = float(cheap.values[k])
+    br = autonomous_balance_branch(m, "m", (1e-9, 2e-5), 5, start=start, guess=guess)
+    assert br.stop_reasons[0].startswith("stability failed at m = ")
+    assert br.values[0] > 1e-9 and np.all(np.isfinite(br.max_multiplier))
+    with pytest.raises(AutonomousBalanceError, match="overflows"):
+        autonomous_balance_orbit(
+            m.with_params({"m": float(cheap.values[0])}),
+            5,
+            guess=(float(cheap.frequency[0]), cheap.coefficients[0]),
+        )
+    with pytest.raises(ModelError, match=r"\[M D\] = \[\[0.0\]\] of 'm' is singular: expected"):
+        autonomous_balance_orbit(m.with_params({"m": 0.0}), 5)

@@ -446,8 +446,9 @@ class AutonomousBalance:
         cond = np.linalg.cond(B) if B.size else 1.0
         if not np.isfinite(cond) or cond > 1e14:
             raise ModelError(
-                f"the mass matrix [M D] of {self.system.name!r} is singular at "
-                f"{self.parameter} = {p:g}: expected an invertible matrix"
+                f"the mass matrix [M D] = {B.tolist()} of {self.system.name!r} is singular"
+                + (f" at {self.parameter} = {p:g}" if self.parameter is not None else "")
+                + ": expected an invertible matrix"
             )
         els = []
         for el in self._elements:
@@ -1347,8 +1348,23 @@ class AutonomousBalance:
         return A
 
     def multipliers(self, x: ArrayLike, p: float | None = None) -> np.ndarray:
-        """Floquet multipliers (eigenvalues of :meth:`monodromy`) by decreasing modulus."""
-        mu = np.linalg.eigvals(self.monodromy(x, p))
+        """Floquet multipliers (eigenvalues of :meth:`monodromy`) by decreasing modulus.
+
+        Raises
+        ------
+        AutonomousBalanceError
+            The monodromy overflows (a stiff variational equation: a mass tending to 0).
+        """
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised below
+            mono = self.monodromy(x, p)
+        if not np.all(np.isfinite(mono)):
+            where = f" at {self.parameter} = {self.model(p)['p']:g}" if self.parameter else ""
+            raise AutonomousBalanceError(
+                f"the monodromy of the cycle of {self.system.name!r}{where} overflows "
+                f"({self.monodromy_steps} Magnus steps per period on a stiff variational "
+                "equation): pass stability=False or keep the parameter away from there"
+            )
+        mu = np.linalg.eigvals(mono)
         return mu[np.argsort(-np.abs(mu), kind="stable")]
 
     # ---------------------------------------------------------------- guesses ---------
@@ -1915,7 +1931,27 @@ def autonomous_balance_branch(
     lam = np.concatenate([l_dn[::-1], l_up[1:] if l_dn.size else l_up])
     if lam.size == 0:
         X, lam = x0[None, :], np.array([start])
-    sols = [_solution(ab, X[i], float(lam[i]), stability) for i in range(lam.size)]
+    # the stability of each point; a point whose monodromy overflows (a mass continued
+    # towards zero) ends the branch on that side, the reason reported
+    i0 = max(l_dn.size - 1, 0)
+    sols: list[Any] = [None] * lam.size
+    keep_lo, keep_hi = 0, lam.size
+    for side, indices in ((0, range(i0, -1, -1)), (1, range(i0, lam.size))):
+        for i in indices:
+            if sols[i] is not None:
+                continue
+            try:
+                sols[i] = _solution(ab, X[i], float(lam[i]), stability)
+            except AutonomousBalanceError as exc:
+                if i == i0:
+                    raise
+                if side == 0:
+                    keep_lo = i + 1
+                else:
+                    keep_hi = i
+                reasons[side] = f"stability failed at {parameter} = {lam[i]:.6g} ({exc})"
+                break
+    sols, lam = sols[keep_lo:keep_hi], lam[keep_lo:keep_hi]
     return AutonomousBalanceBranch(
         system=system.name,
         parameter=parameter,
