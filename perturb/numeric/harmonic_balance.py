@@ -1998,13 +1998,17 @@ def _branch_point_note(points: Sequence[tuple[float, float]]) -> str:
 #: Frequencies (window edges included) of the linear-segment and equilibrium seeds.
 _LINEAR_SEED_FREQUENCIES = 5
 #: Initial conditions per axis of the simulations of :func:`_attractor_guesses`: at the
-#: window edges, and at the frequencies in between.
+#: window edges, and at the frequencies in between (the coarse grid there when the fine one
+#: would exceed ``_ATTRACTOR_MAX_WORK``). A 5 x 5 grid reaches small basins that 3 x 3 and
+#: 4 x 4 miss (nsd k = -3 at Omega 0.3155: the stable tip of the branch on 0.2-0.3164).
 _ATTRACTOR_GRID_EDGE = 5
-_ATTRACTOR_GRID = 3
+_ATTRACTOR_GRID = 5
+_ATTRACTOR_GRID_COARSE = 3
 #: Most state-steps (RK4 steps times trajectories) of the simulation of
-#: :func:`_attractor_guesses` (~0.11 us each: 6e6 is ~0.7 s): beyond it (very light damping,
-#: stiff segments, a very wide window) it is skipped.
-_ATTRACTOR_MAX_WORK = 6_000_000
+#: :func:`_attractor_guesses` (~0.11 us each: 1e7 is ~1.1 s): beyond it the coarse grid of
+#: states is used between the window's edges, and beyond that again (very light damping,
+#: stiff segments, a very wide window) the search is skipped.
+_ATTRACTOR_MAX_WORK = 10_000_000
 #: Largest ratio of neighbouring frequencies of the attractor search across the window, and
 #: most frequencies: a stable isola narrower than that ratio can be missed.
 _ATTRACTOR_RATIO = 1.02
@@ -2035,7 +2039,8 @@ def _attractor_guesses(
     system: HarmonicBalanceSystem, Omegas: Sequence[float], grids: Sequence[int]
 ) -> list[tuple[float, np.ndarray]]:
     """``(Omega, coefficients)`` of the attractors reached at each of ``Omegas`` from a grid
-    of initial states (``grids[i]**2`` of them at ``Omegas[i]``).
+    of initial states (``grids[i]**2`` of them at ``Omegas[i]``; ``_ATTRACTOR_GRID_COARSE``
+    per axis between the first and the last frequency when that would exceed the work cap).
 
     One fixed-step RK4 simulation of ``x'' + g(x, x') = f(t)`` for every frequency and
     initial state at once (states in ``[-e, e]^2``, ``e`` three times the largest
@@ -2066,21 +2071,26 @@ def _attractor_guesses(
         gx = np.abs(np.diff(g(xs, np.zeros_like(xs)))) / (xs[1] - xs[0])
     if not np.all(np.isfinite(gx)):
         return []
+    periods = _TWO_PI * system.m / np.asarray(Omegas, dtype=float)
+    kmax = max(system.basis.kmax, 1)
+    w_max = max(math.sqrt(float(gx.max())), _TWO_PI / float(periods.min()), mu)
+    # the step resolves the dynamics, not the basis: the guess's high harmonics are only as
+    # good as the interpolation, and Newton corrects them (so the cost does not grow with H)
+    h = min(0.15 / w_max, float(periods.min()) / 32.0)
+    t_end = max(8.0 / mu, 3.0 * float(periods.max()))
+    steps = math.ceil(t_end / h)
+    n_keep = math.ceil(2.0 * float(periods.max()) / h) + 2
+    grids = list(grids)
+    if steps * sum(n * n for n in grids) > _ATTRACTOR_MAX_WORK:
+        # over budget: the coarse grid of states between the first and last frequency
+        grids[1:-1] = [min(n, _ATTRACTOR_GRID_COARSE) for n in grids[1:-1]]
+        if steps * sum(n * n for n in grids) > _ATTRACTOR_MAX_WORK:
+            return []
     W = np.repeat(np.asarray(Omegas, dtype=float), [n * n for n in grids])
     x = np.concatenate([np.repeat(np.linspace(-ext, ext, n), n) for n in grids])
     v = np.concatenate([np.tile(np.linspace(-ext, ext, n), n) for n in grids])
     w_orbit = W / system.m
     P = _TWO_PI / w_orbit
-    kmax = max(system.basis.kmax, 1)
-    w_max = max(math.sqrt(float(gx.max())), float(w_orbit.max()), mu)
-    # the step resolves the dynamics, not the basis: the guess's high harmonics are only as
-    # good as the interpolation, and Newton corrects them (so the cost does not grow with H)
-    h = min(0.15 / w_max, float(P.min()) / 32.0)
-    t_end = max(8.0 / mu, 3.0 * float(P.max()))
-    steps = math.ceil(t_end / h)
-    n_keep = math.ceil(2.0 * float(P.max()) / h) + 2
-    if steps * x.size > _ATTRACTOR_MAX_WORK:
-        return []
     # the forcing of each column: its static part and its harmonics (few are nonzero)
     F = np.array([np.add(*system.forcing_vector(float(w))[:2]) for w in Omegas])
     F = np.repeat(F, [n * n for n in grids], axis=0)
@@ -2221,9 +2231,10 @@ def harmonic_balance_branches(
     3b. Attractors and window edges (``attractors``, ``origin='attractor'`` or ``'edge'``):
        Newton from the stable orbits reached by one short fixed-step simulation from a grid
        of initial states at frequencies spaced by a ratio of at most 1.02 across the window
-       (at most 128 of them; a finer grid of states at the two edges:
-       :func:`_attractor_guesses`), and at each edge from each solution already found there
-       with its bias shifted both ways by half the smallest breakpoint. A guess or solution
+       (at most 128 of them, 5 x 5 states each, 3 x 3 between the edges when that would
+       exceed the work cap: :func:`_attractor_guesses`), and at each edge from each
+       solution already found there with its bias shifted both ways by half the smallest
+       breakpoint. A guess or solution
        on no branch found so far (nor, for an odd system, its mirror image) starts a
        branch, traced both ways and searched for branch points. This finds what neither a
        seed nor a branch point inside the window reaches: a stable isola (nsd, k = 2: the
