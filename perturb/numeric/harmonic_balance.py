@@ -138,11 +138,11 @@ come from stage 3b of :func:`harmonic_balance_branches`: Newton from the stable 
 short fixed-step simulation reaches from a grid of initial states at frequencies 2 % apart
 across the window (PWL forces), and at both edges from the solutions found there with their
 bias shifted. CPU time of a repeated call, bench windows (0.2, 2.5), H = 15, loaded machine:
-nsd k = -0.5 0.64 -> 0.93 s (4 branches, as before), k = -3 0.74 -> 1.9 s (7 -> 19
-branches: the 6 that the exact solver finds and HB missed, and 6 more, each checked to be an
-exact orbit by shooting), k = 2 0.25 -> 0.65 s (1 -> 2: the stable isola on 0.5915-0.6151);
-clearance (window (0.5, 1.6)) 0.13 -> 0.80 s (1 -> 2: the stable superharmonic isola on
-0.508-0.654).
+nsd k = -0.5 0.67 -> 1.32 s (4 branches, as before), k = -3 0.69 -> 2.36 s (7 -> 21
+branches, each new one checked to be an exact orbit by shooting; the exact response with its
+own attractor stage has 23: the pair on 0.2-0.2351, stable only on 0.23487-0.23515, is
+missed), k = 2 0.25 -> 1.02 s (1 -> 2: the stable isola on 0.5915-0.6151); clearance
+(window (0.5, 1.6)) 0.13 -> 0.80 s (1 -> 2: the stable superharmonic isola on 0.508-0.654).
 
 Starting without a guess
 ------------------------
