@@ -227,3 +227,33 @@ def test_stepped_sine_sweep_of_a_system(nsd2):
     assert any("subharmonic" in n or "no periodic response" in n for n in notes)
     with pytest.raises(PerturbError, match="x3"):
         system_frequency_sweep(nsd2, [1.1], output="x3")
+
+
+def test_grid_sweep_of_a_system_scene(tmp_path):
+    import perturb.apps.grid as ps
+
+    # nsd2 with k = 1 is linear: x = Re(X e^{i W t}), (K - W^2 M + i W C) X = (F, 0)
+    scene = tmp_path / "sweep.toml"
+    scene.write_text(
+        '[model]\nsystem = "nsd2"\noutput = "x2"\n[params]\nk = 1.0\n'
+        '[ask]\nkind = "frequency_response"\nomega = [0.8, 1.2]\n'
+        '[sweep]\nsolver = "simulation"\nquantity = "frequency_response"\nomega_points = 3\n'
+        'direction = "up"\n[sweep.params]\nF = "1:2:2"\n'
+    )
+    ds = ps.sweep(ps.load_sweep_scene(scene), executor="serial", progress=False)
+    amp = ds["amplitude"].values  # (F, Omega, direction)
+    mu1, mu2, k2, m2 = P["mu1"], P["mu2"], P["k2"], P["m2"]
+    K = np.array([[1 + k2, -k2], [-k2, k2]])
+    C = np.array([[mu1 + mu2, -mu2], [-mu2, mu2]])
+    M = np.diag([1.0, m2])
+    for i, F in enumerate((1.0, 2.0)):
+        for j, W in enumerate((0.8, 1.0, 1.2)):
+            X = np.linalg.solve(K - W**2 * M + 1j * W * C, [F, 0.0])
+            assert amp[i, j, 0] == pytest.approx(abs(X[1]), rel=1e-6)
+    bad = tmp_path / "bad.toml"
+    bad.write_text(
+        '[model]\nsystem = "nsd2"\n[ask]\nkind = "frequency_response"\nomega = [0.8, 1.2]\n'
+        '[sweep]\nsolver = "approximation"\n[sweep.params]\nF = "1:2:2"\n'
+    )
+    with pytest.raises(PerturbError, match="stepped-sine"):
+        ps.load_sweep_scene(bad)

@@ -330,6 +330,12 @@ def parse_sweep_scene(text: str, source: str = "<scene>") -> SweepScene:
         options = _check_options(quantity, solver, {k: body[k] for k in _OPTION_KEYS & set(body)})
     except ParameterError as exc:
         raise PerturbError(f"scene {source}: [sweep] {exc}") from None
+    if scene.is_system and (solver != "simulation" or quantity == "bifurcation"):
+        raise PerturbError(
+            f"scene {source}: [sweep] a system of several coordinates is swept by stepped-sine "
+            "simulation (solver = 'simulation', quantity 'peak_amplitude' or "
+            f"'frequency_response'); got solver = {solver!r}, quantity = {quantity!r}"
+        )
     if solver == "approximation":
         from perturb.methods.registry import spec as method_spec
 
@@ -438,6 +444,16 @@ def _scene_spec(ss: SweepScene, names: Sequence[str]) -> dict[str, Any]:
         "solver": ss.solver,
         "options": dict(sorted(ss.options.items())),
         "swept": list(names),
+        # a system's scene only (an oscillator's spec, and so its sweep's hash, is unchanged)
+        **(
+            {
+                "system": True,
+                "equations": list(sc.equations) if sc.equations else None,
+                "output": sc.output,
+            }
+            if sc.is_system
+            else {}
+        ),
     }
 
 
@@ -461,7 +477,9 @@ def _kernel(spec_json: str) -> tuple[Any, bool]:
     if kernel is not None:
         return kernel, False
     spec = json.loads(spec_json)
-    if spec["quantity"] == "bifurcation":
+    if spec.get("system"):
+        kernel = _SystemSimulationKernel(spec)
+    elif spec["quantity"] == "bifurcation":
         kernel = _BifurcationKernel(spec)
     elif spec["solver"] == "simulation":
         kernel = _SimulationKernel(spec)
@@ -709,6 +727,86 @@ class ApproximationKernel:
         if self.quantity == "frequency_response":
             return self.frequency_response(p)
         return self.peak(p)
+
+
+class _SystemSimulationKernel:
+    """Stepped-sine sweeps of a system of several coordinates
+    (:func:`perturb.simulate.studies.system_frequency_sweep`): the scene's ``[model] output``
+    is what ``amplitude`` measures; ``peak_restoring_force`` is NaN (a system has one force
+    per element, not one restoring force)."""
+
+    def __init__(self, spec: Mapping[str, Any]) -> None:
+        from perturb.model.system import System
+        from perturb.model.system_builtins import builtin_system
+
+        self.spec = spec
+        self.names = list(spec["swept"])
+        params = dict(spec["params"])
+        if spec.get("equations"):
+            self.system = System.parse(list(spec["equations"]), params, name=spec["model"])
+        else:
+            self.system = builtin_system(spec["model"], **params)
+        bad = [n for n in self.names if n not in self.system.params or n == "Omega"]
+        if bad:
+            raise PerturbError(
+                f"swept parameter(s) {', '.join(bad)}: not parameters of system "
+                f"{self.system.name!r} other than the forcing frequency Omega (its parameters: "
+                f"{', '.join(k for k in self.system.params if k != 'Omega')})"
+            )
+        self.options = spec["options"]
+        lo, hi = spec["omega"]
+        self.omegas = np.linspace(lo, hi, self.options["omega_points"])
+        self.directions = (
+            ["up", "down"] if self.options["direction"] == "both" else [self.options["direction"]]
+        )
+        self.quantity = spec["quantity"]
+        n = len(self.system.state_names)
+        if any(self.options["y0"]) and len(self.options["y0"]) != n:
+            raise PerturbError(
+                f"[sweep] y0 = {self.options['y0']}: the system {self.system.name!r} has {n} "
+                f"states ({', '.join(self.system.state_names)}); its sweeps start from rest"
+            )
+
+    def schema(self):
+        if self.quantity == "frequency_response":
+            dims = ("Omega", "direction")
+            coords = {"Omega": self.omegas, "direction": np.array(self.directions)}
+            return {"amplitude": (dims, coords), "first_harmonic_amplitude": (dims, coords)}
+        return {name: ((), {}) for name in _PEAK_VARS}
+
+    def __call__(self, p: Sequence[float]) -> dict[str, Any]:
+        from perturb.simulate.studies import system_frequency_sweep
+
+        o = self.options
+        system = self.system.with_params(**dict(zip(self.names, map(float, p), strict=True)))
+        y0 = o["y0"] if len(o["y0"]) == len(system.state_names) else None
+        res = system_frequency_sweep(
+            system,
+            self.omegas,
+            output=self.spec.get("output"),
+            direction=o["direction"],
+            y0=y0,
+            transient_periods=o["transient_periods"],
+            record_periods=o["record_periods"],
+            tol=o["tol"],
+        )
+        if self.quantity == "frequency_response":
+            amp = np.empty((self.omegas.size, len(self.directions)))
+            first = np.empty_like(amp)
+            for d, name in enumerate(self.directions):
+                br = res.branch(name)
+                order = np.argsort(br.omega)
+                amp[:, d] = br.amplitude[order]
+                first[:, d] = br.first_harmonic_amplitude[order]
+            return {"amplitude": amp, "first_harmonic_amplitude": first}
+        best = max(
+            (s for b in res.branches for s in b.states), key=lambda s: (s.amplitude, -s.omega)
+        )
+        return {
+            "peak_amplitude": best.amplitude,
+            "peak_omega": best.omega,
+            "peak_restoring_force": math.nan,
+        }
 
 
 class _SimulationKernel:
