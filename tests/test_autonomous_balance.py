@@ -361,6 +361,12 @@ def test_huge_harmonics_and_bad_tol_are_refused_by_name():
     for bad in ("1e-8", float("nan"), -1.0, 0.0):
         with pytest.raises(ParameterError, match="tol"):
             autonomous_balance_orbit(vdp(1.0), 3, tol=bad)
+    # 10**6 quadrature nodes at H = 200 meant a 3.2 GB design matrix (and ~1 min per
+    # evaluation at H = 7): bounded by 10**7 entries
+    with pytest.raises(ParameterError, match=r"quadrature = 1000000: expected an integer in"):
+        autonomous_balance_orbit(vdp(1.0), 200, quadrature=10**6)
+    with pytest.raises(ParameterError, match="monodromy_steps"):
+        AutonomousBalance(vdp(1.0), 7, monodromy_steps=10**6)
 
 
 def test_solution_refuses_times_that_are_not_finite_numbers():

@@ -345,8 +345,14 @@ class AutonomousBalance:
         if isinstance(value, bool) or not isinstance(value, int | np.integer):
             raise ParameterError(f"{what} = {value!r}: expected an integer")
         low = 2 * self.H + 1 if what == "quadrature" else 8
-        if value < low or value > 1_000_000:
-            raise ParameterError(f"{what} = {value!r}: expected an integer in {low}..1000000")
+        # each node holds a row of the (nodes, 2H + 1) design matrix: 10**7 entries = 80 MB
+        # (10**6 nodes at H = 7 already took ~60 s CPU per cycle)
+        high = max(low, min(1_000_000, 10**7 // self.size))
+        if value < low or value > high:
+            raise ParameterError(
+                f"{what} = {value!r}: expected an integer in {low}..{high} (at most 10**7 "
+                f"design-matrix entries for H = {self.H})"
+            )
         return int(value)
 
     def _compile(self) -> None:
