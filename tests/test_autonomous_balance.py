@@ -367,6 +367,11 @@ def test_huge_harmonics_and_bad_tol_are_refused_by_name():
         autonomous_balance_orbit(vdp(1.0), 200, quadrature=10**6)
     with pytest.raises(ParameterError, match="monodromy_steps"):
         AutonomousBalance(vdp(1.0), 7, monodromy_steps=10**6)
+    # stability="no" is truthy: it computed the multipliers
+    with pytest.raises(ParameterError, match="stability = 'no'"):
+        autonomous_balance_orbit(vdp(1.0), 3, stability="no")
+    with pytest.raises(ParameterError, match="stability = 'no'"):
+        autonomous_balance_branch(vdp(1.0), "eps", (0.5, 1.5), 3, stability="no")
 
 
 def test_solution_refuses_times_that_are_not_finite_numbers():

@@ -1599,6 +1599,12 @@ def _coordinate_index(coordinates: tuple[str, ...], coordinate: str | int) -> in
     return j
 
 
+def _check_flag(value: Any, what: str) -> None:
+    """A truth value given as text ("no") would count as True: refuse anything not a bool."""
+    if not isinstance(value, bool | np.bool_):
+        raise ParameterError(f"{what} = {value!r}: expected True or False")
+
+
 def _solution(ab: AutonomousBalance, x: np.ndarray, p: float, stability: bool):
     U, w = ab.unpack(x)
     mu = trivial = None
@@ -1698,6 +1704,7 @@ def autonomous_balance_orbit(
     6.663287
     """
     ab = AutonomousBalance(system, harmonics, quadrature=quadrature, jump_width=jump_width)
+    _check_flag(stability, "stability")
     checks.whole(max_iterations, "max_iterations", 1, 10_000)
     tol = checks.finite(tol, "tol")
     if not 0.0 < tol < 1.0:
@@ -1854,6 +1861,7 @@ def autonomous_balance_branch(
             f"{', '.join(system.params) or 'none'}"
         )
     lo, hi = checks.window(window, parameter, positive=False)
+    _check_flag(stability, "stability")
     cur = system.params.get(parameter)
     if start is None:
         start = float(cur) if cur is not None and lo <= float(cur) <= hi else lo
