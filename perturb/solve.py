@@ -2679,10 +2679,20 @@ SYSTEM_DERIVATIONS: dict[str, tuple[str, str, tuple[str, ...]]] = {
     ),
 }
 #: Other names of :data:`SYSTEM_DERIVATIONS` entries.
-SYSTEM_DERIVATION_ALIASES = {"shb": "hb1", "internal-resonance": "ms-ir", "nnm-lp": "nnm"}
+SYSTEM_DERIVATION_ALIASES = {
+    "shb": "hb1",
+    "internal-resonance": "ms-ir",
+    "nnm-lp": "nnm",
+    "nnm-mlp": "nnm",
+}
+#: Options an alias sets (``nnm-mlp`` is the modified L-P backbone).
+SYSTEM_DERIVATION_PRESETS: dict[str, dict[str, Any]] = {
+    "nnm-lp": {"method": "lp"},
+    "nnm-mlp": {"method": "mlp"},
+}
 
 
-def derive_system(system: Any, method: str, **options: Any) -> Any:
+def derive_system(system: Any, method: str, /, **options: Any) -> Any:
     """The symbolic derivation ``method`` of a system of several coordinates.
 
     Parameters
@@ -2695,7 +2705,9 @@ def derive_system(system: Any, method: str, **options: Any) -> Any:
         ``"internal-resonance"``): :func:`perturb.methods.system_averaging.
         internal_resonance_slow_flow` (``resonance`` ``"1:1"``/``"1:3"``, ``near``,
         ``tolerance``); ``"nnm"``: :func:`perturb.methods.system_lindstedt.nnm_backbone`
-        (``mode``, ``order``, ``method`` ``"lp"``/``"mlp"``, ``harmonics``).
+        (``mode``, ``order``, ``method`` ``"lp"``/``"mlp"``, ``harmonics``; the aliases
+        ``"nnm-lp"`` and ``"nnm-mlp"`` set ``method``). ``method`` is positional only, so
+        ``derive_system(system, "nnm", method="mlp")`` passes the backbone's own ``method``.
 
     Returns
     -------
@@ -2724,6 +2736,12 @@ def derive_system(system: Any, method: str, **options: Any) -> Any:
             f"{', '.join(SYSTEM_DERIVATIONS)} (aliases {aliases})"
         )
     target, _, takes = SYSTEM_DERIVATIONS[name]
+    for key, value in SYSTEM_DERIVATION_PRESETS.get(method, {}).items():
+        if options.get(key) not in (None, value):
+            raise ParameterError(
+                f"{key} = {options[key]!r}: {method!r} is the derivation with {key} = {value!r}"
+            )
+        options[key] = value
     unknown = sorted(k for k, v in options.items() if k not in takes and v is not None)
     if unknown:
         raise ParameterError(

@@ -8,6 +8,8 @@ state at t = 0; max |x_i| from 20000 samples of the orbit.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -207,9 +209,33 @@ def test_system_derivations_reachable():
     nnm = derive_system(conservative, "nnm", order=1)
     for A in (0.3, 1.0):
         assert float(nnm.frequency_at(A)) == pytest.approx(1 + 3 * 0.1 * A**2 / 32, rel=1e-12)
+    # the modified L-P backbone through both doors (method= is the backbone's own option:
+    # derive_system's method is positional only); first order: omega^2 = 1 + (3/4)(g/4) A^2
+    for mlp in (
+        derive_system(conservative, "nnm", method="mlp", order=1),
+        derive_system(conservative, "nnm-mlp", order=1),
+    ):
+        for A in (0.3, 1.0, 3.0):
+            assert float(mlp.frequency_at(A)) == pytest.approx(
+                math.sqrt(1 + 3 * 0.1 * A**2 / 16), rel=1e-12
+            )
+    with pytest.raises(ParameterError, match="'nnm-mlp' is the derivation with method = 'mlp'"):
+        derive_system(conservative, "nnm-mlp", method="lp")
     slow = derive_system(pair_system(), "internal-resonance")
     assert len(slow.slow_flow) == 4
     with pytest.raises(ParameterError, match="hb1, ms-ir, nnm"):
         derive_system(pair_system(), "mlp")
     with pytest.raises(ParameterError, match="order.*bias"):
         derive_system(pair_system(), "hb1", order=2)
+
+
+def test_cli_derive_lists_the_system_derivations_it_takes():
+    from perturb.apps.cli import SYSTEM_DERIVATION_NAMES, build_parser
+    from perturb.solve import SYSTEM_DERIVATION_ALIASES, SYSTEM_DERIVATIONS
+
+    # the help text's names (kept beside the parser so --help needs no SymPy) are the table's
+    assert set(SYSTEM_DERIVATION_NAMES) == set(SYSTEM_DERIVATIONS) | set(SYSTEM_DERIVATION_ALIASES)
+    derive = build_parser()._subparsers._group_actions[0].choices["derive"]
+    text = derive.format_help().replace("\n", " ")
+    for name in SYSTEM_DERIVATION_NAMES:
+        assert name in text

@@ -80,6 +80,9 @@ MAX_SUBHARMONIC = 16
 MAX_EQUATIONS = 64
 #: Largest ``--n`` of ``perturb fourier``.
 MAX_FOURIER_N = 100_000  # = perturb.fourier.symbols.MAX_SERIES_ORDER (not imported: SymPy)
+#: The names ``perturb derive`` takes for a system (= perturb.solve.SYSTEM_DERIVATIONS and its
+#: aliases; not imported for the help text: solve imports SymPy; a test keeps them equal)
+SYSTEM_DERIVATION_NAMES = ("hb1", "shb", "ms-ir", "internal-resonance", "nnm", "nnm-lp", "nnm-mlp")
 #: Forcing frequencies the command accepts (``--omega`` of ``frc`` and ``periodic``): a period
 #: a million times longer or shorter than a unit-stiffness oscillator's is beyond every
 #: solver's resolution (``periodic nsd --omega 1e-300`` ran past 25 s; every step of a period
@@ -1044,7 +1047,7 @@ def _derive_system(args: argparse.Namespace) -> int:
         options["order"] = args.order
     params = dict(parse_param(p) for p in args.param or ())
     system = _model_from_arg(args.model, params)
-    result = derive_system(system, name, **options)
+    result = derive_system(system, args.method, **options)
     if args.latex:
         if hasattr(result, "latex_document"):
             text = result.latex_document()
@@ -1339,7 +1342,13 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=_methods_epilog(("symbolic",)),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("method", help="method short name: " + ", ".join(symbolic_names()))
+    p.add_argument(
+        "method",
+        help="method short name: "
+        + ", ".join(symbolic_names())
+        + "; for a system of several coordinates: "
+        + ", ".join(SYSTEM_DERIVATION_NAMES),
+    )
     p.add_argument("model", help="builtin model name or an equation string")
     p.add_argument(
         "--order",
