@@ -55,6 +55,12 @@ ON_TRACED = 0.05
 SADDLE_OFFSET = 0.01
 #: Newton iterations on the exact period map per settled state (it starts close: a few).
 POLISH_ITERATIONS = 10
+#: Factors on the states of the traced orbits at a window edge that start Newton there
+#: (:func:`edge_starts`): a branch that enters and leaves the window through one edge and is
+#: unstable at it (nsd2 over (1.2, 1.3): a fold at 1.2147, stable only on 1.2033-1.2147) has
+#: no attractor at the edge and may have no traced saddle beside it; its orbits at the edge
+#: are, in state, near a multiple of a traced orbit's (there 1.5 times the stable one's).
+EDGE_SCALES = (0.5, 0.75, 1.25, 1.5, 2.0)
 
 
 # =============================================================================================
@@ -289,6 +295,37 @@ def saddle_starts(
     return out
 
 
+def edge_starts(
+    edges: Sequence[float], internals: Sequence[Sequence[Pt]], traced: Sequence[int]
+) -> list[tuple[float, np.ndarray]]:
+    """``(p, y)``: at every parameter value of ``edges`` (the window's two), the first node of
+    every crossing of ``p`` by the branches ``traced`` (interpolated linearly between
+    neighbouring points; a point exactly at ``p`` taken as it is) times every factor of
+    ``EDGE_SCALES``.  Starts of Newton at the edge for the orbits of branches that enter and
+    leave the window through that edge (every period-1 orbit at an edge frequency seeds the
+    trace); most converge to a traced orbit and are dropped there."""
+    out: list[tuple[float, np.ndarray]] = []
+    for p in edges:
+        for b in traced:
+            pts = internals[b]
+            if not pts:
+                continue
+            if len(pts) == 1:
+                ys = [pts[0].y0] if pts[0].p == p else []
+            else:
+                ys = []
+                for j in range(len(pts) - 1):
+                    a, c = pts[j], pts[j + 1]
+                    if not min(a.p, c.p) <= p <= max(a.p, c.p):
+                        continue
+                    s = 0.0 if c.p == a.p else (p - a.p) / (c.p - a.p)
+                    ys.append((1.0 - s) * a.y0 + s * c.y0)
+            for y in ys:
+                for f in EDGE_SCALES:
+                    out.append((float(p), f * np.asarray(y, dtype=float)))
+    return out
+
+
 def attractor_states(
     eng: Engine,
     extra: Sequence[tuple[int, np.ndarray]] = (),
@@ -404,9 +441,10 @@ def attractor_stage(
     """Trace the branches of the attractors of :func:`attractor_states`, started from the grid
     and from :func:`saddle_starts` beside the unstable orbits of the branches ``traced`` (their
     indices into ``internals``; mirror images left out: their attractors are the images),
-    that lie on no traced branch (checked against ``internals`` before Newton, then by
-    ``try_seed`` on the exact orbit, which traces the branch).  Returns (states polished,
-    branches added)."""
+    then of the orbits at the window edges that Newton reaches from :func:`edge_starts` (of
+    those branches and the ones added here), that lie on no traced branch (checked against
+    ``internals`` before Newton, then by ``try_seed`` on the exact orbit, which traces the
+    branch).  Returns (states polished, branches added)."""
     eng = tracer.eng
     polished = added = 0
 
@@ -423,6 +461,14 @@ def attractor_stage(
             added += 1
 
     extra = saddle_starts(scan_frequencies(eng), internals, traced)
+    n_before = len(internals)
     for p, y in attractor_states(eng, extra):
         start(p, y)
+    # last, so the branches of the attractors are traced as without them; from the branches
+    # traced before and those this stage added (with their mirror images: a few more starts).
+    # Exact flows only (where Newton is cheap), as the scan
+    if eng.exact and eng.m == 1:
+        found = [*traced, *range(n_before, len(internals))]
+        for p, y in edge_starts((eng.lo, eng.hi), internals, found):
+            start(p, y)
     return polished, added
