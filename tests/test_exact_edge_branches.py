@@ -22,6 +22,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from perturb import ParameterError, builtin_model
+from perturb.model.system_builtins import builtin_system
 from perturb.simulate.exact_response import exact_branches
 
 K, MU, F = -3.0, 0.05, 2.0
@@ -171,3 +172,109 @@ def test_branch_through_each_pair(response, Om, start, mean):
 def test_attractors_option_must_be_a_flag(bad):
     with pytest.raises(ParameterError, match="attractors"):
         exact_branches(builtin_model("nsd", k=-0.5), (0.9, 1.0), attractors=bad, progress=False)
+
+
+# ---------------------------------------------------------------------------------------------
+# nsd2 over (1.2, 1.3): a branch that enters and leaves the window through Omega = 1.2
+# ---------------------------------------------------------------------------------------------
+# Its fold is at Omega ~ 1.2147 (amplitude of x1 1.70-2.20 in the window); at the edge its
+# orbits are unstable, stable only on ~1.2033-1.2147, so no attractor at a scan frequency
+# reaches it.  The oracle: the two-storey structure with the device written here, integrated
+# one linear segment of the device at a time (DOP853, rtol = atol = 1e-12), settled from a
+# state in the stable orbit's basin at Omega = 1.21 and polished by Newton on the period map
+# (forward differences).  The start state is the end of a 400-period DOP853 (rtol 1e-7)
+# simulation of this ODE at Omega = 1.21 from (x1, x2, x1', x2') = (0, -3, 0, 0).
+NSD2 = {"k": -0.5, "mu1": 0.05, "mu2": 0.02, "k2": 1.0, "m2": 1.0, "F": 2.0}
+NSD2_START = (-0.42, -3.16, 0.11, -0.13)
+
+
+def _nsd2_rhs(seg: int, Om: float):
+    k, mu1, mu2, k2, m2, f = (NSD2[s] for s in ("k", "mu1", "mu2", "k2", "m2", "F"))
+
+    def rhs(t, y):
+        x1, x2, v1, v2, _ = y
+        device = k * x1 + (1.0 - k) * (x1 - seg) * abs(seg)  # the segment's force, extended
+        a1 = f * math.cos(Om * t) - mu1 * v1 - mu2 * (v1 - v2) - device - k2 * (x1 - x2)
+        a2 = (-mu2 * (v2 - v1) - k2 * (x2 - x1)) / m2
+        return [v1, v2, a1, a2, x1]
+
+    return rhs
+
+
+def nsd2_period_map(y0: np.ndarray, Om: float) -> tuple[np.ndarray, float, float]:
+    """(state (x1, x2, x1', x2') after one forcing period, max |x1| over it, mean of x1)."""
+    T = 2.0 * math.pi / Om
+    t, y = 0.0, np.array([*y0, 0.0])
+    amp = abs(y[0])
+
+    def turn(t, y):
+        return y[2]
+
+    for _ in range(10_000):
+        seg = _force_segment(y[0], y[2])
+        sol = solve_ivp(
+            _nsd2_rhs(seg, Om),
+            (t, T),
+            y,
+            method="DOP853",
+            rtol=1e-12,
+            atol=1e-12,
+            events=[*_leave(seg), turn],
+        )
+        assert sol.status >= 0, sol.message
+        turns = sol.y_events[-1]
+        if len(turns):
+            amp = max(amp, float(np.max(np.abs(turns[:, 0]))))
+        t, y = float(sol.t[-1]), sol.y[:, -1].copy()
+        amp = max(amp, abs(y[0]))
+        if sol.status == 0:
+            return y[:4], amp, y[4] / T
+        y[0] = round(y[0])  # on the breakpoint exactly: the next segment is unambiguous
+    raise AssertionError("too many segment changes in one period")
+
+
+def nsd2_oracle(Om: float) -> tuple[np.ndarray, float, float]:
+    """The stable orbit reached from ``NSD2_START`` at ``Om``: (y0, amplitude, mean)."""
+    y = np.asarray(NSD2_START, dtype=float)
+    for _ in range(5):
+        y = nsd2_period_map(y, Om)[0]
+    for _ in range(12):
+        y1 = nsd2_period_map(y, Om)[0]
+        r = y1 - y
+        J = np.empty((4, 4))
+        for j in range(4):
+            h = 1e-7 * max(1.0, abs(y[j]))
+            e = np.zeros(4)
+            e[j] = h
+            J[:, j] = (nsd2_period_map(y + e, Om)[0] - y1) / h
+        dy = np.linalg.solve(J - np.eye(4), -r)
+        y = y + dy
+        if np.max(np.abs(dy)) < 1e-10 * max(1.0, np.max(np.abs(y))):
+            break
+    y1, amp, mean = nsd2_period_map(y, Om)
+    assert np.max(np.abs(y1 - y)) < 1e-8 * max(1.0, np.max(np.abs(y)))
+    return y, amp, mean
+
+
+def test_nsd2_branch_through_the_fold_beyond_the_low_edge():
+    system = builtin_system("nsd2")
+    assert {k: system.params[k] for k in NSD2} == NSD2
+    response = exact_branches(system, (1.2, 1.3), progress=False, workers=1)
+    y0, amp, mean = nsd2_oracle(1.21)
+    assert 2.0 < amp < 2.3  # the start reached the fold-tip orbit (not the main branch, ~1.4)
+    q = _nearest_stable_point(response, 1.21, mean)
+    assert q is not None, f"no exact branch with mean {mean:.4f} near Omega = 1.21"
+    y0, amp, mean = nsd2_oracle(q.parameter)
+    tol = 1e-7 * amp
+    assert abs(q.amplitude - amp) <= tol
+    assert abs(q.mean - mean) <= tol
+    assert np.max(np.abs(np.asarray(q.y0) - y0)) <= 1e-6 * amp
+    # the branch reaches the window only through its low edge
+    br = next(b for b in response.branches if any(p is q for p in b.points))
+    omegas = [p.parameter for p in br.points]
+    assert min(omegas) == pytest.approx(1.2, abs=1e-9) and max(omegas) < 1.22
+    # the device is odd: the mirror image (x, t) -> (-x, t + T/2) is on a branch too
+    image = _nearest_stable_point(response, q.parameter, -mean)
+    assert image is not None and image.parameter == q.parameter
+    assert abs(image.amplitude - amp) <= tol
+    assert abs(image.mean + mean) <= tol
