@@ -137,11 +137,13 @@ an isola that straddles a window edge; a branch that enters at an edge and folds
 come from stage 3b of :func:`harmonic_balance_branches`: Newton from the stable orbits that a
 short fixed-step simulation reaches from a grid of initial states at frequencies 2 % apart
 across the window (PWL forces), and at both edges from the solutions found there with their
-bias shifted. CPU time of a repeated call, bench windows (0.2, 2.5), H = 15, loaded machine:
+bias shifted, and from the orbits a second simulation reaches from beside every unstable
+orbit traced. CPU time of a repeated call, bench windows (0.2, 2.5), H = 15, loaded machine:
 nsd k = -0.5 0.67 -> 1.32 s (4 branches, as before), k = -3 0.69 -> 2.36 s (7 -> 21
-branches, each new one checked to be an exact orbit by shooting; the exact response with its
-own attractor stage has 23: the pair on 0.2-0.2351, stable only on 0.23487-0.23515, is
-missed), k = 2 0.25 -> 1.02 s (1 -> 2: the stable isola on 0.5915-0.6151); clearance
+branches, each new one checked to be an exact orbit by shooting), then 2.18 -> 2.76 s (in
+one process, load ~6.5) with the starts beside the unstable orbits (21 -> 23: the pair on
+0.2-0.2351, stable only on 0.23487-0.23515, which the exact response also has), k = 2
+0.25 -> 1.02 s (1 -> 2: the stable isola on 0.5915-0.6151); clearance
 (window (0.5, 1.6)) 0.13 -> 0.80 s (1 -> 2: the stable superharmonic isola on 0.508-0.654).
 
 Starting without a guess
@@ -2016,6 +2018,15 @@ _ATTRACTOR_FREQUENCIES = 128
 #: Bias shifts of each known solution at a window edge (:func:`_bias_shifted`), in units of
 #: the smallest nonzero breakpoint magnitude (1 without breakpoints).
 _EDGE_BIAS_SHIFT = 0.5
+#: Offset of the simulation starts beside an unstable traced orbit (:func:`_saddle_starts`,
+#: relative to ``max(1, |x0|, |v0|)``) and most such orbits (each gives four starts).
+_SADDLE_OFFSET = 0.01
+_SADDLE_MAX_ORBITS = 400
+#: Settling test of those trajectories (``x(t)`` and ``x(t - P)`` within this share of the
+#: amplitude), looser than the grid's 5 %: a start beside a saddle that lingers near a weakly
+#: unstable orbit is a guess Newton corrects onto it (nsd k = -3 at Omega 0.2345, just off the
+#: stable band 0.2349-0.2352 of the pair it belongs to: only the looser test keeps it).
+_SADDLE_SETTLED = 0.2
 #: Newton iterations of an edge guess: a guess that has not converged by then is far from
 #: every solution (edge guesses are many; a failure should cost little).
 _EDGE_NEWTON_ITERATIONS = 20
@@ -2036,7 +2047,11 @@ def _acceleration(system: HarmonicBalanceSystem) -> Callable[[np.ndarray, np.nda
 
 
 def _attractor_guesses(
-    system: HarmonicBalanceSystem, Omegas: Sequence[float], grids: Sequence[int]
+    system: HarmonicBalanceSystem,
+    Omegas: Sequence[float],
+    grids: Sequence[int],
+    starts: Sequence[tuple[float, float, float]] = (),
+    settled: float = 0.05,
 ) -> list[tuple[float, np.ndarray]]:
     """``(Omega, coefficients)`` of the attractors reached at each of ``Omegas`` from a grid
     of initial states (``grids[i]**2`` of them at ``Omegas[i]``; ``_ATTRACTOR_GRID_COARSE``
@@ -2057,10 +2072,17 @@ def _attractor_guesses(
     state-steps; at most one guess per attractor (1 % apart) and frequency. PWL forces only:
     their Newton basins are the small ones, and a smooth force's stiffness grows with the
     state box (Duffing: the search costs ~0.7 s, 2.5x its whole response with every branch,
-    and found nothing new on the bench problem)."""
+    and found nothing new on the bench problem).
+
+    ``starts``: further trajectories ``(Omega, x0, v0)`` (at ``Omega``, which need not be one
+    of ``Omegas``; ``Omegas`` with grids of 0 states is allowed), simulated with the others."""
     mu = system.damping
-    if system.pwl is None or not mu > 0.0 or not len(Omegas):
+    if system.pwl is None or not mu > 0.0 or not (len(Omegas) or len(starts)):
         return []
+    starts = list(starts)
+    if starts:
+        Omegas = [*Omegas, *(s[0] for s in starts)]
+        grids = [*grids, *([0] * len(starts))]
     ext = 3.0
     if system.pwl is not None and system.pwl.breakpoints.size:
         ext = max(ext, 3.0 * float(np.abs(system.pwl.breakpoints).max()))
@@ -2080,20 +2102,30 @@ def _attractor_guesses(
     t_end = max(8.0 / mu, 3.0 * float(periods.max()))
     steps = math.ceil(t_end / h)
     n_keep = math.ceil(2.0 * float(periods.max()) / h) + 2
-    grids = list(grids)
+    n_grid = len(grids) - len(starts)
+    grids = list(grids[:n_grid])
     if steps * sum(n * n for n in grids) > _ATTRACTOR_MAX_WORK:
         # over budget: the coarse grid of states between the first and last frequency
         grids[1:-1] = [min(n, _ATTRACTOR_GRID_COARSE) for n in grids[1:-1]]
         if steps * sum(n * n for n in grids) > _ATTRACTOR_MAX_WORK:
             return []
-    W = np.repeat(np.asarray(Omegas, dtype=float), [n * n for n in grids])
-    x = np.concatenate([np.repeat(np.linspace(-ext, ext, n), n) for n in grids])
-    v = np.concatenate([np.tile(np.linspace(-ext, ext, n), n) for n in grids])
+    if steps * (sum(n * n for n in grids) + len(starts)) > _ATTRACTOR_MAX_WORK:
+        starts = []  # the grid first: the starts beside known orbits are the extra
+    W = np.repeat(np.asarray(Omegas[:n_grid], dtype=float), [n * n for n in grids])
+    x = np.concatenate([[], *(np.repeat(np.linspace(-ext, ext, n), n) for n in grids)])
+    v = np.concatenate([[], *(np.tile(np.linspace(-ext, ext, n), n) for n in grids)])
+    if starts:
+        W = np.concatenate((W, [s[0] for s in starts]))
+        x = np.concatenate((x, [s[1] for s in starts]))
+        v = np.concatenate((v, [s[2] for s in starts]))
+    if not x.size:
+        return []
     w_orbit = W / system.m
     P = _TWO_PI / w_orbit
     # the forcing of each column: its static part and its harmonics (few are nonzero)
-    F = np.array([np.add(*system.forcing_vector(float(w))[:2]) for w in Omegas])
-    F = np.repeat(F, [n * n for n in grids], axis=0)
+    W_distinct, column_of = np.unique(W, return_inverse=True)
+    F = np.array([np.add(*system.forcing_vector(float(w))[:2]) for w in W_distinct])
+    F = F[column_of]
     used = np.flatnonzero(np.any(F != 0.0, axis=0))
     terms = []
     for i in used:
@@ -2140,7 +2172,7 @@ def _attractor_guesses(
         now = np.interp(t_last, times, col)
         before = np.interp(t_last - P[c], times, col)
         amp = max(1e-12, float(np.abs(now).max()))
-        if float(np.abs(now - before).max()) > 0.05 * amp:
+        if float(np.abs(now - before).max()) > settled * amp:
             continue
         # phase of each sample in the HB variable theta = Omega t / m
         design = system.basis.design(w_orbit[c] * t_last)
@@ -2148,6 +2180,43 @@ def _attractor_guesses(
         scale = max(1.0, float(np.abs(u).max()))
         if not any(Wo == W[c] and float(np.abs(u - w).max()) <= 1e-2 * scale for Wo, w in out):
             out.append((float(W[c]), u))
+    return out
+
+
+def _saddle_starts(
+    system: HarmonicBalanceSystem,
+    branches: Sequence[HarmonicBalanceBranch],
+    Omegas: Sequence[float],
+) -> list[tuple[float, float, float]]:
+    """``(Omega, x0, v0)``: beside every unstable orbit of ``branches`` that crosses one of
+    ``Omegas`` (coefficients interpolated between neighbouring points), its state at
+    ``t = 0`` shifted by ``+-_SADDLE_OFFSET max(1, |state|)`` in ``x`` and in ``x'``: the
+    sides of its unstable manifold, which lead to the attractors connected to it (a stable
+    stretch near a fold whose basin a grid of states rarely meets: nsd k = -3, the pair
+    stable only on Omega 0.2349-0.2352). At most ``_SADDLE_MAX_ORBITS`` orbits, spread
+    evenly over the crossings."""
+    orbits: list[tuple[float, np.ndarray]] = []
+    for b in branches:
+        Wb, Ub, stable = b.omega, b.coefficients, np.asarray(b.stable, dtype=bool)
+        if Wb.size < 2 or stable.size != Wb.size:
+            continue
+        for W in Omegas:
+            for i in np.nonzero((Wb[:-1] - W) * (Wb[1:] - W) <= 0.0)[0]:
+                if stable[i] and stable[i + 1]:
+                    continue
+                dw = Wb[i + 1] - Wb[i]
+                f = 0.5 if dw == 0 else (W - Wb[i]) / dw
+                orbits.append((float(W), (1 - f) * Ub[i] + f * Ub[i + 1]))
+    if len(orbits) > _SADDLE_MAX_ORBITS:
+        pick = np.linspace(0, len(orbits) - 1, _SADDLE_MAX_ORBITS).round().astype(int)
+        orbits = [orbits[j] for j in pick]
+    out = []
+    for W, u in orbits:
+        x0 = float(system.basis.evaluate(u, [0.0])[0])
+        v0 = float(system.basis.evaluate(u, [0.0], derivative=1)[0]) * W / system.m
+        d = _SADDLE_OFFSET * max(1.0, abs(x0), abs(v0))
+        for dx, dv in ((d, 0.0), (-d, 0.0), (0.0, d), (0.0, -d)):
+            out.append((W, x0 + dx, v0 + dv))
     return out
 
 
@@ -2228,22 +2297,23 @@ def harmonic_balance_branches(
        even harmonics), is stepped along both ways by ``ds_max`` and corrected onto the
        other branch (:func:`perturb.numeric.continuation.branch_off`); a point on no known
        branch starts a new one, traced both ways and searched for branch points in turn.
-    3b. Attractors and window edges (``attractors``, ``origin='attractor'`` or ``'edge'``):
-       Newton from the stable orbits reached by one short fixed-step simulation from a grid
-       of initial states at frequencies spaced by a ratio of at most 1.02 across the window
-       (at most 128 of them, 5 x 5 states each, 3 x 3 between the edges when that would
-       exceed the work cap: :func:`_attractor_guesses`), and at each edge from each
-       solution already found there with its bias shifted both ways by half the smallest
-       breakpoint. A guess or solution
-       on no branch found so far (nor, for an odd system, its mirror image) starts a
-       branch, traced both ways and searched for branch points. This finds what neither a
-       seed nor a branch point inside the window reaches: a stable isola (nsd, k = 2: the
-       one on Omega 0.5915-0.6151; clearance: 0.508-0.654), an isola that straddles an
-       edge (k = -0.5: the asymmetric pair on 0.2991-0.3021, window from 0.3), a branch
-       that enters at an edge and folds back out (k = -3, window from 0.2: the stable pair
-       on 0.2-0.2116 and, from bias shifts, the unstable one on 0.2-0.4073). PWL forces
-       only (:func:`_attractor_guesses`); skipped without damping or when the simulation
-       would exceed ``_ATTRACTOR_MAX_WORK`` state-steps.
+    3b. Attractors and window edges (``attractors``, ``origin='attractor'`` or ``'edge'``): Newton
+       from the stable orbits reached by one short fixed-step simulation from a grid of initial
+       states at frequencies spaced by a ratio of at most 1.02 across the window (at most 128 of
+       them, 5 x 5 states each, 3 x 3 between the edges when that would exceed the work cap:
+       :func:`_attractor_guesses`), and at each edge from each solution already found there with its
+       bias shifted both ways by half the smallest breakpoint; then from the orbits one more such
+       simulation reaches from the states beside every unstable orbit traced so far at those
+       frequencies (``+-1 %`` in ``x`` and in ``x'``, at most 400 orbits: :func:`_saddle_starts`; a
+       looser settling test). A guess or solution on no branch found so far (nor, for an odd system,
+       its mirror image) starts a branch, traced both ways and searched for branch points. This
+       finds what neither a seed nor a branch point inside the window reaches: a stable isola (nsd,
+       k = 2: the one on Omega 0.5915-0.6151; clearance: 0.508-0.654), an isola that straddles an
+       edge (k = -0.5: the asymmetric pair on 0.2991-0.3021, window from 0.3), a branch that enters
+       at an edge and folds back out (k = -3, window from 0.2: the stable pair on 0.2-0.2116 and,
+       from bias shifts, the unstable one on 0.2-0.4073; beside the saddles, the pair on 0.2-0.2351
+       stable only on ~0.2349-0.2352). PWL forces only (:func:`_attractor_guesses`); skipped without
+       damping or when the simulation would exceed ``_ATTRACTOR_MAX_WORK`` state-steps.
     4. Mirror images (``mirror``, odd systems: :func:`odd_symmetry`, ``origin='mirror'``):
        each branch that is not its own image under ``x(t) -> -x(t + T/2)`` gets its image,
        exactly and without continuation.
@@ -2426,38 +2496,50 @@ def harmonic_balance_branches(
         )
         grids = [_ATTRACTOR_GRID] * count
         grids[0] = grids[-1] = _ATTRACTOR_GRID_EDGE
-        guesses = _attractor_guesses(system, np.geomspace(lo, hi, count), grids)
+        scan = np.geomspace(lo, hi, count)
+        guesses = _attractor_guesses(system, scan, grids)
         for W_edge in window:
             known = _solutions_on(found, W_edge)
             if S is not None:
                 known += [S @ u for u in known]
             guesses += [(W_edge, u) for u in _bias_shifted(system, known)]
-        for W, guess in guesses:
-            if len(found) >= max_branches:
-                break
-            # an odd system's mirror images are added below: one of a pair is enough
-            images = [guess] if S is None else [guess, S @ guess]
-            if any(_on_branch(b, w, W, 0.05) for b in found for w in images):
-                continue  # near a traced branch: save the Newton solve
-            try:
-                u, _ = newton_fixed(
-                    system.residual,
-                    system.jacobian,
-                    guess,
-                    W,
-                    u_scale=max(1.0, float(np.abs(guess).max())),
-                    tol=tol,
-                    max_iterations=_EDGE_NEWTON_ITERATIONS,
-                )
-            except ContinuationError:
-                continue
-            images = [u] if S is None else [u, S @ u]
-            if any(_on_branch(b, w, W, 0.05) for b in found for w in images):
-                continue
-            br = trace_from(u, W, "attractor" if W not in window else "edge")
-            if br is not None and not _duplicate(br, found, 0.01, width):
-                found.append(br)
+
+        def start_guesses(guesses: Sequence[tuple[float, np.ndarray]]) -> None:
+            for W, guess in guesses:
+                if len(found) >= max_branches:
+                    break
+                # an odd system's mirror images are added below: one of a pair is enough
+                images = [guess] if S is None else [guess, S @ guess]
+                if any(_on_branch(b, w, W, 0.05) for b in found for w in images):
+                    continue  # near a traced branch: save the Newton solve
+                try:
+                    u, _ = newton_fixed(
+                        system.residual,
+                        system.jacobian,
+                        guess,
+                        W,
+                        u_scale=max(1.0, float(np.abs(guess).max())),
+                        tol=tol,
+                        max_iterations=_EDGE_NEWTON_ITERATIONS,
+                    )
+                except ContinuationError:
+                    continue
+                images = [u] if S is None else [u, S @ u]
+                if any(_on_branch(b, w, W, 0.05) for b in found for w in images):
+                    continue
+                br = trace_from(u, W, "attractor" if W not in window else "edge")
+                if br is not None and not _duplicate(br, found, 0.01, width):
+                    found.append(br)
+
+        start_guesses(guesses)
         switch_branches(n_before)
+        # then the attractors beside the unstable orbits traced so far (mirror images left
+        # out: their attractors are the images), in one more simulation
+        n_before = len(found)
+        beside = _saddle_starts(system, found, scan)
+        if beside and len(found) < max_branches:
+            start_guesses(_attractor_guesses(system, [], [], beside, _SADDLE_SETTLED))
+            switch_branches(n_before)
 
     if S is not None:
         for br in list(found):
