@@ -161,9 +161,10 @@ def test_every_exact_branch_has_an_hb_branch(window, n_exact):
 
 
 def test_the_edge_branch_is_missed_without_branch_switching():
-    """The measure can fail: without branch switching the asymmetric pair born at the
+    """The measure can fail: without branch switching (and without the attractor stage,
+    which reaches the pair from a simulation's settled orbit) the asymmetric pair born at the
     pitchfork Omega = 0.3077 and leaving the window at its low edge is not found."""
-    _, hb, r = _compare((0.3, 1.5), branch_points=False)
+    _, hb, r = _compare((0.3, 1.5), branch_points=False, attractors=False)
     assert r["worst"] > 5 * TOL or r["worst_fallback"] > TOL_FALLBACK, r  # measured 5.1e-2
 
 

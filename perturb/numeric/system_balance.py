@@ -91,9 +91,13 @@ frozen segment does. Known limit: a clearance that leaves a coordinate without s
 from contact (the ``impact_pair`` off resonance) has a family of non-isolated orbits there
 (any position of the free mass in the gap): the HB Jacobian is singular, and neither the start
 nor the continuation works in that regime (the impacting branches are traced up to it). The
-multi-impact orbits of the lightly damped pair (``mu2 = 0.01``, Omega 0.8..1.0: asymmetric
-pairs and loops with 8-12 switches per period) are not all reached: over (0.8, 1.3) 62 of 874
-exact points (every 8th) have no HB solution near them.
+multi-impact orbits of the lightly damped pair (``mu2 = 0.01``, Omega 0.8..1.0: loops with
+8-14 switches per period) are reached by the attractor stage (Newton from the orbits a
+vectorised RK4 simulation settles on, frequencies 2 % apart; ``attractors=True``): measured by
+``benchmarks/bench_system_balance_attractors.py`` (every 8th exact point; missed = no HB
+solution within 2.5e-2 of it), H = 15, over (0.8, 1.3) 120 -> 43 of 1097 points missed, CPU
+2.6 -> 8.4 s; over (0.6, 1.4) 104 -> 2 of 998, 2.3 -> 8.1 s (load ~7); nsd2 (0.5, 2) the same
+4 branches, 1.05-1.30 -> 1.38-1.45 s.
 
 Measured (``benchmarks/bench_system_balance.py``, CPU, one process, load average ~9 on 2
 cores): nsd2, H = 15, every branch over (0.5, 2) with multipliers at every point
@@ -1905,6 +1909,134 @@ def _make_branch(
 
 
 # =============================================================================================
+# attractor starts (stage 4 of system_balance_response)
+# =============================================================================================
+_ATTRACTOR_SPACING = 0.02  # relative spacing of the simulated frequencies
+_ATTRACTOR_STATES = 12  # initial states per frequency (the zero state and a Halton set)
+_ATTRACTOR_PERIODS = 40  # forcing periods simulated before the last one is read
+_ATTRACTOR_STEP = 0.3  # RK4 step times the largest field eigenvalue modulus
+_ATTRACTOR_MAX_WORK = 6 * 10**7  # cap on (state components x trajectories x steps)
+
+
+def _halton(count: int, dim: int) -> np.ndarray:
+    """``count`` points of the Halton sequence in ``[0, 1)^dim`` (deterministic)."""
+    primes = [2, 3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37, 41, 43, 47, 53][:dim]
+    out = np.zeros((count, dim))
+    for d, p in enumerate(primes):
+        for i in range(count):
+            f, r, k = 1.0, 0.0, i + 1
+            while k > 0:  # at most log_p(count) + 1 digits
+                f /= p
+                r += f * (k % p)
+                k //= p
+            out[i, d] = r
+    return out
+
+
+def _attractor_guesses(
+    sb: SystemBalance, window: tuple[float, float], states: int = _ATTRACTOR_STATES
+) -> list[tuple[float, np.ndarray]]:
+    """``(Omega, u)`` Newton starts from the orbits a simulation settles on (module docstring
+    of :func:`system_balance_response`, stage 4).
+
+    One vectorised fixed-step RK4 run of the system's field for every frequency (2 % apart
+    across ``window``) and initial state at once (the rest state and ``states - 1`` Halton
+    points in a box of three times the largest breakpoint, at least 1, per position and
+    velocity), each trajectory with its own step, ``1/N`` of its forcing period, so that every
+    column sees the same forcing phase at every step; ``_ATTRACTOR_PERIODS`` periods, the last
+    one read when it repeats the one before within 5 % of its range and projected on the basis
+    (the start's harmonics above the sampling are zero: Newton supplies them). Only a start:
+    the step is coarse (0.3 over the field's largest eigenvalue modulus, every PWL segment).
+    Empty for a system with a first-order state, a smooth element, ``m > 1``, or when the
+    work would exceed ``_ATTRACTOR_MAX_WORK``; at most one start per orbit (1 % apart) and
+    frequency."""
+    lo, hi = window
+    if sb.m != 1 or sb.n1 or not sb._all_pwl or not sb.elements:
+        return []
+    n2, n = sb.n2, sb.system.n
+    count = max(1, math.floor(math.log(hi / lo) / math.log1p(_ATTRACTOR_SPACING))) + 1
+    Omegas = np.geomspace(lo, hi, count)
+    # the largest eigenvalue modulus of the field over every combination of segments
+    counts = [el.pwl.slopes.size for el in sb.elements]
+    if int(np.prod(counts)) > 256:
+        return []
+    lam = 0.0
+    for segs in np.ndindex(*counts):
+        lam = max(lam, float(np.abs(sb._pwl_field(tuple(int(s) for s in segs))[1]).max()))
+    per = max(32, math.ceil(_TWO_PI / float(Omegas[0]) * lam / _ATTRACTOR_STEP))
+    steps = per * _ATTRACTOR_PERIODS
+    cols = count * states
+    if n * cols * steps > _ATTRACTOR_MAX_WORK:
+        return []
+    bps = [np.abs(el.pwl.breakpoints) for el in sb.elements if el.pwl.breakpoints.size]
+    ext = max([1.0] + [3.0 * float(b.max()) for b in bps])
+    box = np.vstack([np.zeros((1, n)), (2.0 * _halton(states - 1, n) - 1.0) * ext])
+    Y = np.tile(box.T, (1, count))  # (n, cols): column c is state c % states at Omega c // states
+    W = np.repeat(Omegas, states)
+    h = (_TWO_PI / W) / per  # each column's step
+    # the forcing's coefficients per column and harmonic (few are nonzero)
+    Fs = np.stack([sb.forcing(float(w))[0] for w in Omegas])  # (count, neq, size)
+    used = np.flatnonzero(np.any(Fs != 0.0, axis=(0, 1)))
+    b = sb.basis
+    terms = []
+    for i in used:
+        col = np.repeat(Fs[:, :, i], states, axis=0).T  # (neq, cols)
+        if i == 0:
+            terms.append((0, 0, col))
+            continue
+        j = int(np.flatnonzero((b.a_index == i) | (b.b_index == i))[0])
+        terms.append((int(b.k[j]), 1 if b.a_index[j] == i else 2, col))
+    L, Binv = sb._L, sb._Binv
+    els = [(el.c, el.w[:, None], el.pwl) for el in sb.elements]
+
+    def field(Y: np.ndarray, theta: float) -> np.ndarray:
+        rhs = -L @ Y
+        for k, kind, c in terms:
+            rhs += c if kind == 0 else c * (math.cos if kind == 1 else math.sin)(k * theta)
+        for c, w, pwl in els:
+            rhs -= w * pwl(c @ Y)[None, :]
+        return np.vstack([Y[n2 : 2 * n2], Binv @ rhs])
+
+    rows = list(range(n2)) + list(range(2 * n2, n))  # the coordinates of the balance
+    keep = np.empty((2 * per, len(rows), cols))
+    dth = _TWO_PI / per
+    with np.errstate(all="ignore"):
+        for i in range(steps):
+            th = (i % per) * dth
+            k1 = field(Y, th)
+            k2 = field(Y + 0.5 * h * k1, th + 0.5 * dth)
+            k3 = field(Y + 0.5 * h * k2, th + 0.5 * dth)
+            k4 = field(Y + h * k3, th + dth)
+            Y = Y + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            if i >= steps - 2 * per:
+                keep[i - (steps - 2 * per)] = Y[rows]
+    last, before = keep[per:], keep[:per]  # the samples end at theta = 0 (mod 2 pi)
+    theta = dth * (np.arange(per) + 1)
+    ks = b.k.astype(float)
+    cosm, sinm = np.cos(np.outer(theta, ks)), np.sin(np.outer(theta, ks))
+    out: list[tuple[float, np.ndarray]] = []
+    for f in range(count):
+        mine: list[np.ndarray] = []
+        for c in range(f * states, (f + 1) * states):
+            x, xb = last[:, :, c], before[:, :, c]
+            if not np.all(np.isfinite(x)):
+                continue
+            rng = max(1e-12, float(np.ptp(x, axis=0).max()))
+            if float(np.abs(x - xb).max()) > 0.05 * rng:
+                continue  # not settled (or not of the forcing's period)
+            U = np.zeros((len(rows), b.size))
+            U[:, 0] = x.mean(axis=0)
+            U[:, b.a_index] = (2.0 / per) * (x.T @ cosm)
+            U[:, b.b_index] = (2.0 / per) * (x.T @ sinm)
+            scale = max(1e-12, float(np.abs(U).max()))
+            if any(float(np.abs(U - V).max()) <= 1e-2 * scale for V in mine):
+                continue
+            mine.append(U)
+            out.append((float(Omegas[f]), U.reshape(-1)))
+    return out
+
+
+# =============================================================================================
 # every branch in a window
 # =============================================================================================
 #: Interior seed frequencies of :func:`system_balance_response` (besides the two edges).
@@ -2262,6 +2394,7 @@ def system_balance_response(
     max_starts: int = 10,
     branch_points: bool = True,
     balance: SystemBalance | None = None,
+    attractors: bool = True,
 ) -> SystemBalanceResponse:
     """Every harmonic-balance branch of ``system`` in a frequency window.
 
@@ -2288,6 +2421,16 @@ def system_balance_response(
     3. For an odd system (checked on the residual: ``R(M u) = M R(u)`` with ``M`` the image
        ``y -> -y``, ``t -> t + T/2``) the mirror image of every branch is added, without
        continuation, unless it is a known branch.
+
+    4. Attractors (``attractors``): one vectorised fixed-step RK4 simulation of the system's
+       field at frequencies 2 % apart across the window, from the rest state and 11 Halton
+       states in a box of three times the largest breakpoint, 40 forcing periods; the last
+       period of each trajectory that repeats the one before (within 5 %) is projected on the
+       basis and starts Newton (abandoned near a known branch); a solution on no known branch
+       is traced as in 1 (``origin='attractor'``). Systems of PWL elements without first-order
+       states, ``m = 1``, at most 6e7 state-steps (the impact pair over (0.6, 1.4): 3.2e7,
+       ~1 s); otherwise skipped. It reaches the multi-impact orbits of a lightly damped
+       clearance that no frozen segment or describing function does (module docstring).
 
     A detached loop that no seed frequency meets and no branch point reaches is missed (raise
     ``interior``). Measured on nsd2 (H = 15, tests/test_system_balance_branches.py and
@@ -2321,6 +2464,8 @@ def system_balance_response(
         Newton runs per seed frequency.
     balance : SystemBalance, optional
         A prepared balance (same ``harmonics``/``m``).
+    attractors : bool
+        Stage 4: starts from the orbits a simulation settles on.
 
     Returns
     -------
@@ -2347,6 +2492,8 @@ def system_balance_response(
     ):
         if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= top:
             raise ParameterError(f"{name} = {value!r}: expected an integer in 0..{top}")
+    if not isinstance(attractors, bool | np.bool_):
+        raise ParameterError(f"attractors = {attractors!r}: expected True or False")
     sb = balance if balance is not None else SystemBalance(system, harmonics, m=m)
     out_name, vec = _output(sb, output)
     width = hi - lo
@@ -2461,6 +2608,30 @@ def system_balance_response(
                 continue
             add(u, W, kind)
         switch()
+    if attractors and len(found) < max_branches:
+        # stage 4: the orbits a simulation settles on, at frequencies 2 % apart (the
+        # multi-impact orbits of a lightly damped clearance, which no frozen segment or
+        # describing function reaches)
+        for W, g in _attractor_guesses(sb, (lo, hi)):
+            if len(found) >= max_branches:
+                break
+            targets = found + ([image(i) for i in range(len(found))] if Q is not None else [])
+            if _on_any(targets, g, W, width, _ON_CURVE):
+                continue
+            u = sb._newton(
+                W,
+                g.copy(),
+                1e-10,
+                _SEED_NEWTON,
+                abandon=lambda v, W=W, t=targets: _on_any(t, v, W, width, _NEAR_CURVE),
+                abandon_after=1,
+                halvings=_SEED_HALVINGS,
+                extend=True,
+            )[0]
+            if u is None or _on_any(targets, u, W, width, _ON_CURVE):
+                continue
+            add(u, W, "attractor")
+            switch()
     if not found:
         raise SystemBalanceError(
             f"harmonic balance of {system.name!r}: no solution at any of the seed frequencies "
