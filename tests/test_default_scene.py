@@ -164,10 +164,18 @@ def test_legend_in_words_with_measured_errors(scene_run):
     # the measured error is the one in the legend, and it is small for HB15 ...
     assert hb["max_error"] < 1e-2
     assert f"{hb['max_error']:.1e}" in text
-    # ... and large for the single-harmonic balance, which finds only 2 of the 13 branches
+    # ... and large for the single-harmonic balance, which finds only 2 of the exact branches
+    # (13 before the exact solver's attractor and window-edge starts found the narrow pairs
+    # at the low edge; the count is the CSV's, whatever the reference finds)
+    n_exact = len(_branches(scene_run["cols"], EXACT))
+    assert n_exact >= 13
+    # HB misses none of them (the pair on 0.2-0.202 with mean +-3, unstable but at its fold,
+    # is reached only from the outer segment's linear orbit at the window edge)
+    assert hb["found"] == n_exact, hb
+    assert f"all {n_exact} exact branches" in text
     one = runs[HB1]["against_exact"]
     assert one["max_error"] > 0.1 and one["found"] == 2
-    assert "2 of 13 exact branches" in text
+    assert f"2 of {n_exact} exact branches" in text
 
 
 def test_rel_error_column_is_the_distance_to_the_exact_rows(scene_run):

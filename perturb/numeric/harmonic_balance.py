@@ -1238,10 +1238,13 @@ def _linear_response(
     return u
 
 
-def _segment_orbits(system: HarmonicBalanceSystem, Omega: float) -> list[np.ndarray]:
+def _segment_orbits(
+    system: HarmonicBalanceSystem, Omega: float, inside: bool = True
+) -> list[np.ndarray]:
     """The closed-form steady states of the linear segments of a PWL force that stay strictly
     inside their segment: exact periodic orbits, and exact HB solutions for any harmonics.
-    Stiffening segments first."""
+    Stiffening segments first. ``inside=False``: every segment's, also those that leave it
+    (guesses only: an orbit that dips just across a breakpoint is one Newton solve away)."""
     pwl = system.pwl
     if pwl is None:
         return []
@@ -1257,7 +1260,7 @@ def _segment_orbits(system: HarmonicBalanceSystem, Omega: float) -> list[np.ndar
             continue
         u = _linear_response(system, Omega, centre, slope, system.damping)
         reach = float(np.abs(u[system.basis.a_index] - 1j * u[system.basis.b_index]).sum())
-        if edges[i] < centre - reach and centre + reach < edges[i + 1]:
+        if not inside or (edges[i] < centre - reach and centre + reach < edges[i + 1]):
             found.append((slope <= 0.0, u))
     found.sort(key=lambda p: p[0])
     return [u for _, u in found]
@@ -2302,7 +2305,10 @@ def harmonic_balance_branches(
        states at frequencies spaced by a ratio of at most 1.02 across the window (at most 128 of
        them, 5 x 5 states each, 3 x 3 between the edges when that would exceed the work cap:
        :func:`_attractor_guesses`), and at each edge from each solution already found there with its
-       bias shifted both ways by half the smallest breakpoint; then from the orbits one more such
+       bias shifted both ways by half the smallest breakpoint and from every linear segment's
+       closed-form orbit, also one that leaves its segment (nsd k = -2, window from 0.2: the
+       unstable pair on 0.2-0.2021 with mean +-3, the outer segment's orbit dipping just below
+       x = 1); then from the orbits one more such
        simulation reaches from the states beside every unstable orbit traced so far at those
        frequencies (``+-1 %`` in ``x`` and in ``x'``, at most 400 orbits: :func:`_saddle_starts`; a
        looser settling test). A guess or solution on no branch found so far (nor, for an odd system,
@@ -2503,6 +2509,7 @@ def harmonic_balance_branches(
             if S is not None:
                 known += [S @ u for u in known]
             guesses += [(W_edge, u) for u in _bias_shifted(system, known)]
+            guesses += [(W_edge, u) for u in _segment_orbits(system, W_edge, inside=False)]
 
         def start_guesses(guesses: Sequence[tuple[float, np.ndarray]]) -> None:
             for W, guess in guesses:
