@@ -96,8 +96,11 @@ multi-impact orbits of the lightly damped pair (``mu2 = 0.01``, Omega 0.8..1.0: 
 vectorised RK4 simulation settles on, frequencies 2 % apart; ``attractors=True``): measured by
 ``benchmarks/bench_system_balance_attractors.py`` (every 8th exact point; missed = no HB
 solution within 2.5e-2 of it), H = 15, over (0.8, 1.3) 120 -> 43 of 1097 points missed, CPU
-2.6 -> 8.4 s; over (0.6, 1.4) 104 -> 2 of 998, 2.3 -> 8.1 s (load ~7); nsd2 (0.5, 2) the same
-4 branches, 1.05-1.30 -> 1.38-1.45 s.
+2.6 -> 8.4 s; over (0.6, 1.4) 104 -> 2 of 998, 2.3 -> 8.1 s; H = 31, over (0.8, 1.3) 130 -> 20
+of 1097, 89 -> 12 s; over (0.6, 1.4) no start at any seed frequency (SystemBalanceError) -> 0
+of 998 missed, 20 s (16 branches, the cap ``max_branches``); nsd2 (0.5, 2) 0 of 628 missed
+either way, 1.20 -> 1.56 s (load 4-7). Still missed: loops of the impact pair that no
+simulated trajectory settles on (unstable all along, or basins the 12 states miss).
 
 Measured (``benchmarks/bench_system_balance.py``, CPU, one process, load average ~9 on 2
 cores): nsd2, H = 15, every branch over (0.5, 2) with multipliers at every point
