@@ -2319,6 +2319,7 @@ class SystemBalanceResponse:
     origins : tuple of str
         Per branch: ``'edge'`` (seeded at a window edge), ``'interior'`` (seeded inside),
         ``'fold'`` (seeded at another branch's fold), ``'branch point'`` (switched onto),
+        ``'attractor'`` (from a simulation's settled orbit),
         ``'mirror'`` (odd-symmetry image of another branch, not traced), ``'listed'`` (a
         solution at a listed frequency).
     window : (float, float)
