@@ -12,41 +12,13 @@ import re
 
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
-from scipy.optimize import fsolve
+from nsd2_oracle import exact_orbit_max
 
 from perturb.apps import bench
 from perturb.model.system_builtins import builtin_system
 from perturb.solve import frequency_response
 
-P = {"k": -0.5, "mu1": 0.05, "mu2": 0.02, "k2": 1.0, "m2": 1.0, "F": 2.0}
 WINDOW = (1.1, 1.3)
-
-
-def g(x):
-    k = P["k"]
-    return k * x + (1 - k) * (np.maximum(x - 1, 0.0) + np.minimum(x + 1, 0.0))
-
-
-def rhs(t, y, W):
-    x1, x2, v1, v2 = y
-    a1 = P["F"] * np.cos(W * t) - P["mu1"] * v1 - P["mu2"] * (v1 - v2) - g(x1) - P["k2"] * (x1 - x2)
-    a2 = (-P["mu2"] * (v2 - v1) - P["k2"] * (x2 - x1)) / P["m2"]
-    return [v1, v2, a1, a2]
-
-
-def exact_orbit_max(W, y0, samples=20000):
-    T = 2 * np.pi / W
-
-    def flow(y):
-        sol = solve_ivp(rhs, (0, T), y, args=(W,), method="DOP853", rtol=1e-12, atol=1e-12)
-        return sol.y[:, -1]
-
-    y = fsolve(lambda y: flow(y) - y, np.asarray(y0, float), xtol=1e-12)
-    assert np.abs(flow(y) - y).max() <= 1e-9 * (1 + np.abs(y).max())
-    t = np.linspace(0, T, samples, endpoint=False)
-    sol = solve_ivp(rhs, (0, T), y, args=(W,), method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t)
-    return np.abs(sol.y[:2]).max(axis=1)
 
 
 def test_the_systems_are_problems():
