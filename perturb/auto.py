@@ -541,6 +541,15 @@ def _traced_errors(traced, ws, exact_amp, ref, relative_errors):
     return tuple(errs), est
 
 
+def _spot_line(cand: Candidate, res: CandidateResult) -> str:
+    """The log line of one rung's spot check."""
+    note = f" ({res.note})" if res.note and res.note != "reference" else ""
+    return (
+        f"{cand.name}: spot error {res.error:.2e}, estimate {res.estimate:.2e}, "
+        f"{res.seconds:.2f} s CPU{note}"
+    )
+
+
 def choose_method(
     oscillator: Oscillator,
     window: Sequence[float],
@@ -632,11 +641,7 @@ def _choose(
             continue
         res = candidate_spot_errors(oscillator, cand, ws, orbits, (lo, hi))
         if log is not None:
-            log(
-                f"{cand.name}: spot error {res.error:.2e}, estimate {res.estimate:.2e}, "
-                f"{res.seconds:.2f} s CPU"
-                + (f" ({res.note})" if res.note and res.note != "reference" else "")
-            )
+            log(_spot_line(cand, res))
         if res.meets(rtol):
             choice = AutoChoice(
                 res,
@@ -1408,11 +1413,7 @@ def _choose_system(
             continue
         res = system_candidate_spot_errors(system, cand, ws, orbits, output, derivations.get(kind))
         if log is not None:
-            log(
-                f"{cand.name}: spot error {res.error:.2e}, estimate {res.estimate:.2e}, "
-                f"{res.seconds:.2f} s CPU"
-                + (f" ({res.note})" if res.note and res.note != "reference" else "")
-            )
+            log(_spot_line(cand, res))
         if res.meets(rtol):
             choice = AutoChoice(
                 res,
