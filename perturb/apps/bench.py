@@ -449,19 +449,7 @@ def _run_problem(
     lo, hi = prob.window
     say(f"== {name}: {prob.description}, Omega in [{lo}, {hi}]")
     # -- exact reference: computed once, the reference of every row and the exact row's time
-    ex = Row(name, "exact", "continuation of exact orbits")
-    ref = None
-    try:
-        t = time.perf_counter()
-        ref = frequency_response(osc, "exact", Omega=(lo, hi))
-        ex.time_s = ex.first_s = time.perf_counter() - t
-        ex.repeats = 1
-        ex.note = f"reference ({ref.method}, {sum(len(b) for b in ref.branches)} points)"
-        ex.matched = f"{len(ref.branches)}/{len(ref.branches)}"
-        ex.max_rel_error = ex.rms_rel_error = 0.0
-    except Exception as exc:  # noqa: BLE001 - recorded in the table
-        ex.status = _reason(exc)
-    say(f"   exact: {ex.time_s:.3g} s {ex.status} {ex.note}")
+    ex, ref = _exact_row(name, osc, (lo, hi), "continuation of exact orbits", say)
     # -- brute-force sweep (the time unit of the ratios), always run whatever --methods says
     grid = np.linspace(lo, hi, n_full)
     sub = grid[sweep_subset(n_full, n_measured)]
@@ -547,6 +535,27 @@ def _system_note(row: Row, comparison: Any) -> None:
         )
 
 
+def _exact_row(name: str, model: Any, window: tuple[float, float], what: str, say) -> tuple:
+    """The exact row (its time) and the exact response, the reference of every other row
+    (``None`` when it failed: the row says why)."""
+    from perturb.solve import frequency_response
+
+    ex = Row(name, "exact", what)
+    ref = None
+    try:
+        t = time.perf_counter()
+        ref = frequency_response(model, "exact", Omega=window)
+        ex.time_s = ex.first_s = time.perf_counter() - t
+        ex.repeats = 1
+        ex.note = f"reference ({ref.method}, {sum(len(b) for b in ref.branches)} points)"
+        ex.matched = f"{len(ref.branches)}/{len(ref.branches)}"
+        ex.max_rel_error = ex.rms_rel_error = 0.0
+    except Exception as exc:  # noqa: BLE001 - recorded in the table
+        ex.status = _reason(exc)
+    say(f"   exact: {ex.time_s:.3g} s {ex.status} {ex.note}")
+    return ex, ref
+
+
 def _run_system(
     prob: Problem,
     pats: list[str] | None,
@@ -572,19 +581,7 @@ def _run_system(
     system = prob.oscillator()
     lo, hi = prob.window
     say(f"== {name}: {prob.description}, Omega in [{lo}, {hi}]")
-    ex = Row(name, "exact", "continuation of exact orbits (every branch)")
-    ref = None
-    try:
-        t = time.perf_counter()
-        ref = frequency_response(system, "exact", Omega=(lo, hi))
-        ex.time_s = ex.first_s = time.perf_counter() - t
-        ex.repeats = 1
-        ex.note = f"reference ({ref.method}, {sum(len(b) for b in ref.branches)} points)"
-        ex.matched = f"{len(ref.branches)}/{len(ref.branches)}"
-        ex.max_rel_error = ex.rms_rel_error = 0.0
-    except Exception as exc:  # noqa: BLE001 - recorded in the table
-        ex.status = _reason(exc)
-    say(f"   exact: {ex.time_s:.3g} s {ex.status} {ex.note}")
+    ex, ref = _exact_row(name, system, (lo, hi), "continuation of exact orbits (every branch)", say)
     grid = np.linspace(lo, hi, n_full)
     sub = grid[sweep_subset(n_full, n_measured)]
     sw = Row(
