@@ -2136,6 +2136,21 @@ def _check_stability_flag(stability: Any) -> bool:
     )
 
 
+def _parameter_values(derivation: Any, system_name: str, what: str) -> list[float]:
+    """The numbers of a system derivation's ``parameters`` (in their order), or a
+    ParameterError naming the one without a value."""
+    values = []
+    for p in derivation.parameters:
+        v = derivation.values.get(str(p))
+        if v is None:
+            raise ParameterError(
+                f"parameter {p} of system {system_name!r} has no value: {what} needs numbers "
+                "to be solved"
+            )
+        values.append(float(v))
+    return values
+
+
 def system_single_harmonic_residuals(derivation: Any) -> Any:
     """The residuals of a system's symbolic single-harmonic balance as a numeric function.
 
@@ -2157,15 +2172,7 @@ def system_single_harmonic_residuals(derivation: Any) -> Any:
     from perturb.numeric.compile import lambdify
 
     fn = lambdify(derivation.arguments, derivation.residuals)
-    values = []
-    for p in derivation.parameters:
-        v = derivation.values.get(str(p))
-        if v is None:
-            raise ParameterError(
-                f"parameter {p} of system {derivation.system.name!r} has no value: the "
-                "single-harmonic balance needs numbers to be solved"
-            )
-        values.append(float(v))
+    values = _parameter_values(derivation, derivation.system.name, "the single-harmonic balance")
     biased = bool(derivation.biases)
 
     def residuals(U: Any, Omega: Any) -> Any:
@@ -2395,16 +2402,7 @@ class SlowFlowSolver:
         self.flow, self.system = flow, system
         args = tuple(flow.arguments)
         W = args[len(flow.cartesian)]
-        values = []
-        for p in flow.parameters:
-            v = flow.values.get(str(p))
-            if v is None:
-                raise ParameterError(
-                    f"parameter {p} of system {system.name!r} has no value: the slow flow needs "
-                    "numbers to be solved"
-                )
-            values.append(float(v))
-        self._values = values
+        self._values = _parameter_values(flow, system.name, "the slow flow")
         self._F = lambdify(args, list(flow.slow_flow))
         self._J = lambdify(args, list(sp.ImmutableMatrix(flow.jacobian)))
         self._dW = lambdify(args, [sp.diff(e, W) for e in flow.slow_flow])
