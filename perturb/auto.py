@@ -302,6 +302,22 @@ def check_rtol(rtol: Any) -> float:
     return check(rtol)
 
 
+def _away_from_folds(edges: np.ndarray, folds: np.ndarray) -> tuple[float, ...]:
+    """The middle of each interval of ``edges``, moved within it as far as it goes from the
+    ``folds`` when one is nearer than 3 % of the window (orbits crowd there)."""
+    gap = 0.03 * (edges[-1] - edges[0])
+    out = []
+    for i in range(len(edges) - 1):
+        w = 0.5 * (edges[i] + edges[i + 1])
+        if folds.size and np.min(np.abs(folds - w)) < gap:
+            cand = np.linspace(edges[i], edges[i + 1], 41)[1:-1]
+            dist = np.min(np.abs(folds[None, :] - cand[:, None]), axis=1)
+            w = cand[int(np.argmax(dist))]
+        # rounded so scenes and reports show the frequencies that were used
+        out.append(float(f"{w:.6g}"))
+    return tuple(out)
+
+
 def spot_frequencies(
     oscillator: Oscillator, window: Sequence[float], n: int = 4
 ) -> tuple[float, ...]:
@@ -316,23 +332,13 @@ def spot_frequencies(
     if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 50:
         raise ParameterError(f"n = {n!r}: expected an integer number of spot checks in [1, 50]")
     edges = np.linspace(lo, hi, n + 1)
-    mids = 0.5 * (edges[:-1] + edges[1:])
     try:
         from perturb.solve import frequency_response
 
         folds = np.array([w for w, _ in frequency_response(oscillator, "hb1", (lo, hi)).folds])
     except PerturbError:
         folds = np.empty(0)
-    gap = 0.03 * (hi - lo)
-    out = []
-    for i, w in enumerate(mids):
-        if folds.size and np.min(np.abs(folds - w)) < gap:
-            cand = np.linspace(edges[i], edges[i + 1], 41)[1:-1]
-            dist = np.min(np.abs(folds[None, :] - cand[:, None]), axis=1)
-            w = cand[int(np.argmax(dist))]
-        # rounded so scenes and reports show the frequencies that were used
-        out.append(float(f"{w:.6g}"))
-    return tuple(out)
+    return _away_from_folds(edges, folds)
 
 
 def exact_spot_orbits(oscillator: Oscillator, frequencies: Sequence[float]) -> list[list[Any]]:
@@ -1317,7 +1323,6 @@ def system_spot_frequencies(system: Any, window: Sequence[float], n: int = 4) ->
             f"n_spots = {n!r}: expected an integer number of spot checks in [1, 50]"
         )
     edges = np.linspace(lo, hi, n + 1)
-    mids = 0.5 * (edges[:-1] + edges[1:])
     try:
         from perturb.solve import frequency_response
 
@@ -1325,15 +1330,7 @@ def system_spot_frequencies(system: Any, window: Sequence[float], n: int = 4) ->
         folds = np.array([w for w, _ in r.folds])
     except PerturbError:
         folds = np.empty(0)
-    gap = 0.03 * (hi - lo)
-    out = []
-    for i, w in enumerate(mids):
-        if folds.size and np.min(np.abs(folds - w)) < gap:
-            cand = np.linspace(edges[i], edges[i + 1], 41)[1:-1]
-            dist = np.min(np.abs(folds[None, :] - cand[:, None]), axis=1)
-            w = cand[int(np.argmax(dist))]
-        out.append(float(f"{w:.6g}"))
-    return tuple(out)
+    return _away_from_folds(edges, folds)
 
 
 def choose_system_method(
