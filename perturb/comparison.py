@@ -877,8 +877,12 @@ def compare_coordinates(
     Raises
     ------
     ParameterError
-        Responses without common coordinates (naming what each has).
+        Responses without common coordinates (naming what each has), or an argument that is
+        no ``Response``.
     """
+    for name, value in (("response", response), ("reference", reference)):
+        if not isinstance(value, Response):
+            raise ParameterError(f"{name} = {value!r:.80}: expected a perturb Response")
     shared = [c for c in _coordinates(response) if c in _coordinates(reference)]
     if not shared:
         raise ParameterError(

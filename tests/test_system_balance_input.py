@@ -139,3 +139,42 @@ def test_outputs_that_are_accepted():
             D = b.U[0, 0] - b.U[0, 1]
             vals = D[0] + D[1::2] @ np.cos(np.outer(k, th)) + D[2::2] @ np.sin(np.outer(k, th))
             assert b.output_amplitude[0] == pytest.approx(np.abs(vals).max(), rel=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("option", "match"),
+    [
+        ({"ds_max": -1.0}, r"ds_max = -1.0: expected 0 < ds_max"),
+        ({"ds_max": float("nan")}, r"ds_max = nan: expected a finite"),
+        ({"tol": "a"}, r"tol = 'a': expected a finite"),
+        ({"tol": 2.0}, r"tol = 2.0: expected 0 < tol < 1"),
+        ({"max_points": 0}, r"max_points = 0: expected an integer in 2\.\.1000000"),
+        ({"max_points": "a"}, r"max_points = 'a'"),
+        ({"max_branches": 0}, r"max_branches = 0: expected an integer in 1\.\.1000"),
+        ({"stability": "no"}, r"stability = 'no': expected True or False"),
+        ({"mirror": "no"}, r"mirror = 'no': expected True or False"),
+        ({"branch_points": 1}, r"branch_points = 1: expected True or False"),
+    ],
+)
+def test_bad_response_options_are_named(option, match):
+    # before: a bad step or tolerance made every seed fail and was reported as 'no solution at
+    # any of the seed frequencies' (blaming the model); text reached the continuation core
+    with pytest.raises(ParameterError, match=match):
+        system_balance_response(
+            builtin_system("nsd2"), (0.5, 2.0), harmonics=3, attractors=False, **option
+        )
+
+
+def test_a_balance_of_another_system_is_refused():
+    sb = SystemBalance(builtin_system("nsd2"), 3)
+    with pytest.raises(ParameterError, match="built for another system than 'junk'"):
+        system_balance_response("junk", (0.5, 2.0), balance=sb, attractors=False)
+    with pytest.raises(ParameterError, match="built for another system"):
+        system_balance_response(builtin_system("impact_pair"), (0.8, 1.2), balance=sb)
+
+
+def test_compare_coordinates_of_what_is_no_response():
+    from perturb.comparison import compare_coordinates
+
+    with pytest.raises(ParameterError, match="response = 'a': expected a perturb Response"):
+        compare_coordinates("a", 3)

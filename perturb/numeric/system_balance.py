@@ -2489,15 +2489,35 @@ def system_balance_response(
         raise ParameterError(f"window = {window!r}: expected (low, high)") from None
     if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
         raise ParameterError(f"window = {window!r}: expected finite 0 < low < high")
-    for name, value, top in (
-        ("interior", interior, 50),
-        ("max_branches", max_branches, 1000),
-        ("max_starts", max_starts, 100),
+    for name, value, low, top in (
+        ("interior", interior, 0, 50),
+        ("max_branches", max_branches, 1, 1000),
+        ("max_starts", max_starts, 0, 100),
+        ("max_points", max_points, 2, 1_000_000),
     ):
-        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= top:
-            raise ParameterError(f"{name} = {value!r}: expected an integer in 0..{top}")
-    if not isinstance(attractors, bool | np.bool_):
-        raise ParameterError(f"attractors = {attractors!r}: expected True or False")
+        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= top:
+            raise ParameterError(f"{name} = {value!r}: expected an integer in {low}..{top}")
+    for name, value in (
+        ("attractors", attractors),
+        ("stability", stability),
+        ("mirror", mirror),
+        ("branch_points", branch_points),
+    ):
+        if not isinstance(value, bool | np.bool_):
+            raise ParameterError(f"{name} = {value!r}: expected True or False")
+    # a bad step or tolerance made every seed fail, reported as 'no solution' of the model
+    for name, value, top in (("ds_max", ds_max, math.inf), ("tol", tol, 1.0)):
+        v = checks.finite(value, name)
+        if not 0.0 < v < top:
+            bound = "0 < ds_max" if top == math.inf else "0 < tol < 1"
+            raise ParameterError(f"{name} = {value!r}: expected {bound}")
+    if balance is not None and (
+        not isinstance(system, System)
+        or (balance.system.name, balance.system.state_names) != (system.name, system.state_names)
+    ):
+        raise ParameterError(
+            f"balance = {balance!r:.80}: built for another system than {system!r:.80}"
+        )
     sb = balance if balance is not None else SystemBalance(system, harmonics, m=m)
     out_name, vec = _output(sb, output)
     width = hi - lo
