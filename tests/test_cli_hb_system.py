@@ -101,8 +101,10 @@ def test_cli_frc_hb_and_compare(tmp_path):
     assert rows and {"amplitude_x1", "mean_x2", "rel_error", "rel_error_x1"} <= set(rows[0])
     assert all(r["method"] == "hb-system" for r in rows)
     rel = np.array([float(r["rel_error_x1"]) for r in rows])
-    assert np.sum(np.isfinite(rel)) >= 0.9 * len(rows)
-    assert np.nanmax(rel) <= TOL["x1"]
+    # fewer rows (98) than the points the comparison checks (MAX_ERROR_POINTS = 200): every
+    # HB point has its exact orbit, none may be left NaN
+    assert len(rows) <= 200 and np.all(np.isfinite(rel)), rel
+    assert rel.max() <= TOL["x1"]
     assert "compare with exact orbits" in err
 
 
