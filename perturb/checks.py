@@ -160,6 +160,20 @@ def frequencies(values: Any, limit: int, what: str = "frequencies") -> list[floa
     return out
 
 
+def flag(value: Any, what: str) -> bool:
+    """``value`` as a truth value, refusing anything that is not ``True`` or ``False`` (a
+    NumPy bool included): text such as ``"no"`` would otherwise count as true.
+
+    Raises
+    ------
+    ParameterError
+        Naming ``what``.
+    """
+    if isinstance(value, bool) or type(value).__name__ == "bool_":
+        return bool(value)
+    raise ParameterError(f"{what} = {value!r}: expected True or False")
+
+
 def state(
     value: Any,
     n: int,

@@ -145,9 +145,7 @@ def check_rtol(rtol: Any, name: str = "rtol") -> float:
 
 
 def _flag(value: Any, name: str) -> bool:
-    if not isinstance(value, bool):
-        raise ParameterError(f"{name} = {value!r}: expected True or False")
-    return value
+    return checks.flag(value, name)
 
 
 def _any(value: Any, name: str) -> Any:

@@ -76,6 +76,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
+from perturb import checks
 from perturb.errors import ModelError, ParameterError
 
 if TYPE_CHECKING:
@@ -244,8 +245,7 @@ def mount_outputs(*, decoupler: str = "free", vacuum: bool = True, rise: float =
 def _mount_family(decoupler: Any, vacuum: Any, rise: Any) -> SystemSpec:
     if decoupler not in ("free", "fixed"):
         raise ParameterError(f"decoupler = {decoupler!r}: expected 'free' or 'fixed'")
-    if not isinstance(vacuum, bool):
-        raise ParameterError(f"vacuum = {vacuum!r}: expected True or False")
+    checks.flag(vacuum, "vacuum")
     if (
         isinstance(rise, bool)
         or not isinstance(rise, int | float)

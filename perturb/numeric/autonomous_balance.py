@@ -1601,8 +1601,7 @@ def _coordinate_index(coordinates: tuple[str, ...], coordinate: str | int) -> in
 
 def _check_flag(value: Any, what: str) -> None:
     """A truth value given as text ("no") would count as True: refuse anything not a bool."""
-    if not isinstance(value, bool | np.bool_):
-        raise ParameterError(f"{what} = {value!r}: expected True or False")
+    checks.flag(value, what)
 
 
 def _solution(ab: AutonomousBalance, x: np.ndarray, p: float, stability: bool):

@@ -2394,8 +2394,7 @@ def harmonic_balance_branches(
         ("mirror", mirror),
         ("attractors", attractors),
     ):
-        if not isinstance(value, bool | np.bool_):
-            raise ParameterError(f"{name} = {value!r}: expected True or False")
+        checks.flag(value, name)
     window = _check_window(Omega_window)
     system = compiled_system(
         oscillator,

@@ -2503,8 +2503,7 @@ def system_balance_response(
         ("mirror", mirror),
         ("branch_points", branch_points),
     ):
-        if not isinstance(value, bool | np.bool_):
-            raise ParameterError(f"{name} = {value!r}: expected True or False")
+        checks.flag(value, name)
     # a bad step or tolerance made every seed fail, reported as 'no solution' of the model
     for name, value, top in (("ds_max", ds_max, math.inf), ("tol", tol, 1.0)):
         v = checks.finite(value, name)

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from perturb import checks
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.oscillator import Oscillator
 from perturb.model.system import System
@@ -159,8 +160,7 @@ def exact_branches(
     ):
         if isinstance(v, bool) or not isinstance(v, int) or v < 0:
             raise ParameterError(f"{name} = {v!r}: expected a non-negative integer")
-    if not isinstance(o.attractors, bool):
-        raise ParameterError(f"attractors = {o.attractors!r}: expected True or False")
+    checks.flag(o.attractors, "attractors")
     if max_seconds is not None and not (
         isinstance(max_seconds, int | float)
         and not isinstance(max_seconds, bool)
