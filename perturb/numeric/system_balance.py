@@ -1989,30 +1989,87 @@ def _attractor_guesses(
             continue
         j = int(np.flatnonzero((b.a_index == i) | (b.b_index == i))[0])
         terms.append((int(b.k[j]), 1 if b.a_index[j] == i else 2, col))
-    L, Binv = sb._L, sb._Binv
-    els = [(el.c, el.w[:, None], el.pwl) for el in sb.elements]
-
-    def field(Y: np.ndarray, theta: float) -> np.ndarray:
-        rhs = -L @ Y
-        for k, kind, c in terms:
-            rhs += c if kind == 0 else c * (math.cos if kind == 1 else math.sin)(k * theta)
-        for c, w, pwl in els:
-            rhs -= w * pwl(c @ Y)[None, :]
-        return np.vstack([Y[n2 : 2 * n2], Binv @ rhs])
-
-    rows = list(range(n2)) + list(range(2 * n2, n))  # the coordinates of the balance
-    keep = np.empty((2 * per, len(rows), cols))
+    negL, Binv = -sb._L, sb._Binv
     dth = _TWO_PI / per
+    # Shortcuts that give the same numbers for every finite column (a column with a
+    # non-finite entry stays non-finite and is dropped below): a unit combination reads its
+    # row (1 y_j + 0 y_k = y_j), a distribution adds its nonzero rows only (w_i = 0 adds
+    # 0), and an identity or diagonal Binv is no product (1 x + 0 y = x)
+    els = []
+    for el in sb.elements:
+        nz = np.flatnonzero(el.c)
+        row = int(nz[0]) if nz.size == 1 and el.c[nz[0]] == 1.0 else None
+        dist = [(int(r), float(el.w[r])) for r in np.flatnonzero(el.w)]
+        els.append((el.c, row, dist, el.pwl.breakpoints, el.pwl.slopes, el.pwl.offsets))
+    off_diag = Binv - np.diag(np.diag(Binv))
+    binv_kind = "matrix"
+    if not np.any(off_diag):
+        binv_kind = "identity" if np.all(np.diag(Binv) == 1.0) else "diagonal"
+    binv_diag = np.diag(Binv).copy()[:, None]
+
+    def forcing_at(theta: float) -> list[np.ndarray]:
+        return [
+            c if kind == 0 else c * (math.cos if kind == 1 else math.sin)(k * theta)
+            for k, kind, c in terms
+        ]
+
+    # the forcing of every column at the three phases of each step, once (the same numbers
+    # the step would form: theta = j dth, then + dth / 2, then + dth)
+    f_start = [forcing_at(j * dth) for j in range(per)]
+    f_half = [forcing_at(j * dth + 0.5 * dth) for j in range(per)]
+    f_end = [forcing_at(j * dth + dth) for j in range(per)]
+
+    def field(Y: np.ndarray, forcing: list[np.ndarray], out: np.ndarray) -> None:
+        """The field at the states ``Y`` into ``out`` (``NumericPWL.__call__`` inlined)."""
+        acc_rows = out[n2:]
+        rhs = acc_rows if binv_kind == "identity" else np.empty_like(acc_rows)
+        np.matmul(negL, Y, out=rhs)
+        for f in forcing:
+            rhs += f
+        for c, row, dist, bp, sl, of in els:
+            s = Y[row] if row is not None else c @ Y
+            i = np.searchsorted(bp, s, side="right")
+            force = sl[i] * s + of[i]
+            for r, wr in dist:
+                if wr == 1.0:
+                    rhs[r] -= force
+                else:
+                    rhs[r] -= wr * force
+        out[:n2] = Y[n2 : 2 * n2]
+        if binv_kind == "diagonal":
+            np.multiply(binv_diag, rhs, out=acc_rows)
+        elif binv_kind == "matrix":
+            np.matmul(Binv, rhs, out=acc_rows)
+
+    # classical RK4 into preallocated arrays (the sums in the order of
+    # Y + h/6 (k1 + 2 k2 + 2 k3 + k4), so every column's numbers are those of the textbook
+    # expression)
+    hh, h6 = 0.5 * h, h / 6.0
+    K1, K2, K3, K4, Z, acc = (np.empty((n, cols)) for _ in range(6))
+    nb = n2  # the coordinates of the balance: the positions (no first-order state here)
+    keep = np.empty((2 * per, nb, cols))
     with np.errstate(all="ignore"):
         for i in range(steps):
-            th = (i % per) * dth
-            k1 = field(Y, th)
-            k2 = field(Y + 0.5 * h * k1, th + 0.5 * dth)
-            k3 = field(Y + 0.5 * h * k2, th + 0.5 * dth)
-            k4 = field(Y + h * k3, th + dth)
-            Y = Y + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            j = i % per
+            field(Y, f_start[j], K1)
+            np.multiply(hh, K1, out=Z)
+            Z += Y
+            field(Z, f_half[j], K2)
+            np.multiply(hh, K2, out=Z)
+            Z += Y
+            field(Z, f_half[j], K3)
+            np.multiply(h, K3, out=Z)
+            Z += Y
+            field(Z, f_end[j], K4)
+            np.multiply(K2, 2.0, out=acc)
+            acc += K1
+            np.multiply(K3, 2.0, out=Z)
+            acc += Z
+            acc += K4
+            acc *= h6
+            Y += acc
             if i >= steps - 2 * per:
-                keep[i - (steps - 2 * per)] = Y[rows]
+                keep[i - (steps - 2 * per)] = Y[:nb]
     last, before = keep[per:], keep[:per]  # the samples end at theta = 0 (mod 2 pi)
     theta = dth * (np.arange(per) + 1)
     ks = b.k.astype(float)
@@ -2027,7 +2084,7 @@ def _attractor_guesses(
             rng = max(1e-12, float(np.ptp(x, axis=0).max()))
             if float(np.abs(x - xb).max()) > 0.05 * rng:
                 continue  # not settled (or not of the forcing's period)
-            U = np.zeros((len(rows), b.size))
+            U = np.zeros((nb, b.size))
             U[:, 0] = x.mean(axis=0)
             U[:, b.a_index] = (2.0 / per) * (x.T @ cosm)
             U[:, b.b_index] = (2.0 / per) * (x.T @ sinm)
@@ -2196,6 +2253,7 @@ def _solutions_at(sb: SystemBalance, W: float, skip, max_starts: int, near=None)
     starts += [u for u, inside in seg if not inside]
     starts += [c * lin for c in _MULTI_START_SCALES]
     out: list[np.ndarray] = []
+    tried: list[np.ndarray] = []
     runs = 0
     for g in starts:
         if runs >= max_starts:
@@ -2203,6 +2261,16 @@ def _solutions_at(sb: SystemBalance, W: float, skip, max_starts: int, near=None)
         if skip(g):
             continue
         runs += 1
+        # a start equal to one already run (the linear guess is the frozen orbit of a
+        # segment through the origin; a segment's orbit with and without its offset
+        # coincide when the offset is 0, and two segments of equal slope give the same
+        # orbit without offsets: three starts at every nsd2 frequency) repeats that run's
+        # iterates: it ends where that run ended (a solution already in ``out``, or none),
+        # or is abandoned sooner (the known branches only grow), so it cannot give a new
+        # solution; it still counts as a run, so the starts that follow are the same
+        if any(np.array_equal(g, t) for t in tried):
+            continue
+        tried.append(g)
         # from these guesses Newton converges in a few steps or not at all (measured on nsd2:
         # converged runs took <= 10 steps), so failing runs are cut short (and so are their
         # Armijo halvings); from the second step on an iterate already close to a traced
