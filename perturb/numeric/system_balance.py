@@ -611,10 +611,11 @@ class SystemBalance:
         F, dF = self.forcing(W)
         UD = U @ self._DtT
         UDD = UD @ self._DtT
-        R = self._A0 @ U + w * (self._A1 @ UD) + w * w * (self._A2 @ UDD) - F
+        A1UD, A2UDD = self._A1 @ UD, self._A2 @ UDD
+        R = self._A0 @ U + w * A1UD + w * w * A2UDD - F
         dRdW = None
         if jacobian:
-            dRdW = ((self._A1 @ UD) + 2.0 * w * (self._A2 @ UDD)) / self.m - dF
+            dRdW = (A1UD + 2.0 * w * A2UDD) / self.m - dF
         blocks: list[tuple[int, int, np.ndarray]] = []
         k = self.basis.k.astype(float)
         for el in self.elements:
@@ -2075,15 +2076,19 @@ def _attractor_guesses(
     ks = b.k.astype(float)
     cosm, sinm = np.cos(np.outer(theta, ks)), np.sin(np.outer(theta, ks))
     out: list[tuple[float, np.ndarray]] = []
+    # settled: finite, and the last period repeats the one before within 5 % of its range
+    # (not settled, or not of the forcing's period, otherwise); every column at once
+    finite = np.isfinite(last).all(axis=(0, 1))
+    with np.errstate(invalid="ignore"):
+        rng = np.maximum(1e-12, np.ptp(last, axis=0).max(axis=0))
+        drift = np.abs(last - before).max(axis=(0, 1))
+        settled = finite & ~(drift > 0.05 * rng)
     for f in range(count):
         mine: list[np.ndarray] = []
         for c in range(f * states, (f + 1) * states):
-            x, xb = last[:, :, c], before[:, :, c]
-            if not np.all(np.isfinite(x)):
+            if not settled[c]:
                 continue
-            rng = max(1e-12, float(np.ptp(x, axis=0).max()))
-            if float(np.abs(x - xb).max()) > 0.05 * rng:
-                continue  # not settled (or not of the forcing's period)
+            x = last[:, :, c]
             U = np.zeros((nb, b.size))
             U[:, 0] = x.mean(axis=0)
             U[:, b.a_index] = (2.0 / per) * (x.T @ cosm)
