@@ -200,29 +200,37 @@ def _system_field(eng: Engine, ps: np.ndarray) -> _Field | None:
     where = np.abs(offsets) / np.where(norms > 0, norms, 1.0) if n_s else np.zeros(0)
     if where.size:
         scale = max(scale, 3.0 * float(where.max()))
-    bits = (1 << np.arange(n_s))[:, None]
+    # (the pattern code as a float product: exact for the few surfaces of a PWL system)
+    bits = (2.0 ** np.arange(n_s))[None, :]
+    off = offsets[:, None]
     A_stack = A.reshape(-1, n)
     b_stack = b[:, :, None]
 
     def make(cols: np.ndarray) -> Rhs:
         u, v, w = U[cols], V[cols], W[cols]
+        every_col = np.arange(cols.size)
+        # one input (the common case): its vectors as (n, C) columns, no einsum
+        u1, v1, w1 = (u[:, 0, :].T.copy(), v[:, 0, :].T.copy(), w[:, 0]) if J == 1 else (0, 0, 0)
 
         def drive(t: np.ndarray) -> np.ndarray:
             if not J:
                 return np.zeros((n, t.size))
+            if J == 1:
+                ph1 = w1 * t
+                return u1 * np.cos(ph1) + v1 * np.sin(ph1)
             ph = w * t[:, None]
             return np.einsum("cj,cjn->nc", np.cos(ph), u) + np.einsum("cj,cjn->nc", np.sin(ph), v)
 
         def rhs(y: np.ndarray, d: np.ndarray) -> np.ndarray:
             if n_s:
-                code = np.sum(((normals @ y - offsets[:, None]) >= 0.0) * bits, axis=0)
-                r = lookup[code]
+                code = (bits @ (normals @ y >= off))[0]
+                r = lookup[code.astype(np.intp)]
             else:
-                r = np.zeros(y.shape[1], dtype=int)
+                r = np.zeros(y.shape[1], dtype=np.intp)
             # every region's field at every state (one matrix product: regions are few),
-            # then each state's own region
+            # then each state's own region (one fancy index)
             every = (A_stack @ y).reshape(len(keys) + 1, n, -1) + b_stack
-            return np.take_along_axis(every, r[None, None, :], axis=0)[0] + d
+            return every[r, :, every_col].T + d
 
         return drive, rhs
 

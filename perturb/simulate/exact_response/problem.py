@@ -8,6 +8,7 @@ Part of :mod:`perturb.simulate.exact_response` (the method is described there).
 
 from __future__ import annotations
 
+import bisect
 import cmath
 import math
 from collections import OrderedDict
@@ -623,6 +624,7 @@ class Engine:
         n = self.n
         zeta = np.zeros(n)
         omegas = tuple(h.omega for h in pas.inputs)
+        reuse = getattr(traj, "transition", None)
         for k, key in enumerate(keys):
             terms = self._rate_terms(pas, key, omegas)
             if terms is None:
@@ -630,7 +632,11 @@ class Engine:
             lam, V, Vinv, forced = terms
             a = float(starts[k])
             b = float(starts[k + 1]) if k + 1 < len(keys) else tb
-            E = ((V * np.exp(lam * (b - a))) @ Vinv).real
+            # the flow's sensitivity computed the same product from the same decomposition
+            # of the same A (np.linalg.eig, inv): reused, else computed here
+            E = reuse(k, b - a) if reuse is not None else None
+            if E is None:
+                E = ((V * np.exp(lam * (b - a))) @ Vinv).real
             if len(forced) == 1:
                 # (one input, the common case: scalar phases, one product with E)
                 w, w1, w2 = forced[0]
@@ -766,12 +772,14 @@ class Engine:
         G = self._funcs @ X
         Gd = self._funcs @ F
 
+        node_list = node_t.tolist()
+
         def state_at(j: int, tt: float) -> tuple[np.ndarray, np.ndarray]:
             # the orbit and its rate at tt in sample interval [t_j, t_j+1] (which may hold
             # a node)
             if trajs is not None:
-                i = min(max(int(np.searchsorted(node_t, tt, side="right")) - 1, 0), N - 1)
-                ti = min(max(tt, node_t[i]), node_t[i + 1])
+                i = min(max(bisect.bisect_right(node_list, tt) - 1, 0), N - 1)
+                ti = min(max(tt, node_list[i]), node_list[i + 1])
                 got = trajs[i].state_and_rate1(float(ti)) if rated else None
                 if got is not None:
                     return got
@@ -894,6 +902,26 @@ def _hermite5_extremum(x0, d0, s0, x1, d1, s1, sign) -> tuple[float, float]:
     return s, val(s)
 
 
+def _quadratic_root01(a: float, b: float, c: float) -> float:
+    """The root in ``[0, 1]`` of ``a s^2 + b s + c`` with ``c > 0`` and ``a + b + c <= 0``
+    (one sign change on the interval), by the cancellation-free formula, or NaN when rounding
+    puts no root there."""
+    if a == 0.0:
+        return -c / b if b != 0.0 else math.nan
+    disc = b * b - 4.0 * a * c
+    if not disc >= 0.0:
+        return math.nan
+    q = -0.5 * (b + math.copysign(math.sqrt(disc), b))
+    if q == 0.0:
+        return math.nan
+    # q(s) > 0 on [0, root): the smallest root in [0, 1] is the sign change
+    best = math.nan
+    for r in (q / a, c / q):
+        if 0.0 <= r <= 1.0 and not best <= r:
+            best = r
+    return best
+
+
 def _refine_nd(c, g, gd, t, j, sign, ns, state_at, flow, max_iter: int = 4) -> float:
     """``c . y`` at its extremum (max for ``sign`` +1, min for -1) next to sample ``j``.
 
@@ -922,8 +950,13 @@ def _refine_nd(c, g, gd, t, j, sign, ns, state_at, flow, max_iter: int = 4) -> f
     qb = -6.0 * ga - 4.0 * ma + 6.0 * gb - 2.0 * mb
     qc = ma
     lo, hi = 0.0, 1.0
-    s = ra / (ra - rb)
-    for _ in range(40):
+    # the root in [0, 1] of q (q(0) = ma > 0 >= mb = q(1)): closed form; the safeguarded
+    # Newton-bisection below only when it fails (rounding)
+    s = _quadratic_root01(qa, qb, qc)
+    iters = 0 if 0.0 <= s <= 1.0 else 40
+    if iters:
+        s = ra / (ra - rb)
+    for _ in range(iters):
         q = (qa * s + qb) * s + qc
         if q > 0.0:
             lo = s

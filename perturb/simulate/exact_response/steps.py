@@ -58,6 +58,11 @@ class _Growing:
         return self._a[: self.n]
 
 
+#: Candidate segments (after the parameter prefilter) above which Poly.near first bounds the
+#: distance from five coordinates of the keys before the full distance.
+_PRUNE_MIN = 8
+
+
 class Poly:
     """The keys of a traced curve, for "does this point lie on it" queries.
 
@@ -71,6 +76,7 @@ class Poly:
         self.keys = _Growing((width,))
         self.lo = _Growing()
         self.hi = _Growing()
+        self.seglen = _Growing()  # each segment's length L in its own scale (see append)
         self.lo_min, self.hi_max = math.inf, -math.inf
         self.Sp, self.base, self.m = Sp, ds_max, m
 
@@ -100,6 +106,7 @@ class Poly:
             lo, hi = min(prev[-2], key[-2]) - grow, max(prev[-2], key[-2]) + grow
             self.lo.append(lo)
             self.hi.append(hi)
+            self.seglen.append(L)
             self.lo_min, self.hi_max = min(self.lo_min, lo), max(self.hi_max, hi)
         self.keys.append(key)
 
@@ -124,11 +131,33 @@ class Poly:
         if idx.size == 0:
             return -1
         K = self.keys.arr
+        if idx.size > _PRUNE_MIN:
+            idx = self._prune(q, h, idx)
+            if idx.size == 0:
+                return -1
         d, L = segment_distance(q, K[idx], K[idx + 1], self.Sp)
         ok = d < JOIN_FRACTION * np.maximum(np.maximum(L, h), self.base)
         if not np.any(ok):
             return -1
         return int(idx[int(np.argmin(np.where(ok, d, np.inf)))])
+
+    def _prune(self, q: np.ndarray, h: float, idx: np.ndarray) -> np.ndarray:
+        """The segments of ``idx`` that key ``q`` may lie on: a lower bound of the distance
+        of :func:`segment_distance` from the statistics and the parameter alone (the distance
+        to the box of the segment's two ends in those coordinates, each state coordinate
+        over the largest ``R`` of the point and the ends, as there) against the largest
+        threshold ``JOIN_FRACTION max(L, h, ds_max)`` (``L`` with the segment's own ``R``,
+        at least the ``L`` measured with the point's); a margin of 1e-6 covers rounding, so
+        no segment that passes the full test is dropped."""
+        K = self.keys.arr
+        a, b = K[idx, -5:], K[idx + 1, -5:]  # (amplitude, first harmonic, mean, p, R)
+        lo, hi = np.minimum(a, b), np.maximum(a, b)
+        gap = np.maximum(np.maximum(lo - q[-5:], q[-5:] - hi), 0.0)
+        R = np.maximum(hi[:, 4], q[-1])
+        lb2 = (gap[:, 0] ** 2 + gap[:, 1] ** 2 + gap[:, 2] ** 2) / (R * R)
+        lb2 += (gap[:, 3] / self.Sp) ** 2
+        thr = JOIN_FRACTION * np.maximum(np.maximum(self.seglen.arr[idx], h), self.base)
+        return idx[lb2 <= (thr * (1.0 + 1e-6)) ** 2]
 
     def parallel(self, k: int, a: np.ndarray, b: np.ndarray) -> float:
         """|cos| of the angle between segment ``k`` and the step from key ``a`` to ``b``."""

@@ -259,6 +259,18 @@ class AffineTrajectory:
     def __len__(self) -> int:
         return len(self._pieces)
 
+    def transition(self, k: int, h: float) -> np.ndarray | None:
+        """``e^{A h}`` of piece ``k`` over its duration ``h`` in the system's units, as the
+        flow's sensitivity computed it (the modal product of the region's eigen-decomposition,
+        ``((V e^{lambda h}) V^-1).real``), or None when it was not computed for that ``h``
+        (no sensitivity asked, another ``h``, a scaled state or an augmented-exponential
+        region)."""
+        piece = self._pieces[k]
+        got = getattr(piece, "trans", None)
+        if got is None or got[0] != h or piece.region.model.scaled:
+            return None
+        return got[1]
+
     def _at(self, t: float) -> np.ndarray:
         """The state at one time (the fast path of ``traj(t)`` for a Python number: root
         solvers on the dense orbit call it once per iterate)."""
@@ -365,14 +377,22 @@ class AffineTrajectory:
                 f"t outside t_span = {self.t_span!r}: expected finite t0 <= t <= t1"
             )
         k = min(max(bisect.bisect_right(self._starts, t) - 1, 0), len(self._pieces) - 1)
-        part = self._pieces[k].state_rate(np.array([t - self._starts[k]]))
-        if part is None:
-            return None
+        piece = self._pieces[k]
+        one = getattr(piece, "state_rate1", None)  # (one time: no 2-d arrays)
+        if one is not None:
+            part = one(t - self._starts[k])
+            if part is None:
+                return None
+        else:
+            part = piece.state_rate(np.array([t - self._starts[k]]))
+            if part is None:
+                return None
+            part = part[:, 0]
         n = self.system.n
-        model = self._pieces[k].region.model
+        model = piece.region.model
         if model.scaled:
-            return part[:n, 0] * model.D, part[n:, 0] * model.D
-        return part[:n, 0], part[n:, 0]
+            return part[:n] * model.D, part[n:] * model.D
+        return part[:n], part[n:]
 
 
 class AffinePropagation(NamedTuple):
@@ -611,7 +631,9 @@ class _ModalPiece:
         "Y",
         "W",
         "_Wp",
-        "aWp",
+        "aWp23",
+        "Gp2",
+        "trans",
         "tol",
         "sig",
         "rv",
@@ -650,10 +672,14 @@ class _ModalPiece:
         W = self.W = YW[n:]
         self._Wp = None  # W mu^p, (4, ns, nt): built when first needed (see Wp)
         self._YY = None  # (Y; Y mu), (2n, nt): built when first needed (see state_rate)
+        self.trans = None  # (h, e^{A h}) once the sensitivity has computed it (see _sensitivity)
         # g = sigma s (the scan's function): W mu^p sigma, p < 3 (a sign flip is exact)
-        self.Gp = W[None] * region.mupow_sig
+        Gp = self.Gp = W[None] * region.mupow_sig
+        self.Gp2 = Gp.reshape(3 * self.ns, -1)  # (the rows (p, j) stacked: gridg's product)
         aW = aYW[n:]
-        self.aWp = aW[None] * region.amupow[:, None, :]
+        # |W mu^p| for p = 2, 3 only (the bounds of the second and third derivatives), the
+        # rows (p, j) stacked
+        self.aWp23 = (aW[None] * region.amupow[2:, None, :]).reshape(2 * self.ns, -1)
         self.colnorm = aYW[:n].sum(axis=0)
         self.has_res = bool(region.res)
         scale = aW.sum(axis=1) + region.absd
@@ -707,13 +733,22 @@ class _ModalPiece:
             self._YY = np.concatenate([self.Y, self.Y * self.mu])
         return (self._YY @ np.exp(self.mu[:, None] * tau)).real
 
+    def state_rate1(self, tau: float) -> np.ndarray | None:
+        """:meth:`state_rate` at one time: ``(y; y')``, shape ``(2n,)`` (None with a resonant
+        pair)."""
+        if self.has_res:
+            return None
+        if self._YY is None:
+            self._YY = np.concatenate([self.Y, self.Y * self.mu])
+        return (self._YY @ np.exp(self.mu * tau)).real
+
     def grid(self, taus: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(s, s', s'')`` of every surface at ``taus`` (shape ``(3, ns, m)``) and the bound
         and ``|s'''|`` on every interval (shape ``(2, ns, m - 1)``)."""
         E = np.exp(self.mu[:, None] * taus)  # (nt, m)
         S = (self.Wp[:3] @ E).real  # (3, ns, m)
         aE = np.abs(E)
-        B = self.aWp[2:] @ np.maximum(aE[:, :-1], aE[:, 1:])
+        B = self.aWp23.reshape(2, self.ns, -1) @ np.maximum(aE[:, :-1], aE[:, 1:])
         if self.has_res:
             reg = self.region
             for r in range(self.rc.shape[1]):
@@ -735,10 +770,8 @@ class _ModalPiece:
         aE = np.abs(E)
         ns, m = self.ns, taus.size
         # (one 2-D product each: the rows of (p, j) stacked)
-        G = (self.Gp.reshape(3 * ns, -1) @ E).real.reshape(3, ns, m)
-        B = (self.aWp[2:].reshape(2 * ns, -1) @ np.maximum(aE[:, :-1], aE[:, 1:])).reshape(
-            2, ns, m - 1
-        )
+        G = (self.Gp2 @ E).real.reshape(3, ns, m)
+        B = (self.aWp23 @ np.maximum(aE[:, :-1], aE[:, 1:])).reshape(2, ns, m - 1)
         return G, B
 
     @property
@@ -781,7 +814,7 @@ class _ModalPiece:
         """A rigorous bound of ``|s_j^{(p)}|`` on ``[ta, tb]``."""
         re = self.mu.real
         e = np.exp(np.maximum(re * ta, re * tb))
-        out = float(self.aWp[p, j] @ e)
+        out = float(self.aWp23[(p - 2) * self.ns + j] @ e)  # (p is 2 or 3)
         if self.has_res:
             reg = self.region
             for r in range(self.rc.shape[1]):
@@ -1483,6 +1516,7 @@ def _scan(piece, tau_end: float, touching: set[int], budget: _Budget):
     batch = _BATCH_FIRST
     sig = piece.sig
     tol = piece.tol
+    tol_col = tol[:, None]
     while tau < tau_end:
         h = piece.step(tau)
         if not h > 8.0 * _EPS * max(abs(tau), 1.0):
@@ -1508,8 +1542,11 @@ def _scan(piece, tau_end: float, touching: set[int], budget: _Budget):
             )
         L = taus[1:] - taus[:-1]
         a2 = np.abs(G[2])
-        # _taylor_bound inline (one call fewer per batch)
-        B2 = np.minimum(B[0], 0.5 * (a2[:, :-1] + a2[:, 1:] + B[1] * L))
+        # _taylor_bound inline (one call fewer per batch; the same operations in place)
+        B2 = a2[:, :-1] + a2[:, 1:]
+        B2 += B[1] * L
+        B2 *= 0.5
+        np.minimum(B[0], B2, out=B2)
         starts = touch if min(G[0, :, 0].tolist()) >= 0.0 else range(ns)
         for j in starts:
             if j in touch:
@@ -1527,32 +1564,42 @@ def _scan(piece, tau_end: float, touching: set[int], budget: _Budget):
                     return (tau, j), tangs  # on a second surface and leaving through it
                 G[0, j, 0] = 0.0
                 touch.add(j)
-        low = np.minimum(G[0, :, :-1], G[0, :, 1:]) - 0.125 * B2 * L * L
+        G0 = G[0]
+        drop = 0.125 * B2
+        drop *= L
+        drop *= L
+        low = np.minimum(G0[:, :-1], G0[:, 1:])
+        low -= drop
         for j in clamp:
             # leaving the surface at the rate g'(0) >= 0: g(tau) >= g'(0) tau - M2 tau^2 / 2,
             # a concave bound that is 0 at tau = 0, so g > 0 on the interval if it is at its end
-            if G[1, j, 0] * L[0] - 0.5 * B2[j, 0] * L[0] * L[0] > 0.0:
+            L0 = float(L[0])
+            if float(G[1, j, 0]) * L0 - 0.5 * float(B2[j, 0]) * L0 * L0 > 0.0:
                 low[j, 0] = math.inf
-        flagged = low <= tol[:, None]
+        # the flagged (interval, surface) pairs in the order of the intervals: one call
+        flat = np.flatnonzero((low <= tol_col).T).tolist()
         best = None
-        for k in flagged.any(axis=0).nonzero()[0].tolist():
-            for j in flagged[:, k].nonzero()[0].tolist():
-                first = k == 0 and j in touch
-                ev = _first_event(
-                    piece,
-                    j,
-                    float(taus[k]),
-                    float(taus[k + 1]),
-                    G[:, j, k].tolist(),  # Python floats: scalar arithmetic from here on
-                    G[:, j, k + 1].tolist(),
-                    first,
-                    first and j in clamp,
-                    (float(B2[j, k]), float(B[1, j, k])),
-                )
-                if ev is not None and (best is None or ev[0] < best[0]):
-                    best = (ev[0], j, ev[1])
-            if best is not None:
-                break
+        k_prev = -1
+        for kj in flat:
+            k, j = divmod(kj, ns)
+            if k != k_prev:
+                if best is not None:
+                    break
+                k_prev = k
+            first = k == 0 and j in touch
+            ev = _first_event(
+                piece,
+                j,
+                float(taus[k]),
+                float(taus[k + 1]),
+                G[:, j, k].tolist(),  # Python floats: scalar arithmetic from here on
+                G[:, j, k + 1].tolist(),
+                first,
+                first and j in clamp,
+                (float(B2[j, k]), float(B[1, j, k])),
+            )
+            if ev is not None and (best is None or ev[0] < best[0]):
+                best = (ev[0], j, ev[1])
         if best is None:
             tau = float(taus[-1])
             touch, clamp = set(), set()
@@ -1767,7 +1814,12 @@ def _sensitivity(model: _Model, run: _Run) -> np.ndarray:
     """Product of the region exponentials and the saltation matrices at the crossings."""
     M = model.eye
     for i, (ta, tb, piece) in enumerate(run.pieces):
-        M = piece.region.transition(tb - ta) @ M
+        h = tb - ta
+        E = piece.region.transition(h)
+        if piece.region.kind == "modal":
+            piece.trans = (h, E)  # (reused by callers that need e^{A h} again, see
+            # AffineTrajectory.transition)
+        M = E @ M
         if i < len(run.crossings):
             ev = run.crossings[i]
             j = ev.surface
