@@ -1314,11 +1314,82 @@ class SystemBalance:
                 S = S + w[:, None] * np.einsum("j,pjk->pk", el.beta, UD3)
             for p, pc in enumerate(_crossings_batch(el.pwl, self.basis, S)):
                 given[p][idx] = pc
+        batched = self._max_multipliers_stacked(w, given)
+        if batched is not None:
+            return batched
         out = np.empty(P)
         for p in range(P):
             mono = self._monodromy_pwl(U3[p], UD3[p], float(w[p]), given[p])
             out[p] = float(np.abs(np.linalg.eigvals(mono)).max())
         return out
+
+    def _max_multipliers_stacked(self, w: np.ndarray, given: list[dict]) -> np.ndarray | None:
+        """:meth:`_monodromy_pwl` for every point at once when no force jumps (no saltation)
+        and every segment combination met has an eigen-decomposition: the intervals of each
+        point as there, the exponentials of all intervals of one combination in one stacked
+        product, the monodromies multiplied interval by interval for all points together
+        (identities after a point's last interval) and their eigenvalues in one call. The
+        same products as the loop (stacked ``matmul`` multiplies slice by slice); None
+        otherwise (the loop)."""
+        if any(not el.projector.continuous for el in self.elements):
+            return None
+        P, n = len(given), self.system.n
+        combos: dict[tuple[int, ...], int] = {}
+        k_combo, k_dt, k_point, k_pos = [], [], [], []
+        for p in range(P):
+            pieces = given[p]
+            cuts = [np.zeros(1), np.array([_TWO_PI])]
+            for idx in range(len(self.elements)):
+                if pieces[idx].d1.size:
+                    cuts.append(pieces[idx].start)
+            th = np.unique(np.concatenate(cuts))
+            th = th[(th >= 0.0) & (th <= _TWO_PI)]
+            a, b = th[:-1], th[1:]
+            keep = b > a
+            a, b = a[keep], b[keep]
+            mid = 0.5 * (a + b)
+            segs = []
+            for idx in range(len(self.elements)):
+                pc = pieces[idx]
+                if pc.d1.size == 0:
+                    segs.append(np.full(mid.size, int(pc.segment[0])))
+                else:
+                    j = np.searchsorted(pc.start, mid, side="right") - 1
+                    segs.append(pc.segment[j % pc.segment.size])
+            rows = np.array(segs).T.tolist() if segs else [[]] * mid.size
+            dts = (b - a) / float(w[p])
+            for q, (row, dt) in enumerate(zip(rows, dts.tolist(), strict=True)):
+                key = tuple(row)
+                ci = combos.get(key)
+                if ci is None:
+                    ci = combos[key] = len(combos)
+                k_combo.append(ci)
+                k_dt.append(dt)
+                k_point.append(p)
+                k_pos.append(q)
+        if not k_dt:
+            return None
+        k_combo_a, k_dt_a = np.array(k_combo), np.array(k_dt)
+        E = np.empty((k_dt_a.size, n, n))
+        for key, ci in combos.items():
+            _, lam, V, Vinv = self._pwl_field(key)
+            if Vinv is None:
+                return None
+            sel = np.flatnonzero(k_combo_a == ci)
+            scaled = V[None, :, :] * np.exp(lam[None, :] * k_dt_a[sel][:, None])[:, None, :]
+            E[sel] = (scaled @ Vinv).real
+        M = max(k_pos) + 1
+        eye = np.eye(n)
+        stack = np.empty((P, M, n, n))
+        stack[:] = eye
+        stack[np.array(k_point), np.array(k_pos)] = E
+        mono = np.empty((P, n, n))
+        mono[:] = eye
+        for m in range(M):
+            mono = stack[:, m] @ mono
+        if not np.all(np.isfinite(mono)):
+            return None
+        return np.abs(np.linalg.eigvals(mono)).max(axis=1)
 
     def multipliers(self, u: ArrayLike, Omega: float) -> np.ndarray:
         """Floquet multipliers (eigenvalues of :meth:`monodromy`), by decreasing modulus."""
