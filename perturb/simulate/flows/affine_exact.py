@@ -326,12 +326,16 @@ class AffineTrajectory:
             out *= model.D[:, None]  # the pieces hold the scaled state z = y / D
         return out[:, 0] if scalar else out
 
-    def state_and_rate(self, t: ArrayLike) -> tuple[np.ndarray, np.ndarray] | None:
+    def state_and_rate(
+        self, t: ArrayLike, *, trusted: bool = False
+    ) -> tuple[np.ndarray, np.ndarray] | None:
         """The exact state and its time derivative at sorted times ``t`` (1-d, inside
         ``t_span``): two arrays of shape ``(n, len(t))``, from the closed form of each piece
         (no field evaluation); None when a piece has no such form (a resonant pair or the
         augmented-exponential representation: use the vector field).  At a switch time the
         piece that starts there gives the rate (one-sided where the field jumps).
+        ``trusted=True``: the caller guarantees a sorted float array inside ``t_span`` (the
+        checks are skipped; orbit statistics sample every point of a branch).
 
         Raises
         ------
@@ -341,7 +345,7 @@ class AffineTrajectory:
         ta = np.asarray(t, dtype=float).reshape(-1)
         t0, t1 = self.t_span
         slack = 1e-12 * max(t1 - t0, abs(t0), abs(t1))
-        if (
+        if not trusted and (
             not np.all(np.isfinite(ta))
             or np.any(ta < t0 - slack)
             or np.any(ta > t1 + slack)
@@ -675,11 +679,12 @@ class _ModalPiece:
         self.trans = None  # (h, e^{A h}) once the sensitivity has computed it (see _sensitivity)
         # g = sigma s (the scan's function): W mu^p sigma, p < 3 (a sign flip is exact)
         Gp = self.Gp = W[None] * region.mupow_sig
-        self.Gp2 = Gp.reshape(3 * self.ns, -1)  # (the rows (p, j) stacked: gridg's product)
+        nt = Gp.shape[2]
+        self.Gp2 = Gp.reshape(3 * self.ns, nt)  # (the rows (p, j) stacked: gridg's product)
         aW = aYW[n:]
         # |W mu^p| for p = 2, 3 only (the bounds of the second and third derivatives), the
         # rows (p, j) stacked
-        self.aWp23 = (aW[None] * region.amupow[2:, None, :]).reshape(2 * self.ns, -1)
+        self.aWp23 = (aW[None] * region.amupow[2:, None, :]).reshape(2 * self.ns, nt)
         self.colnorm = aYW[:n].sum(axis=0)
         self.has_res = bool(region.res)
         scale = aW.sum(axis=1) + region.absd
@@ -748,7 +753,7 @@ class _ModalPiece:
         E = np.exp(self.mu[:, None] * taus)  # (nt, m)
         S = (self.Wp[:3] @ E).real  # (3, ns, m)
         aE = np.abs(E)
-        B = self.aWp23.reshape(2, self.ns, -1) @ np.maximum(aE[:, :-1], aE[:, 1:])
+        B = self.aWp23.reshape(2, self.ns, E.shape[0]) @ np.maximum(aE[:, :-1], aE[:, 1:])
         if self.has_res:
             reg = self.region
             for r in range(self.rc.shape[1]):
