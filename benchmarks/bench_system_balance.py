@@ -4,6 +4,7 @@
 Reproduce with::
 
     PYTHONPATH=. python benchmarks/bench_system_balance.py [--repeat 3] [--quick]
+        [--parts 1,1b,1c,2,3] [--baseline /tmp/old_system_balance.py]
 
 Everything is timed in this one process (``time.process_time`` CPU, the measure: on a shared
 machine the wall time includes waiting for a core; ``time.perf_counter`` wall shown beside it
@@ -18,7 +19,13 @@ in part 1; minimum over ``--repeat`` runs; one BLAS thread):
    at the high edge), (0.62, 0.75) (3), (0.3, 1.5) (4: one born at the low edge) and
    (0.2, 2.0) (6), multipliers at every point, beside the one-branch trace of part 1 in the
    same process (the ratio is the price of the seeds, the branch-point test and switching,
-   and tracing the other branches). Target (issue 16): <= 0.5 s.
+   and tracing the other branches). Target (issue 16): <= 0.5 s. Then the call exactly as a
+   user makes it (no prepared ``balance=``: the ``SystemBalance`` is built inside), with the
+   attractor stage (the default) and without it (``attractors=False``); with ``--baseline
+   FILE`` (a copy of an older ``perturb/numeric/system_balance.py``, imported under another
+   name) the same calls of that module too, the two timed alternately in this process, and
+   whether the responses are identical (branch count, origins, every point's Omega,
+   coefficients and multiplier modulus by ``np.array_equal``).
 1c. **Stability per point**: the Floquet multipliers from the monodromy of the linearisation
    (one point at a time, and a whole branch with its crossings found at once), beside the
    eigenvalue problem of a Hill matrix of the same balance (``2 x unknowns`` square).
@@ -44,8 +51,10 @@ import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import importlib.util  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -122,6 +131,71 @@ def nsd2_every_branch(repeat: int) -> None:
             f"  every branch {window}: {len(r)} branches, {pts} points, CPU {c:.3f} s "
             f"(wall {w:.3f} s){ratio}\n    [{desc}]"
         )
+
+
+def _load_module(path: str):
+    """A copy of an older ``system_balance.py`` as a module of its own (its imports of the
+    package resolve to the current tree)."""
+    spec = importlib.util.spec_from_file_location("perturb.numeric._bench_baseline", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _same_response(a, b) -> bool:
+    if len(a.branches) != len(b.branches) or a.origins != b.origins:
+        return False
+    for x, y in zip(a.branches, b.branches, strict=True):
+        mx, my = x.max_multiplier, y.max_multiplier
+        if not (
+            np.array_equal(x.Omega, y.Omega)
+            and np.array_equal(x.U, y.U)
+            and (mx is None) == (my is None)
+            and (mx is None or np.array_equal(mx, my))
+        ):
+            return False
+    return True
+
+
+def nsd2_default_call(repeat: int, baseline: str | None) -> None:
+    """The call of issue 16's target as a user makes it, this module against a baseline copy
+    (alternating, minimum of ``repeat`` runs each)."""
+    print(
+        "== 1b'. system_balance_response(builtin_system('nsd2'), window, harmonics=15) as called "
+        "(SystemBalance built inside), CPU min of runs, calls alternating"
+    )
+    mods = [("current", sys.modules[system_balance_response.__module__])]
+    if baseline:
+        mods.insert(0, ("baseline", _load_module(baseline)))
+    system = builtin_system("nsd2")
+    for window in ((0.5, 2.0), (0.62, 0.75), (0.3, 1.5), (0.2, 2.0)):
+        for attractors in (True, False):
+            best = {name: np.inf for name, _ in mods}
+            out = {}
+            for mod in (m for _, m in mods):  # warm-up: SymPy/lambdify caches of the system
+                mod.system_balance_response(system, window, harmonics=15, attractors=attractors)
+            for _ in range(repeat):
+                for name, mod in mods:
+                    c0 = time.process_time()
+                    out[name] = mod.system_balance_response(
+                        system, window, harmonics=15, attractors=attractors
+                    )
+                    best[name] = min(best[name], time.process_time() - c0)
+            cur = out["current"]
+            line = (
+                f"  {window} attractors={attractors!s:5}: {len(cur)} branches, "
+                f"{sum(len(b) for b in cur.branches)} points, CPU {best['current']:.3f} s"
+            )
+            if baseline:
+                same = _same_response(out["baseline"], cur)
+                line += (
+                    f"; baseline {len(out['baseline'])} branches, CPU {best['baseline']:.3f} s "
+                    f"(current/baseline {best['current'] / best['baseline']:.2f}); "
+                    f"responses identical: {same}"
+                )
+            print(line)
+    print("  load average after: " + " ".join(f"{v:.2f}" for v in os.getloadavg()))
 
 
 def stability_cost(repeat: int) -> None:
@@ -275,18 +349,33 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--quick", action="store_true", help="n <= 8, H <= 15, no H = 63")
+    ap.add_argument(
+        "--parts", default="1,1b,1c,2,3", help="comma-separated parts to run (1,1b,1c,2,3)"
+    )
+    ap.add_argument(
+        "--baseline",
+        default=None,
+        help="a copy of an older perturb/numeric/system_balance.py timed beside (part 1b)",
+    )
     args = ap.parse_args(argv)
+    parts = {p.strip() for p in args.parts.split(",")}
     print(
         f"python {sys.version.split()[0]}, numpy {np.__version__}, scipy {scipy.__version__}, "
         f"{platform.machine()}, {os.cpu_count()} cpus, load average "
         + " ".join(f"{v:.2f}" for v in os.getloadavg())
     )
-    nsd2_response(args.repeat)
-    nsd2_every_branch(args.repeat)
-    stability_cost(args.repeat)
-    accuracy((1, 3, 7, 15, 31) if args.quick else (1, 3, 7, 15, 31, 63))
-    ns = (2, 4, 8) if args.quick else (2, 4, 8, 16, 32)
-    chain_table(ns, (3, 7, 15), args.repeat, 300 if args.quick else 500)
+    if "1" in parts:
+        nsd2_response(args.repeat)
+    if "1b" in parts:
+        nsd2_every_branch(args.repeat)
+        nsd2_default_call(args.repeat, args.baseline)
+    if "1c" in parts:
+        stability_cost(args.repeat)
+    if "2" in parts:
+        accuracy((1, 3, 7, 15, 31) if args.quick else (1, 3, 7, 15, 31, 63))
+    if "3" in parts:
+        ns = (2, 4, 8) if args.quick else (2, 4, 8, 16, 32)
+        chain_table(ns, (3, 7, 15), args.repeat, 300 if args.quick else 500)
     return 0
 
 

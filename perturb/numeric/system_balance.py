@@ -102,17 +102,21 @@ of 998 missed, 20 s (16 branches, the cap ``max_branches``); nsd2 (0.5, 2) 0 of 
 either way, 1.20 -> 1.56 s (load 4-7). Still missed: loops of the impact pair that no
 simulated trajectory settles on (unstable all along, or basins the 12 states miss).
 
-Measured (``benchmarks/bench_system_balance.py``, CPU, one process, load average ~9 on 2
-cores): nsd2, H = 15, every branch over (0.5, 2) with multipliers at every point
-(:func:`system_balance_response`: 4 branches, ~700 points) 0.51 s against 0.78 s for the code
-before the changes of issue 16's speed item, which was 0.79 s at low load (the cuts: cached
-projections, dense algebra below 400 unknowns, branch points watched only on symmetric
-branches of an odd system, prepared polylines, a whole branch's crossings at once for the
-multipliers). Stability by the monodromy costs ~0.06 ms a point; the eigenvalue problem of a
-Hill matrix of the same balance (124 x 124) alone ~3 ms (53x). A chain of n masses with a gap each
-(``bench_system_balance_chain.py``): the assembly (residual, exact projections, Jacobian)
-grows linearly in n; the dense bordered LU of the continuation core (it takes dense
-matrices) is the cubic term from n ~ 16 at H = 15. Accuracy
+Measured (``benchmarks/bench_system_balance.py --parts 1b --baseline FILE``, CPU, one
+process, load average ~2 on 2 cores): nsd2, H = 15, every branch over (0.5, 2) with multipliers
+at every point, called as ``system_balance_response(nsd2, (0.5, 2.0), harmonics=15)``
+(4 branches, 700 points): 0.61 s, of which the attractor stage 0.17 s (its RK4 simulation
+0.145 s: 2720 sequential steps of 852 trajectories, numpy-call bound) and the exact
+projections ~0.25 s; the module before the stage-4 and multiplier cuts 0.72 s in the same
+process, responses bit-identical (an earlier round, before stage 4 existed: 0.79 -> 0.51 s
+with cached projections, dense algebra below 400 unknowns, branch points watched only on
+symmetric branches of an odd system, prepared polylines, a whole branch's crossings at once
+for the multipliers). Issue 16's 0.5 s is not reached with stage 4 on. Stability by the
+monodromy costs ~0.03 ms a point (a whole branch's products stacked); the eigenvalue problem
+of a Hill matrix of the same balance (124 x 124) alone ~3 ms (100x). A chain of n masses
+with a gap each (``bench_system_balance_chain.py``): the assembly (residual, exact
+projections, Jacobian) grows linearly in n; the dense bordered LU of the continuation core
+(it takes dense matrices) is the cubic term from n ~ 16 at H = 15. Accuracy
 (``bench_system_balance_accuracy.py``, H = 1..63): nsd2's max|x_j| errors within 1.35x of the
 orbit's truncation floor at every H; the impact pair's within 2x from H ~ 31 on.
 """
