@@ -739,7 +739,6 @@ class Engine:
         ns = STAT_SAMPLES * m
         t = self.t0 + P * np.arange(ns + 1) / ns
         node_t = self.node_times(P, N)
-        idx = np.clip(np.searchsorted(node_t, t, side="right") - 1, 0, N - 1)
         if trajs is None and self.exact:
             trajs = [flow.trajectory(Z[i], node_t[i], node_t[i + 1]) for i in range(N)]
         X = np.empty((n, ns + 1))
@@ -747,18 +746,29 @@ class Engine:
         # a piece without one, then the field at the samples)
         F: np.ndarray | None = None
         rated = trajs is not None and all(hasattr(tr, "state_and_rate") for tr in trajs)
-        if rated:
+        got = None
+        if rated and N == 1:
+            # one node (the common case): every sample on the one trajectory, whose span
+            # t0 .. t0 + P holds them all (P n / n = P exactly: n is a power of two)
+            assert trajs is not None
+            got = trajs[0].state_and_rate(np.clip(t, node_t[0], node_t[1]), trusted=True)
+        if got is not None:
+            X, F = got
+            idx = np.zeros(ns + 1, dtype=int)
+        else:
+            idx = np.clip(np.searchsorted(node_t, t, side="right") - 1, 0, N - 1)
+        if rated and got is None:
             F = np.empty((n, ns + 1))
-        for i in range(N):
+        for i in range(N if got is None else 0):
             sel = idx == i
             if not np.any(sel):
                 continue
             a, b = node_t[i], node_t[i + 1]
             ts = np.clip(t[sel], a, b)
             if trajs is not None:
-                got = trajs[i].state_and_rate(ts) if F is not None else None
-                if got is not None:
-                    X[:, sel], F[:, sel] = got
+                got_i = trajs[i].state_and_rate(ts) if F is not None else None
+                if got_i is not None:
+                    X[:, sel], F[:, sel] = got_i
                 else:
                     F = None
                     X[:, sel] = trajs[i](ts)
