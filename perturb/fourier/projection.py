@@ -94,6 +94,10 @@ _GRID_MIN = 16
 _MAX_DEPTH = 40
 _TWO_PI = 2.0 * math.pi
 _EPS = float(np.finfo(float).eps)
+#: Most level sets whose tables a grid keeps.
+_LEVEL_TABLES = 16
+#: Most roots polished with Python-float arithmetic (numpy's per-call cost dominates below).
+_SCALAR_ROOTS = 16
 
 
 # =============================================================================================
@@ -240,7 +244,8 @@ class HarmonicBasis:
 # =============================================================================================
 class _Grid:
     """Design matrices of one basis on the isolation grid (``x`` at the endpoints, ``x`` and
-    its first three derivatives at the midpoints), shared by every evaluation."""
+    its first two derivatives at the midpoints, stacked for one matrix-vector product per
+    signal), and the harmonic tables of the evaluations, shared by every evaluation."""
 
     def __init__(self, basis: HarmonicBasis) -> None:
         N = max(_GRID_MIN, _GRID_PER_HARMONIC * basis.kmax)
@@ -248,11 +253,64 @@ class _Grid:
         self.h = _TWO_PI / N
         self.points = self.h * np.arange(N + 1)
         self.points[-1] = _TWO_PI
+        self.lo, self.hi = self.points[:-1].copy(), self.points[1:].copy()
         mids = self.points[:-1] + 0.5 * self.h
-        self.end = basis.design(self.points[:-1])
-        self.mid = np.stack([basis.design(mids, j) for j in range(4)])  # (4, N, n)
+        # rows: x, x', x'' at the midpoints, then x at the left ends (the crossing search
+        # appends x(0) as the value at 2 pi)
+        self.stack = np.concatenate(
+            [basis.design(mids, j) for j in range(3)] + [basis.design(self.points[:-1])]
+        )
         ks = basis.k.astype(float)
+        self.ks = ks
+        self.iks = 1j * ks
+        # the layout [a0,] a_1, b_1, a_2, b_2, ... (HarmonicBasis's)
+        self.contiguous = bool(
+            np.array_equal(basis.a_index, int(basis.bias) + 2 * np.arange(ks.size))
+            and np.array_equal(basis.b_index, basis.a_index + 1)
+        )
         self.k_pow = np.array([ks**j for j in range(5)])
+        # (i k)^j, j = 0..3: the derivatives of e^{ik theta}
+        self.ik_pow = (1j * ks[:, None]) ** np.arange(4)
+        self.ik_pow3 = np.ascontiguousarray(self.ik_pow[:, :3])
+        self._levels: dict[bytes, _LevelTables] = {}
+
+    def tables(self, levels: np.ndarray) -> _LevelTables:
+        """The tables of the crossing search at ``levels`` (cached, a few sets)."""
+        key = levels.tobytes()
+        t = self._levels.get(key)
+        if t is None:
+            if len(self._levels) >= _LEVEL_TABLES:
+                self._levels.clear()
+            t = self._levels[key] = _LevelTables(self, levels)
+        return t
+
+
+class _LevelTables:
+    """The isolation grid tiled once per level, so that every test of the crossing search is
+    one elementwise operation on flat arrays of ``L N`` cells (level-major: cell ``i`` of
+    level ``l`` at ``l N + i``), without broadcasting."""
+
+    def __init__(self, grid: _Grid, levels: np.ndarray) -> None:
+        N, L = grid.N, levels.size
+        self.LN = L * N
+        r = 0.5 * grid.h
+        r2 = 0.5 * r * r
+        self.r, self.r2, self.r3 = r, r2, r * r2 / 3.0
+        blocks = [grid.stack[j * N : (j + 1) * N] for j in range(4)]
+        # rows: x, x', x'' at the midpoints, x at the left ends, each block L times (all
+        # blocks a multiple of 4 rows: the product's rows come out as those of grid.stack)
+        self.stack = np.ascontiguousarray(np.concatenate([np.tile(b, (L, 1)) for b in blocks]))
+        self.levels = np.repeat(levels, N)
+        # r |x'|, r^2/2 |x''| from |x'|, |x''|; r |x''|; the constants (times B_3) of the
+        # exclusion bound and of the monotonicity bound
+        self.r_r2 = np.concatenate([np.full(self.LN, r), np.full(self.LN, r2)])
+        self.r_only = np.full(self.LN, r)
+        self.r3_r2 = np.concatenate([np.full(self.LN, self.r3), np.full(self.LN, r2)])
+        cells = np.tile(np.arange(N), L)
+        self.level = np.repeat(np.arange(L), N)
+        self.cell = cells
+        self.next = self.level * N + (cells + 1) % N  # the right end of a cell: x(2 pi) = x(0)
+        self.lo, self.hi = grid.lo[cells], grid.hi[cells]
 
 
 _GRIDS: dict[HarmonicBasis, _Grid] = {}
@@ -290,17 +348,23 @@ class TruncatedSeries:
 
     def __init__(self, basis: HarmonicBasis, u: np.ndarray) -> None:
         self.basis, self.u = basis, u
-        self.grid = _grid(basis)
+        grid = self.grid = _grid(basis)
         self.a0 = float(u[0]) if basis.bias else 0.0
-        self.ks = basis.k.astype(float)
-        self.c = u[basis.a_index] - 1j * u[basis.b_index]  # x = a0 + Re sum c_k e^{ik theta}
-        self.B = self.grid.k_pow @ np.abs(self.c)
+        self.ks = grid.ks
+        if grid.contiguous and u.dtype == np.float64 and u.flags.c_contiguous:
+            # u = [a0,] a_1, b_1, a_2, b_2, ... read as complex a_k + i b_k: c = conj (the
+            # numbers of a - 1j b, up to the sign of a zero imaginary part)
+            self.c = (u[1:] if basis.bias else u).view(complex).conj()
+        else:
+            self.c = u[basis.a_index] - 1j * u[basis.b_index]
+        # x = a0 + Re sum c_k e^{ik theta}
+        self.B = grid.k_pow @ np.abs(self.c)
         self.scale = abs(self.a0) + float(self.B[0])
 
     @cached_property
     def _derivative_coefficients(self) -> np.ndarray:
         # column j: the complex coefficients of the j-th derivative, c_k (i k)^j, j = 0..3
-        return self.c[:, None] * (1j * self.ks[:, None]) ** np.arange(4)
+        return self.c[:, None] * self.grid.ik_pow
 
     def values(self, theta: np.ndarray, orders: Sequence[int] = (0,)) -> list[np.ndarray]:
         """``x`` and its derivatives in ``theta``.
@@ -317,7 +381,7 @@ class TruncatedSeries:
         list of numpy.ndarray
             One array shaped like ``theta`` per order, in the order asked.
         """
-        e = np.exp(1j * np.multiply.outer(theta, self.ks))
+        e = np.exp(np.multiply.outer(theta, self.grid.iks))
         # one matrix product for every order asked (the root polishing asks for three)
         vals = (e @ self._derivative_coefficients[:, list(orders)]).real
         out = []
@@ -427,26 +491,75 @@ def _polish(
     are small long before the root is reached), or whose iterate leaves the bracket, are redone
     by the safeguarded Newton-bisection of :func:`_polish_safe`."""
     ftol = _residual_floor(series, d)
-    t = lo - elo * (hi - lo) / (ehi - elo)
+    # x, x', x'' in one product per step: e^{ik t} times the columns c_k (i k)^j
+    # (columns 0..2 of _derivative_coefficients, the same numbers, contiguous)
+    grid, a0 = series.grid, series.a0
+    iks, coef = grid.iks, series.c[:, None] * grid.ik_pow3
+    width = hi - lo
+    t = lo - elo * width / (ehi - elo)
+    converged = False
     with np.errstate(all="ignore"):
         for _ in range(7):
-            x, x1, x2 = series.values(t, (0, 1, 2))
-            f = x - d
-            if bool(np.all(np.abs(f) <= ftol)):
+            vals = (np.exp(np.multiply.outer(t, iks)) @ coef).real
+            f = (vals[:, 0] + a0) - d
+            x1 = vals[:, 1]
+            if np.abs(f).max() <= ftol:  # NaN compares False, as np.all did
+                converged = True
                 break
+            x2 = vals[:, 2]
             t = t - 2.0 * f * x1 / (2.0 * x1 * x1 - f * x2)
         t_new = t - f / x1
-    margin = 1e-12 * (hi - lo)
-    bad = (np.abs(f) > ftol) | ~((t_new >= lo - margin) & (t_new <= hi + margin))
-    if not bad.any():
-        return t_new, x1
+    margin = 1e-12 * width
+    inside = (t_new >= lo - margin) & (t_new <= hi + margin)
+    if converged:
+        if inside.all():
+            return t_new, x1
+        bad = ~inside
+    else:
+        bad = (np.abs(f) > ftol) | ~inside
     t_new[bad], x1[bad] = _polish_safe(series, lo[bad], hi[bad], elo[bad], d[bad])
     return t_new, x1
 
 
+def _polish_scalar(series, lo, hi, elo, ehi, d):
+    """:func:`_polish` with the arithmetic of the few roots in Python floats (the same IEEE
+    operations in the same order, so the same numbers; only the evaluation is a numpy
+    product), the angles and ``x'`` as lists: the common case, when every root converges
+    inside its bracket; None otherwise (a zero division too), and :func:`_polish` runs."""
+    ftol = _residual_floor(series, d)
+    grid, a0 = series.grid, series.a0
+    iks, coef = grid.iks, series.c[:, None] * grid.ik_pow3
+    lo_l, hi_l, d_l = lo.tolist(), hi.tolist(), d.tolist()
+    width = [b - a for a, b in zip(lo_l, hi_l, strict=True)]
+    try:
+        t = [
+            a - ea * w / (eb - ea)
+            for a, w, ea, eb in zip(lo_l, width, elo.tolist(), ehi.tolist(), strict=True)
+        ]
+        for _ in range(7):
+            vals = (np.exp(np.multiply.outer(np.array(t), iks)) @ coef).real.tolist()
+            f = [(v[0] + a0) - di for v, di in zip(vals, d_l, strict=True)]
+            if all(abs(fi) <= ftol for fi in f):
+                break
+            t = [
+                ti - 2.0 * fi * v[1] / (2.0 * v[1] * v[1] - fi * v[2])
+                for ti, fi, v in zip(t, f, vals, strict=True)
+            ]
+        else:
+            return None
+        t_new = [ti - fi / v[1] for ti, fi, v in zip(t, f, vals, strict=True)]
+    except ZeroDivisionError:
+        return None
+    for tn, a, b, w in zip(t_new, lo_l, hi_l, width, strict=True):
+        margin = 1e-12 * w
+        if not (tn >= a - margin and tn <= b + margin):
+            return None
+    return t_new, [v[1] for v in vals]
+
+
 def _residual_floor(series: TruncatedSeries, d: np.ndarray) -> float:
     """``|x - d|`` at rounding level: the evaluation's own error bound."""
-    return 64.0 * _EPS * (series.scale + float(np.abs(d).max(initial=0.0)))
+    return 64.0 * _EPS * (series.scale + _abs_max(d))
 
 
 def _polish_safe(
@@ -482,39 +595,48 @@ def _polish_safe(
     return np.where(ok, t - step, t), xd
 
 
-def _crossings(
-    series: TruncatedSeries, levels: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _crossings(series: TruncatedSeries, levels: np.ndarray, as_lists: bool = False) -> tuple:
     """All crossings of ``x(theta) = d`` for ``d`` in ``levels``: sorted angles in
-    ``[0, 2 pi)``, the level index of each and ``x'`` there."""
+    ``[0, 2 pi)``, the level index of each and ``x'`` there (arrays; Python lists with
+    ``as_lists`` when the few-roots path found them, for :func:`crossing_intervals`)."""
     grid = series.grid
-    r = 0.5 * grid.h
-    u = series.u
-    xe = grid.end @ u
-    xm, x1m, x2m, x3m = grid.mid @ u
-    slack = 64 * _EPS * (series.scale + float(np.abs(levels).max(initial=0.0)))
-    lv = levels[:, None]
-    e_end = xe[None, :] - lv  # (L, N)
-    excluded, monotone, _ = _taylor_tests(xm[None, :] - lv, x1m, x2m, x3m, r, series.B, slack)
-    e_next = np.concatenate([e_end[:, 1:], e_end[:, :1]], axis=1)
-    change = (e_end >= 0.0) != (e_next >= 0.0)
-    simple_l, simple_i = np.nonzero(~excluded & monotone[None, :] & change)
-    points = grid.points
-    lo = points[simple_i]
-    hi = points[simple_i + 1]
-    elo = e_end[simple_l, simple_i]
-    ehi = e_next[simple_l, simple_i]
-    level_idx = simple_l
-    hard_l, hard_i = np.nonzero(~excluded & ~monotone[None, :])
-    if hard_l.size:
+    T = grid.tables(levels)
+    LN = T.LN
+    v = T.stack @ series.u
+    a12 = np.abs(v[LN : 3 * LN])  # |x'|, |x''| at the midpoints
+    slack = 64 * _EPS * (series.scale + _abs_max(levels))
+    # the exclusion and monotonicity tests of _taylor_tests, the same expressions in the
+    # same order (the extremum test is not needed on the grid):
+    # |x - d| > r |x'| + r^2/2 |x''| + r^3/6 B_3 + slack and |x'| > r |x''| + r^2/2 B_3 + slack
+    p = a12 * T.r_r2
+    w = np.empty(2 * LN)
+    np.add(p[:LN], p[LN:], out=w[:LN])
+    np.multiply(a12[LN:], T.r_only, out=w[LN:])
+    w += T.r3_r2 * series.B[3]
+    w += slack
+    excluded = np.abs(v[:LN] - T.levels) > w[:LN]
+    monotone = a12[:LN] > w[LN:]
+    e = v[3 * LN :] - T.levels  # x - d at the left ends
+    pos = e >= 0.0
+    # on booleans a > b is a & ~b: monotone, not excluded, and a sign change
+    simple = np.flatnonzero((monotone > excluded) & (pos != pos[T.next]))
+    lo = T.lo[simple]
+    hi = T.hi[simple]
+    elo = e[simple]
+    ehi = e[T.next[simple]]
+    level_idx = T.level[simple]
+    settled = excluded | monotone
+    if not settled.all():  # hard cells: neither excluded nor monotone
+        hard = np.flatnonzero(~settled)
+        hard_l, hard_i = T.level[hard], T.cell[hard]
+        e_a, e_b = e[hard], e[T.next[hard]]
+        points = grid.points
         extra = []
-        for j, i in zip(hard_l, hard_i, strict=True):
-            d = float(levels[j])
-            ea, eb = float(e_end[j, i]), float(e_end[j, (i + 1) % grid.N])
-            for a, b, e_a, e_b in _isolate_hard(
-                series, d, points[i], points[i + 1], ea, eb, slack, 0
+        for j, i, ea, eb in zip(hard_l, hard_i, e_a.tolist(), e_b.tolist(), strict=True):
+            for a, b, ea_, eb_ in _isolate_hard(
+                series, float(levels[j]), points[i], points[i + 1], ea, eb, slack, 0
             ):
-                extra.append((a, b, e_a, e_b, j))
+                extra.append((a, b, ea_, eb_, j))
         if extra:
             ex = np.array(extra)
             lo = np.concatenate([lo, ex[:, 0]])
@@ -524,10 +646,32 @@ def _crossings(
             level_idx = np.concatenate([level_idx, ex[:, 4].astype(int)])
     if lo.size == 0:
         return np.empty(0), np.empty(0, dtype=int), np.empty(0)
-    theta, d1 = _polish(series, lo, hi, elo, ehi, levels[level_idx])
+    d = levels[level_idx]
+    if lo.size <= _SCALAR_ROOTS:
+        out = _polish_scalar(series, lo, hi, elo, ehi, d)
+        if out is not None:
+            # np.mod and a stable argsort, in Python: the same remainder (fmod, then the
+            # sign of the divisor) and the same order
+            t, x1 = out
+            theta = [ti % _TWO_PI for ti in t]
+            order = sorted(range(len(theta)), key=theta.__getitem__)
+            lev = level_idx.tolist()
+            found = [theta[i] for i in order], [lev[i] for i in order], [x1[i] for i in order]
+            if as_lists:
+                return found
+            return np.array(found[0]), np.array(found[1], dtype=level_idx.dtype), np.array(found[2])
+    theta, d1 = _polish(series, lo, hi, elo, ehi, d)
     theta = np.mod(theta, _TWO_PI)
     order = np.argsort(theta, kind="stable")
     return theta[order], level_idx[order], d1[order]
+
+
+def _abs_max(a: np.ndarray) -> float:
+    """``max |a|`` (0 for an empty array) of finite levels (breakpoints are finite); Python's
+    max on a few elements is cheaper than the numpy call."""
+    if a.size <= 8:
+        return max(map(abs, a.tolist()), default=0.0)
+    return float(np.abs(a).max(initial=0.0))
 
 
 def switching_angles(basis: HarmonicBasis, u: ArrayLike, level: float) -> np.ndarray:
@@ -607,7 +751,13 @@ def crossing_intervals(
     bps = pwl.breakpoints
     if bps.size == 0:
         return CrossingIntervals(np.zeros(1), np.array([_TWO_PI]), np.array([0]), np.zeros(0))
-    theta, level, d1 = _crossings(series, bps)
+    theta, level, d1 = _crossings(series, bps, as_lists=True)
+    if isinstance(theta, list):
+        # the same differences and sums as below, in Python floats
+        length = [b - a for a, b in zip(theta, theta[1:], strict=False)]
+        length.append(theta[0] + _TWO_PI - theta[-1])
+        seg = [j + (x > 0.0) for j, x in zip(level, d1, strict=True)]
+        return CrossingIntervals(np.array(theta), np.array(length), np.array(seg), np.array(d1))
     if theta.size == 0:
         # no crossing: x stays in one closed segment, whose interior holds the mean
         seg = pwl.segment_index(np.array([series.a0]))
@@ -649,89 +799,116 @@ class ExactProjector:
         n_idx = np.concatenate([-ks[::-1], [0] if basis.bias else [], ks]).astype(int)
         j_idx = np.concatenate([[0] if basis.bias else [], ks]).astype(int)
         self.n_idx, self.j_idx = n_idx, j_idx
-        self.diff = (j_idx[:, None] - n_idx[None, :]) + 2 * K
-        # dX_n/du
-        P = np.zeros((n_idx.size, basis.size), dtype=complex)
-        nh = ks.size
-        off = nh + int(basis.bias)
-        ia, ib = basis.a_index, basis.b_index
-        for i in range(nh):
-            P[off + i, ia[i]] = 0.5
-            P[off + i, ib[i]] = -0.5j
-            P[nh - 1 - i, ia[i]] = 0.5
-            P[nh - 1 - i, ib[i]] = 0.5j
-        if basis.bias:
-            P[nh, 0] = 1.0
-        self.P = P
-        # P has two entries per column (a_k and b_k feed X_{+k} and X_{-k}), so the product
-        # Toeplitz(Q) P is two gathered columns per harmonic: O(H^2), not a dense O(H^3)
-        # matrix product
-        self._diff_plus = self.diff[:, off + np.arange(nh)]
-        self._diff_minus = self.diff[:, nh - 1 - np.arange(nh)]
-        self._diff_bias = self.diff[:, nh] if basis.bias else None
         self.n_freq = np.arange(1, 2 * K + 1)
-        # real rows from complex ones: [Re G_0], 2 Re G_k, -2 Im G_k, as one gather from
-        # the stacked [Re G; Im G]
-        nj = j_idx.size
-        rows = np.empty(basis.size, dtype=int)
-        factor = np.empty(basis.size)
+        # -i n for e^{-i n theta_c}, n = 1..2K
+        self._minus_in = -1j * self.n_freq
+        # the weights i / (2 pi n) of Q_n, C_n as real factors of (Re, Im) of sum_c ds_c
+        # e^{-i n theta_c}: (Re Q_n, Im Q_n) = w_n (-Im, Re)
+        self._w = (1j / (_TWO_PI * self.n_freq)).imag
+        self._slopes = np.ascontiguousarray(pwl.slopes, dtype=float)
+        self._offsets = np.ascontiguousarray(pwl.offsets, dtype=float)
+        self._before: dict[int, np.ndarray] = {}
+        self._gather_tables(basis)
+
+    def _gather_tables(self, basis: HarmonicBasis) -> None:
+        """Index tables of the real Jacobian and constant term as sums of two entries of the
+        spectrum buffers of :meth:`_spectra` read as floats.
+
+        With ``x``'s complex coefficients ``X_{+-k} = (a_k -+ i b_k)/2`` and ``G_j = sum_n
+        Q_{j-n} X_n`` (``Q_{-m} = conj Q_m``), the real rows ``Re G_0, 2 Re G_j, -2 Im G_j``
+        are, column by column (``a0``, ``a_k``, ``b_k``)::
+
+            a0 row:  Re Q_0            Re Q_k                   -Im Q_k
+            a_j row: 2 Re Q_j          Re Q_{j-k} + Re Q_{j+k}  Im Q_{j-k} - Im Q_{j+k}
+            b_j row: -2 Im Q_j         -Im Q_{j-k} - Im Q_{j+k}  Re Q_{j-k} - Re Q_{j+k}
+
+        and the constant ``Re C_0, 2 Re C_j, -2 Im C_j``: each entry a sum of two signed
+        entries (a single one plus an exact zero). The factors 1/2 and 2 of the complex
+        assembly are exact, so these sums round as it did.
+        """
+        S = 2 * self.K + 1
+
+        def re(kind: int, m: int, sign: int) -> int:
+            # sign * Re X_m (X = Q for kind 0, C for kind 1); Re X_{-m} = Re X_m
+            return (((1 if sign > 0 else 0) * 2 + kind) * S + abs(m)) * 2 + 1
+
+        def im(kind: int, m: int, sign: int) -> int:
+            # sign * Im X_m; Im X_{-m} = -Im X_m, Im X_0 = 0 (the zero at index 0)
+            if m == 0:
+                return 0
+            s = sign * (1 if m > 0 else -1)
+            return (((0 if s > 0 else 1) * 2 + kind) * S + abs(m)) * 2
+
+        n = basis.size
+        I1 = np.zeros((n, n), dtype=np.intp)
+        I2 = np.zeros((n, n), dtype=np.intp)
+        c1 = np.zeros(n, dtype=np.intp)
+        c2 = np.zeros(n, dtype=np.intp)
+        ia, ib = basis.a_index, basis.b_index
+        ks = [int(k) for k in basis.k]
         if basis.bias:
-            rows[0], factor[0] = 0, 1.0
-        rows[ia] = off_j = np.arange(int(basis.bias), nj)
-        rows[ib] = off_j + nj
-        factor[ia], factor[ib] = 2.0, -2.0
-        self.rows, self.factor = rows, factor
+            I1[0, 0] = re(0, 0, 1)
+            c1[0] = re(1, 0, 1)
+            for q, k in enumerate(ks):
+                I1[0, ia[q]] = re(0, k, 1)
+                I1[0, ib[q]] = im(0, k, -1)
+        for p, j in enumerate(ks):
+            aj, bj = ia[p], ib[p]
+            c1[aj] = c2[aj] = re(1, j, 1)
+            c1[bj] = c2[bj] = im(1, j, -1)
+            if basis.bias:
+                I1[aj, 0] = I2[aj, 0] = re(0, j, 1)
+                I1[bj, 0] = I2[bj, 0] = im(0, j, -1)
+            for q, k in enumerate(ks):
+                ak, bk = ia[q], ib[q]
+                I1[aj, ak], I2[aj, ak] = re(0, j - k, 1), re(0, j + k, 1)
+                I1[aj, bk], I2[aj, bk] = im(0, j + k, -1), im(0, j - k, 1)
+                I1[bj, ak], I2[bj, ak] = im(0, j - k, -1), im(0, j + k, -1)
+                I1[bj, bk], I2[bj, bk] = re(0, j + k, -1), re(0, j - k, 1)
+        self._I1, self._I2, self._c1, self._c2 = I1, I2, c1, c2
 
     def _spectra(
         self, pc: CrossingIntervals, with_jumps: bool
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """``Q_n, C_n`` for ``n = 0..2K`` (and the jump part of ``Q`` for the Jacobian)."""
-        s = self.pwl.slopes[pc.segment]
-        o = self.pwl.offsets[pc.segment]
-        Q = np.empty(2 * self.K + 1, dtype=complex)
-        C = np.empty(2 * self.K + 1, dtype=complex)
-        Q[0] = float(np.sum(s * pc.length)) / _TWO_PI
-        C[0] = float(np.sum(o * pc.length)) / _TWO_PI
-        if pc.d1.size == 0:
-            Q[1:] = 0.0
-            C[1:] = 0.0
-            return Q, C, None
-        before = np.arange(-1, s.size - 1)  # the interval ending at crossing c
-        ds = s[before] - s
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """The spectra of ``Q_n, C_n`` for ``n = 0..2K`` (and of the jump part of ``Q`` for
+        the Jacobian, else None) as complex buffers ``F[sign, kind, n]`` (``kind`` 0 for
+        ``Q``, 1 for ``C``): ``F[0, kind, n] = -i X_n = Im X_n - i Re X_n``, ``F[1] = -F[0]``;
+        read as floats, the entries that :meth:`_gather_tables` indexes."""
+        S = 2 * self.K + 1
+        F = np.empty((2, 2, S), dtype=complex)
+        F0 = F[0]
+        seg = pc.segment
+        s, o = self._slopes[seg], self._offsets[seg]  # of each interval
+        q0 = float((s * pc.length).sum()) / _TWO_PI
+        c0 = float((o * pc.length).sum()) / _TWO_PI
+        F0[:, 0] = (complex(0.0, -q0), complex(0.0, -c0))
+        M = pc.d1.size
+        if M == 0:
+            F0[:, 1:] = 0.0
+            np.negative(F0, out=F[1])
+            return F, None
+        before = self._before.get(M)
+        if before is None:
+            before = self._before[M] = np.arange(-1, M - 1)  # the interval ending at c
+        ds = s[before] - s  # the jumps of slope and offset at each crossing
         do = o[before] - o
-        E = np.exp(-1j * np.multiply.outer(self.n_freq, pc.start))  # (2K, M)
-        weight = 1j / (_TWO_PI * self.n_freq)
-        Q[1:] = weight * (E @ ds)
-        C[1:] = weight * (E @ do)
+        # -i Q_n = w_n sum_c ds_c e^{-i n theta_c}, w_n = 1 / (2 pi n) (likewise C): the
+        # products of the complex assembly
+        E = np.exp(np.multiply.outer(self._minus_in, pc.start))  # (2K, M)
+        w = self._w
+        np.multiply(E @ ds, w, out=F0[0, 1:])
+        np.multiply(E @ do, w, out=F0[1, 1:])
+        np.negative(F0, out=F[1])
         Z = None
         if with_jumps and not self.continuous:
-            x_c = self.pwl.breakpoints[np.minimum(pc.segment, pc.segment[before])]
+            x_c = self.pwl.breakpoints[np.minimum(seg, seg[before])]
             jump = (-(ds) * x_c - do) / pc.d1
-            jump = np.where(pc.segment == pc.segment[before], 0.0, jump)
-            Z = np.empty(2 * self.K + 1, dtype=complex)
-            Z[0] = float(np.sum(jump)) / _TWO_PI
-            Z[1:] = (E @ jump) / _TWO_PI
-        return Q, C, Z
-
-    def _toeplitz(self, Q: np.ndarray) -> np.ndarray:
-        full = np.concatenate([np.conj(Q[:0:-1]), Q])  # n = -2K .. 2K
-        return full[self.diff]
-
-    def _toeplitz_times_P(self, Q: np.ndarray) -> np.ndarray:
-        """``Toeplitz(Q) @ P`` assembled column by column in O(H^2)."""
-        full = np.concatenate([np.conj(Q[:0:-1]), Q])  # n = -2K .. 2K
-        plus, minus = full[self._diff_plus], full[self._diff_minus]
-        out = np.empty((self.diff.shape[0], self.basis.size), dtype=complex)
-        out[:, self.basis.a_index] = 0.5 * (plus + minus)
-        out[:, self.basis.b_index] = 0.5j * (minus - plus)
-        if self._diff_bias is not None:
-            out[:, 0] = full[self._diff_bias]
-        return out
-
-    def _real(self, G: np.ndarray) -> np.ndarray:
-        """Real residual rows from complex projections ``G_j`` (a vector or matrix rows)."""
-        stacked = np.concatenate([G.real, G.imag])[self.rows]
-        return stacked * (self.factor if G.ndim == 1 else self.factor[:, None])
+            jump = np.where(seg == seg[before], 0.0, jump)
+            Z = np.zeros((2, 2, S), dtype=complex)
+            Z[0, 0, 0] = complex(0.0, -float(np.sum(jump)) / _TWO_PI)
+            Z[0, 0, 1:] = -1j * ((E @ jump) * (1.0 / _TWO_PI))
+            np.negative(Z[0], out=Z[1])
+        return F, Z
 
     def project(
         self, u: np.ndarray, jacobian: bool = True, series: TruncatedSeries | None = None
@@ -760,15 +937,17 @@ class ExactProjector:
         """
         series = series if series is not None else TruncatedSeries(self.basis, u)
         pc = crossing_intervals(self.pwl, self.basis, series)
-        Q, C, Z = self._spectra(pc, jacobian)
+        F, Z = self._spectra(pc, jacobian)
         # f(x(theta)) = q x + c exactly, so proj = (Toeplitz(Q) P) u + C: the matrix is the
         # Jacobian of a continuous force
-        TP = self._real(self._toeplitz_times_P(Q))
-        proj = TP @ u + self._real(C[self.j_idx])
+        F = F.view(float).reshape(-1)
+        TP = F[self._I1] + F[self._I2]
+        proj = TP @ u + (F[self._c1] + F[self._c2])
         if not jacobian:
             return proj, None, pc
         if Z is not None:
-            TP = TP + self._real(self._toeplitz_times_P(Z))
+            Z = Z.view(float).reshape(-1)
+            TP = TP + (Z[self._I1] + Z[self._I2])
         return proj, TP, pc
 
 
