@@ -296,15 +296,17 @@ class _LevelTables:
         r = 0.5 * grid.h
         r2 = 0.5 * r * r
         self.r, self.r2, self.r3 = r, r2, r * r2 / 3.0
-        blocks = [grid.stack[j * N : (j + 1) * N] for j in range(4)]
-        # rows: x, x', x'' at the midpoints, x at the left ends, each block L times (all
+        blocks = [grid.stack[j * N : (j + 1) * N] for j in (0, 1, 2, 2, 3)]
+        # rows: x, x', x'', x'' at the midpoints, x at the left ends, each block L times (all
         # blocks a multiple of 4 rows: the product's rows come out as those of grid.stack)
         self.stack = np.ascontiguousarray(np.concatenate([np.tile(b, (L, 1)) for b in blocks]))
         self.levels = np.repeat(levels, N)
-        # r |x'|, r^2/2 |x''| from |x'|, |x''|; r |x''|; the constants (times B_3) of the
-        # exclusion bound and of the monotonicity bound
-        self.r_r2 = np.concatenate([np.full(self.LN, r), np.full(self.LN, r2)])
-        self.r_only = np.full(self.LN, r)
+        self.abs_max = _abs_max(levels)
+        # r |x'|, r^2/2 |x''|, r |x''| from |x'|, |x''|, |x''|; the constants (times B_3) of
+        # the exclusion bound and of the monotonicity bound
+        self.r_r2_r = np.concatenate(
+            [np.full(self.LN, r), np.full(self.LN, r2), np.full(self.LN, r)]
+        )
         self.r3_r2 = np.concatenate([np.full(self.LN, self.r3), np.full(self.LN, r2)])
         cells = np.tile(np.arange(N), L)
         self.level = np.repeat(np.arange(L), N)
@@ -539,7 +541,7 @@ def _polish_scalar(series, lo, hi, elo, ehi, d):
         for _ in range(7):
             vals = (np.exp(np.multiply.outer(np.array(t), iks)) @ coef).real.tolist()
             f = [(v[0] + a0) - di for v, di in zip(vals, d_l, strict=True)]
-            if all(abs(fi) <= ftol for fi in f):
+            if all(map(ftol.__ge__, map(abs, f))):  # NaN compares False
                 break
             t = [
                 ti - 2.0 * fi * v[1] / (2.0 * v[1] * v[1] - fi * v[2])
@@ -603,31 +605,30 @@ def _crossings(series: TruncatedSeries, levels: np.ndarray, as_lists: bool = Fal
     T = grid.tables(levels)
     LN = T.LN
     v = T.stack @ series.u
-    a12 = np.abs(v[LN : 3 * LN])  # |x'|, |x''| at the midpoints
-    slack = 64 * _EPS * (series.scale + _abs_max(levels))
+    a = np.abs(v[LN : 4 * LN])  # |x'|, |x''|, |x''| at the midpoints
+    slack = 64 * _EPS * (series.scale + T.abs_max)
     # the exclusion and monotonicity tests of _taylor_tests, the same expressions in the
     # same order (the extremum test is not needed on the grid):
     # |x - d| > r |x'| + r^2/2 |x''| + r^3/6 B_3 + slack and |x'| > r |x''| + r^2/2 B_3 + slack
-    p = a12 * T.r_r2
-    w = np.empty(2 * LN)
-    np.add(p[:LN], p[LN:], out=w[:LN])
-    np.multiply(a12[LN:], T.r_only, out=w[LN:])
+    p = a * T.r_r2_r
+    w = p[LN:]  # (r |x'| + r^2/2 |x''|, r |x''|)
+    np.add(p[:LN], w[:LN], out=w[:LN])
     w += T.r3_r2 * series.B[3]
     w += slack
     excluded = np.abs(v[:LN] - T.levels) > w[:LN]
-    monotone = a12[:LN] > w[LN:]
-    e = v[3 * LN :] - T.levels  # x - d at the left ends
+    monotone = a[:LN] > w[LN:]
+    e = v[4 * LN :] - T.levels  # x - d at the left ends
     pos = e >= 0.0
     # on booleans a > b is a & ~b: monotone, not excluded, and a sign change
-    simple = np.flatnonzero((monotone > excluded) & (pos != pos[T.next]))
+    simple = ((monotone > excluded) & (pos != pos[T.next])).nonzero()[0]
     lo = T.lo[simple]
     hi = T.hi[simple]
     elo = e[simple]
     ehi = e[T.next[simple]]
     level_idx = T.level[simple]
     settled = excluded | monotone
-    if not settled.all():  # hard cells: neither excluded nor monotone
-        hard = np.flatnonzero(~settled)
+    if not np.logical_and.reduce(settled):  # hard cells: neither excluded nor monotone
+        hard = (~settled).nonzero()[0]
         hard_l, hard_i = T.level[hard], T.cell[hard]
         e_a, e_b = e[hard], e[T.next[hard]]
         points = grid.points
@@ -865,7 +866,8 @@ class ExactProjector:
                 I1[aj, bk], I2[aj, bk] = im(0, j + k, -1), im(0, j - k, 1)
                 I1[bj, ak], I2[bj, ak] = im(0, j - k, -1), im(0, j + k, -1)
                 I1[bj, bk], I2[bj, bk] = re(0, j + k, -1), re(0, j - k, 1)
-        self._I1, self._I2, self._c1, self._c2 = I1, I2, c1, c2
+        # the constant as one more row: one pair of gathers for both
+        self._I1, self._I2 = np.vstack([I1, c1]), np.vstack([I2, c2])
 
     def _spectra(
         self, pc: CrossingIntervals, with_jumps: bool
@@ -879,8 +881,8 @@ class ExactProjector:
         F0 = F[0]
         seg = pc.segment
         s, o = self._slopes[seg], self._offsets[seg]  # of each interval
-        q0 = float((s * pc.length).sum()) / _TWO_PI
-        c0 = float((o * pc.length).sum()) / _TWO_PI
+        q0 = float(np.add.reduce(s * pc.length)) / _TWO_PI  # = np.sum (pairwise)
+        c0 = float(np.add.reduce(o * pc.length)) / _TWO_PI
         F0[:, 0] = (complex(0.0, -q0), complex(0.0, -c0))
         M = pc.d1.size
         if M == 0:
@@ -941,13 +943,15 @@ class ExactProjector:
         # f(x(theta)) = q x + c exactly, so proj = (Toeplitz(Q) P) u + C: the matrix is the
         # Jacobian of a continuous force
         F = F.view(float).reshape(-1)
-        TP = F[self._I1] + F[self._I2]
-        proj = TP @ u + (F[self._c1] + F[self._c2])
+        G = F[self._I1] + F[self._I2]  # (n + 1, n): the matrix, then the constant
+        n = G.shape[1]
+        TP = G[:n]
+        proj = TP @ u + G[n]
         if not jacobian:
             return proj, None, pc
         if Z is not None:
             Z = Z.view(float).reshape(-1)
-            TP = TP + (Z[self._I1] + Z[self._I2])
+            TP = TP + (Z[self._I1[:n]] + Z[self._I2[:n]])
         return proj, TP, pc
 
 
