@@ -94,8 +94,9 @@ _GRID_MIN = 16
 _MAX_DEPTH = 40
 _TWO_PI = 2.0 * math.pi
 _EPS = float(np.finfo(float).eps)
-#: Most level sets whose tables a grid keeps.
+#: Most level sets whose tables a grid keeps, and most bytes of their tiled design rows.
 _LEVEL_TABLES = 16
+_LEVEL_TABLES_BYTES = 32 * 2**20
 #: Most roots polished with Python-float arithmetic (numpy's per-call cost dominates below).
 _SCALAR_ROOTS = 16
 
@@ -275,13 +276,18 @@ class _Grid:
         self._levels: dict[bytes, _LevelTables] = {}
 
     def tables(self, levels: np.ndarray) -> _LevelTables:
-        """The tables of the crossing search at ``levels`` (cached, a few sets)."""
+        """The tables of the crossing search at ``levels`` (cached: a few sets, a few MB)."""
         key = levels.tobytes()
         t = self._levels.get(key)
         if t is None:
-            if len(self._levels) >= _LEVEL_TABLES:
+            t = _LevelTables(self, levels)
+            if (
+                len(self._levels) >= _LEVEL_TABLES
+                or sum(v.stack.nbytes for v in self._levels.values()) + t.stack.nbytes
+                > _LEVEL_TABLES_BYTES
+            ):
                 self._levels.clear()
-            t = self._levels[key] = _LevelTables(self, levels)
+            self._levels[key] = t
         return t
 
 
@@ -362,11 +368,22 @@ class TruncatedSeries:
         # x = a0 + Re sum c_k e^{ik theta}
         self.B = grid.k_pow @ np.abs(self.c)
         self.scale = abs(self.a0) + float(self.B[0])
+        self._coefficients: np.ndarray | None = None  # built by values
+        self._columns: dict[tuple, np.ndarray] = {}
 
-    @cached_property
+    @property
     def _derivative_coefficients(self) -> np.ndarray:
         # column j: the complex coefficients of the j-th derivative, c_k (i k)^j, j = 0..3
-        return self.c[:, None] * self.grid.ik_pow
+        if self._coefficients is None:
+            self._coefficients = self.c[:, None] * self.grid.ik_pow
+        return self._coefficients
+
+    def columns(self, orders: tuple[int, ...]) -> np.ndarray:
+        """The coefficient columns ``c_k (i k)^j`` for ``j`` in ``orders`` (cached)."""
+        cols = self._columns.get(orders)
+        if cols is None:
+            cols = self._columns[orders] = self._derivative_coefficients[:, list(orders)]
+        return cols
 
     def values(self, theta: np.ndarray, orders: Sequence[int] = (0,)) -> list[np.ndarray]:
         """``x`` and its derivatives in ``theta``.
@@ -384,10 +401,12 @@ class TruncatedSeries:
             One array shaped like ``theta`` per order, in the order asked.
         """
         e = np.exp(np.multiply.outer(theta, self.grid.iks))
-        # one matrix product for every order asked (the root polishing asks for three)
-        vals = (e @ self._derivative_coefficients[:, list(orders)]).real
+        # one matrix product for every order asked (the root polishing asks for three); the
+        # columns of each tuple of orders gathered once per series
+        key = tuple(orders)
+        vals = (e @ self.columns(key)).real
         out = []
-        for col, j in enumerate(orders):
+        for col, j in enumerate(key):
             out.append(vals[..., col] + self.a0 if j == 0 else vals[..., col])
         return out
 
@@ -397,9 +416,10 @@ def _taylor_tests(x0, x1, x2, x3, r, B, slack):
     midpoint (third-order Taylor bounds with the global ``B_3``, ``B_4``): no root of
     ``x - d`` (``x0`` is ``x(c) - d``), ``x`` monotone, ``x'`` monotone."""
     r2 = 0.5 * r * r
-    excluded = np.abs(x0) > r * np.abs(x1) + r2 * np.abs(x2) + (r * r2 / 3.0) * B[3] + slack
-    monotone = np.abs(x1) > r * np.abs(x2) + r2 * B[3] + slack
-    one_extremum = np.abs(x2) > r * np.abs(x3) + r2 * B[4] + slack
+    B3, B4 = float(B[3]), float(B[4])  # Python floats: the same double arithmetic, cheaper
+    excluded = abs(x0) > r * abs(x1) + r2 * abs(x2) + (r * r2 / 3.0) * B3 + slack
+    monotone = abs(x1) > r * abs(x2) + r2 * B3 + slack
+    one_extremum = abs(x2) > r * abs(x3) + r2 * B4 + slack
     return excluded, monotone, one_extremum
 
 
@@ -411,9 +431,10 @@ def _extremum(series: TruncatedSeries, a: float, b: float, d1a: float, d1b: floa
     """The zero of ``x'`` in ``[a, b]`` (``x'`` monotone there, opposite signs at the ends)."""
     lo, hi, flo = a, b, d1a
     t = a - d1a * (b - a) / (d1b - d1a)
+    iks, cols = series.grid.iks, series.columns((1, 2))
     for _ in range(60):
-        d1, d2 = series.values(np.array([t]), (1, 2))
-        d1, d2 = float(d1[0]), float(d2[0])
+        # series.values(np.array([t]), (1, 2)), the same product
+        ((d1, d2),) = (np.exp(np.multiply.outer(np.array([t]), iks)) @ cols).real.tolist()
         if d1 == 0.0:
             return t
         if (d1 > 0) == (flo > 0):
