@@ -168,6 +168,7 @@ from perturb.numeric.continuation import (
     branch_off,
     continue_curve,
 )
+from perturb.numeric.edge_solutions import edge_solutions
 from perturb.response import Branch, Response
 
 __all__ = [
@@ -2286,6 +2287,10 @@ _FOLD_SEEDS = 6
 #: Newton steps per seed start, and Armijo halvings per step.
 _SEED_NEWTON = 12
 _SEED_HALVINGS = 6
+#: Window edges: rounds of outward tracing per edge (each from the edge ends of the branches
+#: the round before added), and how far past the edge, as a fraction of the window's width.
+_EDGE_ROUNDS = 3
+_EDGE_MARGIN = 0.1
 
 
 def _mirror_operator(sb: SystemBalance) -> np.ndarray:
@@ -2559,6 +2564,7 @@ class SystemBalanceResponse:
     origins : tuple of str
         Per branch: ``'edge'`` (seeded at a window edge), ``'interior'`` (seeded inside),
         ``'fold'`` (seeded at another branch's fold), ``'branch point'`` (switched onto),
+        ``'edge trace'`` (reached by tracing a branch past a window edge and back),
         ``'attractor'`` (from a simulation's settled orbit),
         ``'mirror'`` (odd-symmetry image of another branch, not traced), ``'listed'`` (a
         solution at a listed frequency).
@@ -2656,6 +2662,13 @@ def system_balance_response(
        detached loop); a branch whose nine sample points all lie on known branches is
        dropped (a retrace). The fold frequencies of every branch kept are seeded again (at
        most 6, half the starts): detached loops cluster where other branches turn.
+       Then every branch end on a window edge is traced out of the window, at most 10 % of
+       its width past the edge (:func:`perturb.numeric.edge_solutions.edge_solutions`); a
+       run that turns outside and comes back to the edge ends on a branch that leaves and
+       re-enters the window there, which no seed may reach (the unstable multi-impact pair
+       of the impact pair on 0.800..0.865 of (0.8, 1.3)); it is traced
+       (``origin='edge trace'``), and so are the edge ends of the branches this adds (at
+       most 3 rounds per edge).
     2. Branch switching (``branch_points``): every branch is traced with the branch-point
        test of the continuation core; at each branch point a point on the other curve on
        each side (:func:`perturb.numeric.continuation.branch_off`) is traced unless it lies
@@ -2871,6 +2884,39 @@ def system_balance_response(
                 continue
             add(u, W, kind)
         switch()
+    # stage 1b: branches that leave and re-enter the window through an edge, which no seed
+    # there may reach: the branch ends on the edge traced a margin past it; a run that comes
+    # back to the edge ends on such a branch (perturb.numeric.edge_solutions)
+    for W, side in ((lo, -1), (hi, 1)):
+        start = 0
+        for _ in range(_EDGE_ROUNDS):
+            ends = [
+                br.U.reshape(len(br), -1)[j]
+                for br in found[start:]
+                for j in (0, -1)
+                if abs(float(br.Omega[j]) - W) <= 1e-9 * width
+            ]
+            start = len(found)
+            if not ends or len(found) >= max_branches:
+                break
+            for u in edge_solutions(
+                sb,
+                W,
+                known=ends,
+                outward=side,
+                margin=_EDGE_MARGIN * width,
+                homotopy_points=0,
+                ds_max=ds_max,
+                tol=tol,
+            ):
+                if len(found) >= max_branches:
+                    break
+                traced = found + ([image(i) for i in range(len(found))] if Q is not None else [])
+                if not _on_any(traced, u, W, width, _ON_CURVE):
+                    add(u, W, "edge trace")
+                    switch()
+            if len(found) == start:
+                break
     if attractors and len(found) < max_branches:
         # stage 4: the orbits a simulation settles on, at frequencies 2 % apart (the
         # multi-impact orbits of a lightly damped clearance, which no frozen segment or
