@@ -26,6 +26,9 @@ timed alternately (on a shared machine only the ratio within one run is meaningf
    system that ``harmonic_balance`` keeps between calls replaced), and whether the responses
    are identical (branch count, origins, and every array of every branch: Omega,
    coefficients, amplitudes, multiplier modulus, by ``np.array_equal``).
+3. **Rough signals**: 200 random signals with 1/k spectra (nsd and a force with a jump,
+   H = 5, 15, 63), where many grid cells are hard (an extremum near a breakpoint) and the
+   certified isolation bisects and locates extrema: per call, and outputs equal.
 """
 
 from __future__ import annotations
@@ -220,6 +223,48 @@ def whole(call, module, old, repeat: int) -> None:
     )
 
 
+def rough(old, repeat: int) -> None:
+    """Random signals with 1/k spectra (many hard cells: extrema near the breakpoints)."""
+    from perturb.model.pwl import NumericPWL
+
+    nsd = NumericPWL(np.array([-1.0, 1.0]), np.array([1.0, -0.5, 1.0]), np.array([1.5, 0.0, -1.5]))
+    jump = NumericPWL(np.array([0.5]), np.array([1.0, 2.0]), np.array([0.0, 0.3]))
+    rng = np.random.default_rng(1)
+    for H, pwl, name in ((63, nsd, "nsd"), (15, nsd, "nsd"), (15, jump, "jump"), (5, nsd, "nsd")):
+        basis = current.HarmonicBasis.make(H)
+        ks = np.arange(1, H + 1)
+        us = []
+        for _ in range(200):
+            u = np.zeros(basis.size)
+            u[0] = rng.uniform(-0.5, 0.5)
+            u[1::2] = 2.0 * rng.standard_normal(H) / ks
+            u[2::2] = 2.0 * rng.standard_normal(H) / ks
+            us.append(u)
+        po, pn = old.ExactProjector(pwl, basis), current.ExactProjector(pwl, basis)
+        best = {"baseline": np.inf, "current": np.inf}
+        for _ in range(repeat):
+            for label, p in (("baseline", po), ("current", pn)):
+                t0 = time.process_time()
+                for u in us:
+                    p.project(u)
+                best[label] = min(best[label], (time.process_time() - t0) / len(us))
+        equal = 0
+        for u in us:
+            a, b = po.project(u), pn.project(u)
+            equal += bool(
+                np.array_equal(a[0], b[0])
+                and np.array_equal(a[1], b[1])
+                and all(
+                    np.array_equal(getattr(a[2], f), getattr(b[2], f))
+                    for f in ("start", "length", "segment", "d1")
+                )
+            )
+        print(
+            f"   H = {H}, {name}: baseline {best['baseline'] * 1e6:.0f} us/call, current "
+            f"{best['current'] * 1e6:.0f} us/call; outputs np.array_equal in {equal} of {len(us)}"
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--baseline-rev", default="d68d82b~1", help="git revision of the baseline")
@@ -243,6 +288,8 @@ def main() -> None:
         for label, (call, module) in CALLS.items():
             print(f" {label}")
             whole(call, module, old, args.repeat)
+    print("== 3. 200 rough signals (1/k spectra, a0 in [-0.5, 0.5]: many hard cells), seed 1")
+    rough(old, args.repeat)
 
 
 if __name__ == "__main__":

@@ -302,11 +302,11 @@ class _LevelTables:
         r = 0.5 * grid.h
         r2 = 0.5 * r * r
         self.r, self.r2, self.r3 = r, r2, r * r2 / 3.0
-        blocks = [grid.stack[j * N : (j + 1) * N] for j in (0, 1, 2, 2, 3)]
-        # rows: x, x', x'', x'' at the midpoints, x at the left ends, each block L times (all
+        blocks = [grid.stack[j * N : (j + 1) * N] for j in (1, 2, 2, 0, 3)]
+        # rows: x', x'', x'', x at the midpoints, x at the left ends, each block L times (all
         # blocks a multiple of 4 rows: the product's rows come out as those of grid.stack)
         self.stack = np.ascontiguousarray(np.concatenate([np.tile(b, (L, 1)) for b in blocks]))
-        self.levels = np.repeat(levels, N)
+        self.levels2 = np.tile(np.repeat(levels, N), 2)  # for x at the midpoints and ends
         self.abs_max = _abs_max(levels)
         # r |x'|, r^2/2 |x''|, r |x''| from |x'|, |x''|, |x''|; the constants (times B_3) of
         # the exclusion bound and of the monotonicity bound
@@ -626,7 +626,7 @@ def _crossings(series: TruncatedSeries, levels: np.ndarray, as_lists: bool = Fal
     T = grid.tables(levels)
     LN = T.LN
     v = T.stack @ series.u
-    a = np.abs(v[LN : 4 * LN])  # |x'|, |x''|, |x''| at the midpoints
+    a = np.abs(v[: 3 * LN])  # |x'|, |x''|, |x''| at the midpoints
     slack = 64 * _EPS * (series.scale + T.abs_max)
     # the exclusion and monotonicity tests of _taylor_tests, the same expressions in the
     # same order (the extremum test is not needed on the grid):
@@ -636,9 +636,10 @@ def _crossings(series: TruncatedSeries, levels: np.ndarray, as_lists: bool = Fal
     np.add(p[:LN], w[:LN], out=w[:LN])
     w += T.r3_r2 * series.B[3]
     w += slack
-    excluded = np.abs(v[:LN] - T.levels) > w[:LN]
+    xd = v[3 * LN :] - T.levels2  # x - d at the midpoints, then at the left ends
+    excluded = np.abs(xd[:LN]) > w[:LN]
     monotone = a[:LN] > w[LN:]
-    e = v[4 * LN :] - T.levels  # x - d at the left ends
+    e = xd[LN:]
     pos = e >= 0.0
     # on booleans a > b is a & ~b: monotone, not excluded, and a sign change
     simple = ((monotone > excluded) & (pos != pos[T.next])).nonzero()[0]
