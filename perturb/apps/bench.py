@@ -119,9 +119,10 @@ class Problem:
         return builtin_model(self.model, **self.params)
 
 
-#: Window of the impact pair: around the primary resonance (7 exact branches, ~6 s CPU for
-#: the exact response). Numeric HB with H >= 3 finds no start there (the free mass in the
-#: clearance: numeric/system_balance.py "Known limit"); its rows say so.
+#: Window of the impact pair: around the primary resonance (9 exact branches). Numeric HB
+#: finds every one of them at H = 1..63 (2026-11-27), but its error stays at 0.15-0.43 there:
+#: unstable low-frequency orbits and the non-isolated orbits of the free mass in the clearance
+#: (numeric/system_balance.py "Known limit").
 IMPACT_PAIR_WINDOW = (0.6, 1.4)
 
 #: The fixed problem set (issue 7 item 1; the systems nsd2 and impact_pair, issue 16).

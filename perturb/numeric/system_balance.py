@@ -106,7 +106,10 @@ pair's trajectories settle on is sensitive to rounding (a relative change of 1e-
 states changes most of its starts, either step): over the unchanged and two such perturbed
 starts, H = 15, (0.8, 1.3) misses 22 / 47 / 44 points (the 0.3 step 43 / 43 / 43), (0.6, 1.4)
 0 / 0 / 0 (2 / 0 / 84). Still missed: loops of the impact pair that no simulated trajectory
-settles on (unstable all along, or basins the 12 states miss).
+settles on (unstable all along, or basins the 12 states miss); the unstable multi-impact
+mirror pair on 0.800..0.865 of (0.8, 1.3), which leaves and re-enters through the low edge, is
+reached by stage 1b (branch ends traced past the edge, :mod:`perturb.numeric.edge_solutions`),
+attractors or not.
 
 Measured (``benchmarks/bench_system_balance.py --parts 1b --baseline FILE``, CPU, one
 process, load average ~3 on 2 cores): nsd2, H = 15, every branch over (0.5, 2) with multipliers
@@ -130,7 +133,12 @@ with a gap each (``bench_system_balance_chain.py``): the assembly (residual, exa
 projections, Jacobian) grows linearly in n; the dense bordered LU of the continuation core
 (it takes dense matrices) is the cubic term from n ~ 16 at H = 15. Accuracy
 (``bench_system_balance_accuracy.py``, H = 1..63): nsd2's max|x_j| errors within 1.35x of the
-orbit's truncation floor at every H; the impact pair's within 2x from H ~ 31 on.
+orbit's truncation floor at every H; the impact pair's (mu2 = 0.2, Omega = 1.2) 2-68x its
+floor for H <= 22 and 2-22x at some H above (``bench_impact_pair_galerkin.py``): that is the
+Galerkin solution itself -- an independent solver (switching points, Gauss quadrature, its own
+Newton) gives the same coefficients to 7e-13 at every H = 1..63; the contact (~9x the forcing
+frequency) is unresolved below H ~ 21, and in the sup norm of x - x_H the error is within 1.5x
+of the tail's from H = 23 on.
 """
 
 from __future__ import annotations
