@@ -583,6 +583,17 @@ class Tracer:
             n_far = int(np.searchsorted(np.asarray(cum), s_new - gap, side="right"))  # NaN
         n_far = min(n_far, len(pts) - 3)
         if own_loop and n_far >= 2 and on(own, 0, n_far - 1):
+            # a loop closes where it began; a march that runs onto its own earlier part
+            # farther along is not back at its start but past a sharp (grazing) fold whose two
+            # sides lie within the join distance (impact_pair at Omega ~ 0.9698): the curve
+            # beyond the start, in the other direction, is still to be traced
+            k = own.near(kn, h, 0, n_far - 1)
+            if k >= 0 and cum[k] > 2.0 * gap:
+                return (
+                    f"ran onto its own earlier part at {self.eng.family.parameter} = "
+                    f"{new.p:.8g} (a sharp fold)",
+                    False,
+                )
             return "closed loop", True
         if len(other) >= 2:
             k0 = int(np.searchsorted(other_cum, gap - s_new, side="left"))
