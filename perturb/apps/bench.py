@@ -120,9 +120,9 @@ class Problem:
 
 
 #: Window of the impact pair: around the primary resonance (9 exact branches). Numeric HB
-#: finds every one of them at H = 1..63 (2026-11-27), but its error stays at 0.15-0.43 there:
-#: unstable low-frequency orbits and the non-isolated orbits of the free mass in the clearance
-#: (numeric/system_balance.py "Known limit").
+#: finds every one of them at H = 1..63 (2026-11-27), but its max error stays at 0.15-0.19:
+#: at the sharp folds of grazing contacts the HB fold lies ~1e-5 in Omega from the exact one,
+#: and the HB points past it (no exact orbit there) are compared with the other side.
 IMPACT_PAIR_WINDOW = (0.6, 1.4)
 
 #: The fixed problem set (issue 7 item 1; the systems nsd2 and impact_pair, issue 16).
