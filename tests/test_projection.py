@@ -16,6 +16,7 @@ import mpmath as mp
 import numpy as np
 import pytest
 
+from perturb.errors import ParameterError
 from perturb.fourier.projection import (
     CrossingIntervals,
     ExactProjector,
@@ -217,3 +218,66 @@ def test_switching_angles_and_intervals_match_mpmath_crossings(signal_name):
     np.testing.assert_array_equal(proj, pwl_projection(pwl, basis, u))
     np.testing.assert_array_equal(pieces.start, pc.start)
     assert jac.shape == (basis.size, basis.size)
+
+
+def _no_hang(seconds: int):
+    """An alarm that turns a hang (the bisection of a cell no test can decide) into a failure
+    instead of a stuck test run."""
+    import signal
+
+    def fail(signum, frame):
+        raise TimeoutError(f"took more than {seconds} s")
+
+    signal.signal(signal.SIGALRM, fail)
+    signal.alarm(seconds)
+
+
+@pytest.mark.parametrize("level_shift", [0.0, 1.0])
+def test_a_constant_signal_on_a_breakpoint_has_no_crossing_and_finishes(level_shift):
+    """x(theta) == d on the whole period: every grid cell is undecided by the Taylor tests
+    (x - d, x', x'' all zero); it used to be bisected to the depth cap (2^40 calls per cell,
+    a hang: the zero signal of a bilinear force kinked at 0, as SystemBalance.linear_guess
+    evaluates it). The projection of a constant signal is the constant f(d), f evaluated
+    directly."""
+    import signal
+
+    bps = np.array([-1.0, 0.0, 1.0])
+    # continuous: slopes 1, 4, 2, 0.5 with offsets that join the pieces at -1, 0 and 1
+    pwl = NumericPWL(bps, np.array([1.0, 4.0, 2.0, 0.5]), np.array([-3.0, 0.0, 0.0, 1.5]))
+    basis = HarmonicBasis.make(5)
+    d = float(bps[1] + level_shift)
+    u = np.zeros(basis.size)
+    u[0] = d
+    _no_hang(60)
+    try:
+        ci = crossing_intervals(pwl, basis, TruncatedSeries(basis, u))
+        proj, J = pwl_projection(pwl, basis, u, jacobian=True)
+        assert switching_angles(basis, u, d).size == 0
+    finally:
+        signal.alarm(0)
+    assert ci.start.size == 1 and ci.d1.size == 0
+    expected = np.zeros(basis.size)
+    expected[0] = float(pwl(np.array([d]))[0])
+    np.testing.assert_allclose(proj, expected, atol=1e-14)
+    assert np.all(np.isfinite(J))
+
+
+def test_non_finite_coefficients_are_refused_by_name():
+    """NaN or inf coefficients defeat every isolation test (they used to hang the crossing
+    search); the crossing search refuses them."""
+    import signal
+
+    basis = HarmonicBasis.make(3)
+    for bad in (np.inf, np.nan):
+        u = np.zeros(basis.size)
+        u[1] = bad
+        _no_hang(60)
+        try:
+            with pytest.raises(ParameterError, match="finite"):
+                crossing_intervals(
+                    builtin_model("bilinear").piecewise_linear().numeric(),
+                    basis,
+                    TruncatedSeries(basis, u),
+                )
+        finally:
+            signal.alarm(0)

@@ -469,6 +469,10 @@ def _isolate_hard(
     excluded, monotone, one_extremum = _taylor_tests(e, x1, x2, x3, r, series.B, slack)
     if excluded:
         return []
+    if abs(e) + r * abs(x1) + 0.5 * r * r * abs(x2) + (r**3 / 6.0) * series.B[3] <= slack:
+        # x stays within rounding of d on the whole interval (x == d constant, the zero
+        # signal on a breakpoint at 0): no crossing, and bisecting it would never decide
+        return []
     if monotone or depth >= _MAX_DEPTH:
         return [(a, b, ea, eb)] if _sign_change(ea, eb) else []
     if one_extremum:
@@ -622,6 +626,12 @@ def _crossings(series: TruncatedSeries, levels: np.ndarray, as_lists: bool = Fal
     """All crossings of ``x(theta) = d`` for ``d`` in ``levels``: sorted angles in
     ``[0, 2 pi)``, the level index of each and ``x'`` there (arrays; Python lists with
     ``as_lists`` when the few-roots path found them, for :func:`crossing_intervals`)."""
+    if not math.isfinite(series.scale):
+        # NaN/inf coefficients defeat every isolation test (each cell would be bisected to
+        # the depth cap: 2^40 calls)
+        raise ParameterError(
+            f"the signal's Fourier coefficients must be finite, got bound {series.scale!r}"
+        )
     grid = series.grid
     T = grid.tables(levels)
     LN = T.LN
