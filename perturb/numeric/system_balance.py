@@ -1227,21 +1227,7 @@ class SystemBalance:
             pieces[idx] = pc
             if pc.d1.size:
                 cuts.append(pc.start)
-        th = np.unique(np.concatenate(cuts))
-        th = th[(th >= 0.0) & (th <= _TWO_PI)]
-        a, b = th[:-1], th[1:]
-        keep = b > a
-        a, b = a[keep], b[keep]
-        mid = 0.5 * (a + b)
-        segs = []
-        for idx in range(len(self.elements)):
-            pc = pieces[idx]
-            if pc.d1.size == 0:
-                segs.append(np.full(mid.size, int(pc.segment[0])))
-            else:
-                j = np.searchsorted(pc.start, mid, side="right") - 1
-                segs.append(pc.segment[j % pc.segment.size])
-        rows = np.array(segs).T.tolist() if segs else [[]] * mid.size
+        a, b, rows = _segment_intervals(cuts, pieces, len(self.elements))
         jumps = any(not el.projector.continuous for el in self.elements)
         dts = (b - a) / w
         Mono = np.eye(self.system.n)
@@ -1367,21 +1353,7 @@ class SystemBalance:
             for idx in range(len(self.elements)):
                 if pieces[idx].d1.size:
                     cuts.append(pieces[idx].start)
-            th = np.unique(np.concatenate(cuts))
-            th = th[(th >= 0.0) & (th <= _TWO_PI)]
-            a, b = th[:-1], th[1:]
-            keep = b > a
-            a, b = a[keep], b[keep]
-            mid = 0.5 * (a + b)
-            segs = []
-            for idx in range(len(self.elements)):
-                pc = pieces[idx]
-                if pc.d1.size == 0:
-                    segs.append(np.full(mid.size, int(pc.segment[0])))
-                else:
-                    j = np.searchsorted(pc.start, mid, side="right") - 1
-                    segs.append(pc.segment[j % pc.segment.size])
-            rows = np.array(segs).T.tolist() if segs else [[]] * mid.size
+            a, b, rows = _segment_intervals(cuts, pieces, len(self.elements))
             dts = (b - a) / float(w[p])
             for q, (row, dt) in enumerate(zip(rows, dts.tolist(), strict=True)):
                 key = tuple(row)
@@ -1450,6 +1422,28 @@ class SystemBalance:
 
 _EPS = float(np.finfo(float).eps)
 _BATCH_GRIDS: dict = {}
+
+
+def _segment_intervals(cuts: list, pieces, n_elements: int):
+    """The intervals of one period between the crossings ``cuts`` of every element (angles,
+    with 0 and 2 pi among them) and, per interval, the segment of each element: ``(a, b,
+    rows)``, ``rows[p]`` the tuple-able list of segment indices on ``[a[p], b[p]]``."""
+    th = np.unique(np.concatenate(cuts))
+    th = th[(th >= 0.0) & (th <= _TWO_PI)]
+    a, b = th[:-1], th[1:]
+    keep = b > a
+    a, b = a[keep], b[keep]
+    mid = 0.5 * (a + b)
+    segs = []
+    for idx in range(n_elements):
+        pc = pieces[idx]
+        if pc.d1.size == 0:
+            segs.append(np.full(mid.size, int(pc.segment[0])))
+        else:
+            j = np.searchsorted(pc.start, mid, side="right") - 1
+            segs.append(pc.segment[j % pc.segment.size])
+    rows = np.array(segs).T.tolist() if segs else [[]] * mid.size
+    return a, b, rows
 
 
 def _batch_grid(basis: HarmonicBasis):
