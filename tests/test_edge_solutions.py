@@ -1,12 +1,13 @@
 """perturb.numeric.edge_solutions: HB solutions at a window edge reached from known ones.
 
 The case of issue 16's coverage gap (bench_impact_pair_galerkin.md, section 4): the impact
-pair (builtin defaults, mu2 = 0.01) has at Omega = 0.8 an unstable multi-impact orbit (8
+pair (builtin defaults, mu2 = 0.01) has at Omega = 0.8 an unstable multi-impact orbit (10
 contact switches per period, largest multiplier ~8) on a branch with both ends on the low
 edge of the window (0.8, 1.3); no seed there converges to it. The oracle is the exact orbit,
-shot here by DOP853 (rtol = atol = 1e-12, restarted at every contact switch) with a
-finite-difference Newton on the period map, from the state the brief gives; nothing of
-perturb's exact solvers is used.
+shot by ``tests/impact_pair_oracle.py`` (DOP853, rtol = atol = 1e-12, max_step T/2000,
+restarted at every contact switch, finite-difference Newton on the period map) from the state
+the brief gives (periodic to 3e-12 there: Newton takes no step); nothing of perturb's exact
+solvers is used.
 """
 
 from __future__ import annotations
@@ -15,14 +16,13 @@ import math
 
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
+from impact_pair_oracle import flow, periodic_orbit
 
 from perturb.errors import ParameterError
 from perturb.model.system_builtins import builtin_system
 from perturb.numeric.edge_solutions import edge_solutions
 from perturb.numeric.system_balance import SystemBalance
 
-P = {"mu": 0.05, "mu2": 0.01, "r": 20.0, "d": 0.5, "m2": 0.2, "F": 0.5}
 W = 0.8
 H = 15
 #: State (x1, x2, x1', x2') at t = 0 of the unstable orbit (the brief's example state).
@@ -32,72 +32,11 @@ Y_TARGET = np.array([2.279620860783, 2.597551100167, 0.273568064789, 0.979483535
 Y_KNOWN = np.array([2.350279500737, 2.730798403567, 0.347915076992, 0.709499209407])
 
 
-def _field(t, y):
-    x1, x2, v1, v2 = y
-    s = x1 - x2
-    b = s - P["d"] if s > P["d"] else (s + P["d"] if s < -P["d"] else 0.0)
-    a1 = P["F"] * math.cos(W * t) - P["mu"] * v1 - x1 - P["r"] * b
-    a2 = (P["r"] * b - P["mu2"] * (v2 - v1)) / P["m2"]
-    return [v1, v2, a1, a2]
-
-
-def _flow(y0, t_eval=None):
-    """The state after one forcing period (and the samples at ``t_eval``), DOP853 restarted at
-    every crossing of ``|x1 - x2| = d`` (where the contact force has a kink)."""
-    T = 2 * math.pi / W
-    events = []
-    for sign in (1.0, -1.0):
-
-        def ev(t, y, sign=sign):
-            return y[0] - y[1] - sign * P["d"]
-
-        events.append(ev)
-    t, y = 0.0, np.asarray(y0, float)
-    samples = []
-    for _ in range(200):  # a period has 8-10 switches
-        te = None if t_eval is None else t_eval[(t_eval >= t) & (t_eval <= T)]
-        sol = solve_ivp(
-            _field, (t, T), y, method="DOP853", rtol=1e-12, atol=1e-12, events=events, t_eval=te
-        )
-        hits = [(float(e[0]), i) for i, e in enumerate(sol.t_events) if e.size and e[0] > t]
-        if te is not None:
-            tend = min(h for h, _ in hits) if hits else T
-            keep = sol.t <= tend
-            samples.append(sol.y[:, keep])
-        if not hits:
-            return sol.y[:, -1], (np.concatenate(samples, axis=1) if samples else None)
-        th, i = min(hits)
-        t, y = th, sol.y_events[i][0].copy()
-        if t_eval is not None:
-            t_eval = t_eval[t_eval > th]
-        # step off the switching surface so the event does not fire again at once
-        y = solve_ivp(_field, (t, t + 1e-9), y, method="DOP853", rtol=1e-12, atol=1e-12).y[:, -1]
-        t += 1e-9
-    raise AssertionError("too many switches in one period")
-
-
-def _periodic(y0):
-    """Newton on the period map (finite-difference Jacobian), at most 8 steps, to a period
-    map residual of 1e-9 (the states given are periodic to 3e-10: no step is needed; the
-    comparison below is at the 1e-3 level)."""
-    y = np.asarray(y0, float).copy()
-    for _ in range(8):
-        g = _flow(y)[0] - y
-        if np.abs(g).max() < 1e-9:
-            return y
-        J = np.empty((4, 4))
-        for k in range(4):
-            e = np.zeros(4)
-            e[k] = 1e-7
-            J[:, k] = (_flow(y + e)[0] - (y + e) - g) / 1e-7
-        y = y - np.linalg.solve(J, g)
-    raise AssertionError("shooting did not converge")
-
-
 def _orbit_samples(y0, n=8192):
+    """n samples over one period of the oracle's orbit from ``y0`` (state rows)."""
     T = 2 * math.pi / W
     t = np.linspace(0.0, T, n, endpoint=False)
-    _, Y = _flow(y0, t)
+    Y = flow(W, y0, dense=True).sample(t)
     assert Y.shape[1] == n
     return t, Y
 
@@ -118,10 +57,10 @@ def _cut_series(sb, Y):
 
 def _case():
     sb = SystemBalance(builtin_system("impact_pair"), H)
-    y_known = _periodic(Y_KNOWN)
+    y_known = periodic_orbit(W, Y_KNOWN)
     _, Yk = _orbit_samples(y_known, 2048)
     known = sb.solve(W, _cut_series(sb, Yk))
-    y_target = _periodic(Y_TARGET)
+    y_target = periodic_orbit(W, Y_TARGET)
     t, Y = _orbit_samples(y_target)
     return sb, known, y_target, Y
 

@@ -14,8 +14,9 @@ Oracle: unknowns ``[a0, a1, b1, ...]`` of x1 and x2 (tau = W t); the contact for
 ``s = x1 - x2`` (roots of ``s -+ d`` by sign change on 4096 points and brentq), each piece at
 most 2 pi / (4 H) long -- exact to rounding, since the integrand is a trigonometric polynomial
 on each piece; Newton with the quadrature Jacobian. No perturb.numeric / perturb.fourier code.
-Start for both solvers: the exact orbit's series cut at H (the exact orbit from perturb's
-reference layer, ``make_flow`` + ``periodic_orbit``, sampled at 2^14 points).
+Start for both solvers: the exact orbit's series cut at H (the exact orbit from the independent
+oracle ``tests/impact_pair_oracle.py``, DOP853 shooting, sampled at 2^14 points; perturb's
+reference layer, ``make_flow`` + ``periodic_orbit``, gives the same samples to 8e-15).
 
 Measured (bench_impact_pair_galerkin.py): the two solutions agree to 5e-16 (H = 11) and
 1e-14 (H = 23), 7.1e-13 at worst over H = 1..63; the max|x1| error is 3.55e-3 = 68x the
@@ -31,17 +32,18 @@ import functools
 
 import numpy as np
 import pytest
+from impact_pair_oracle import P_DEFAULT, flow, periodic_orbit
 from scipy.optimize import brentq
 
 from perturb.model.system_builtins import builtin_system
 from perturb.numeric.system_balance import SystemBalance
-from perturb.simulate.flows.factory import make_flow
-from perturb.simulate.orbits.shooting import periodic_orbit
 
-P = dict(mu=0.05, mu2=0.2, r=20.0, d=0.5, m2=0.2, F=0.5)
+P = dict(P_DEFAULT, mu2=0.2)
 W = 1.2
 N = 2**14
-Y_GUESS = [-0.6155, -0.9958, 0.4075, -0.3628]  # measured by the benchmark's DOP853 shooting
+#: (x1, x2, x1', x2') at t = 0 of the orbit (the oracle's, from the benchmark's
+#: [-0.6155, -0.9958, 0.4075, -0.3628]; periodic to 6e-13, so Newton takes no step)
+Y_GUESS = [-0.615507364562, -0.995773097351, 0.407516376802, -0.362845544436]
 GL_X, GL_W = np.polynomial.legendre.leggauss(16)
 
 
@@ -123,11 +125,10 @@ def series_max(c, H):
 
 @functools.cache
 def exact():
-    system = builtin_system("impact_pair").with_params(mu2=P["mu2"], Omega=W)
-    flow = make_flow(system, W)
-    orb = periodic_orbit(flow, np.array(Y_GUESS))
+    """The exact orbit (the independent oracle), sampled at N points, and its max|x1|, max|x2|."""
+    y0 = periodic_orbit(W, Y_GUESS, P)
     T = 2 * np.pi / W
-    Q = np.asarray(flow(orb.y0, 0.0, T, t_eval=np.arange(N) * T / N).ys)[:, :2]
+    Q = flow(W, y0, P, dense=True).sample(np.arange(N) * T / N)[:2].T
     return Q, np.array([peak(Q[:, 0]), peak(Q[:, 1])])
 
 
