@@ -149,6 +149,7 @@ from numpy.typing import ArrayLike
 
 from perturb.errors import ParameterError, PerturbError
 from perturb.model.affine import PiecewiseAffineSystem
+from perturb.simulate.flows import scan_kernel
 from perturb.simulate.flows.base import Flow, FlowResult
 
 __all__ = [
@@ -160,7 +161,7 @@ __all__ = [
     "propagate",
 ]
 
-_EPS = float(np.finfo(float).eps)
+_EPS = scan_kernel.EPS
 #: eigenvector condition number above which a region uses the augmented-matrix exponential
 _COND_MAX = 1.0e5
 #: a harmonic source is resonant with a mode when |lambda - i omega| < this fraction of omega
@@ -172,15 +173,15 @@ _ZERO_BAND = 1.0e-3
 #: tangency tolerance, in rounding units of the magnitude of the terms of s_j
 _TOL_ULPS = 64.0
 #: grid steps per fastest time scale 1/rho
-_STEPS_PER_SCALE = 8.0
+_STEPS_PER_SCALE = scan_kernel.STEPS_PER_SCALE
 #: grid intervals per batch: first batch, largest batch
-_BATCH_FIRST, _BATCH_MAX = 32, 256
+_BATCH_FIRST, _BATCH_MAX = scan_kernel.BATCH_FIRST, scan_kernel.BATCH_MAX
 #: 0, 1, ..., _BATCH_MAX as floats (the batch grids: tau + h * k)
 _ARANGE = np.arange(_BATCH_MAX + 1, dtype=float)
 #: halvings of an interval before it is treated as one convex/concave piece
-_MAX_DEPTH = 60
+_MAX_DEPTH = scan_kernel.MAX_DEPTH
 #: iterations of the Newton-bisection root solver (it stops at full precision long before)
-_ROOT_ITER = 200
+_ROOT_ITER = scan_kernel.ROOT_ITER
 #: a burst of this many crossings within a negligible time is Zeno behaviour / sliding
 _ZENO_COUNT = 64
 
@@ -1498,7 +1499,18 @@ def _solve_halley(piece, j, a, w, ga, gw, start):
 
 def _scan(piece, tau_end: float, touching: set[int], budget: _Budget):
     """First crossing ``(tau, j)`` of the piece in ``(0, tau_end)`` (None if none) and the
-    tangencies ``[(tau, j), ...]`` before it; see the module docstring."""
+    tangencies ``[(tau, j), ...]`` before it; see the module docstring.  The compiled kernel
+    (:mod:`.scan_kernel`) where it applies and is installed, else :func:`_scan_python`."""
+    if piece.ns and tau_end > 0.0 and piece.region.kind == "modal" and not piece.has_res:
+        kernel = scan_kernel.compiled_scan()
+        if kernel is not None:
+            return _scan_compiled(kernel, piece, tau_end, touching, budget)
+    return _scan_python(piece, tau_end, touching, budget)
+
+
+def _scan_python(piece, tau_end: float, touching: set[int], budget: _Budget):
+    """:func:`_scan` in Python: every kind of region (modal with or without resonant pairs,
+    expm)."""
     ns = piece.ns
     tangs: list[tuple[float, int]] = []
     if ns == 0 or tau_end <= 0.0:
@@ -1620,6 +1632,41 @@ def _scan(piece, tau_end: float, touching: set[int], budget: _Budget):
         tau = max(t_ev, float(np.nextafter(tau, math.inf)))
         touch, clamp = {j}, {j}
         batch = _BATCH_FIRST
+    return None, tangs
+
+
+def _scan_compiled(kernel, piece, tau_end: float, touching: set[int], budget: _Budget):
+    """:func:`_scan` by the compiled kernel (:mod:`.scan_kernel`): a modal piece without
+    resonant pairs.  Same results to rounding, same errors."""
+    touch = np.zeros(piece.ns, dtype=bool)
+    for j in touching:
+        touch[j] = True
+    status, tau, j, value, tt, tj, used = kernel(
+        piece.W,
+        piece.region.mupow,
+        piece.sig,
+        piece.aWp23,
+        piece.colnorm,
+        piece.tol,
+        float(tau_end),
+        touch,
+        budget.left,
+    )
+    budget.take(used, piece.t0 + tau)  # (over the budget: raises, naming the time)
+    tangs = list(zip(tt.tolist(), tj.tolist(), strict=True))
+    if status == scan_kernel.CROSSING:
+        return (tau, j), tangs
+    if status == scan_kernel.OVERFLOW:
+        raise PerturbError(
+            f"the orbit escapes to infinity in region {piece.region.key} near t = "
+            f"{piece.t0 + tau!r} (floating-point overflow); shorten the interval"
+        )
+    if status == scan_kernel.WRONG_SIDE:
+        raise PerturbError(
+            f"the state at t = {piece.t0 + tau!r} is on the wrong side of surface "
+            f"{j} (s = {value!r}) for region {piece.region.key}: the "
+            "propagation lost track of the region (a non-finite or huge state?)"
+        )
     return None, tangs
 
 
