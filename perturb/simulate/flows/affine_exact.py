@@ -636,17 +636,16 @@ class _ModalPiece:
         "Y",
         "W",
         "_Wp",
-        "aWp23",
-        "Gp2",
+        "_aWp23",
+        "_Gp",
         "trans",
-        "tol",
+        "_tol",
         "sig",
         "rv",
         "rc",
         "has_res",
         "ns",
-        "colnorm",
-        "Gp",
+        "_colnorm",
         "_YY",
     )
 
@@ -672,31 +671,64 @@ class _ModalPiece:
             coef = np.concatenate([region.Vinv @ (y0 - region.yconst), _ONE])
         n = region.n
         YW = region.YWbase * coef  # the state's terms (n rows), then the surfaces' (ns rows)
-        aYW = np.abs(YW)
         self.Y = YW[:n]
-        W = self.W = YW[n:]
+        self.W = YW[n:]
         self._Wp = None  # W mu^p, (4, ns, nt): built when first needed (see Wp)
         self._YY = None  # (Y; Y mu), (2n, nt): built when first needed (see state_rate)
         self.trans = None  # (h, e^{A h}) once the sensitivity has computed it (see _sensitivity)
-        # g = sigma s (the scan's function): W mu^p sigma, p < 3 (a sign flip is exact)
-        Gp = self.Gp = W[None] * region.mupow_sig
-        nt = Gp.shape[2]
-        self.Gp2 = Gp.reshape(3 * self.ns, nt)  # (the rows (p, j) stacked: gridg's product)
-        aW = aYW[n:]
-        # |W mu^p| for p = 2, 3 only (the bounds of the second and third derivatives), the
-        # rows (p, j) stacked
-        self.aWp23 = (aW[None] * region.amupow[2:, None, :]).reshape(2 * self.ns, nt)
-        self.colnorm = aYW[:n].sum(axis=0)
+        # the Python scan's data (Gp, aWp23, colnorm, tol): built when first needed (the
+        # compiled scan computes its own from W and Y)
+        self._Gp = self._aWp23 = self._colnorm = self._tol = None
         self.has_res = bool(region.res)
-        scale = aW.sum(axis=1) + region.absd
         if self.has_res:
             phr = np.exp(region.res_sig * t0)
             self.rv = region.res_vec * phr  # (n, nr)
             self.rc = region.res_C * phr  # (ns, nr)
-            scale = scale + np.abs(self.rc).sum(axis=1)
         else:
             self.rv = self.rc = None
-        self.tol = _TOL_ULPS * _EPS * scale
+
+    # -- the Python scan's data ---------------------------------------------------------------
+    @property
+    def Gp(self) -> np.ndarray:
+        """``g = sigma s`` (the scan's function): ``W mu^p sigma``, ``p < 3``, shape
+        ``(3, ns, nt)`` (a sign flip is exact)."""
+        if self._Gp is None:
+            self._Gp = self.W[None] * self.region.mupow_sig
+        return self._Gp
+
+    @property
+    def Gp2(self) -> np.ndarray:
+        """:attr:`Gp` with the rows ``(p, j)`` stacked (gridg's product)."""
+        Gp = self.Gp
+        return Gp.reshape(3 * self.ns, Gp.shape[2])
+
+    @property
+    def aWp23(self) -> np.ndarray:
+        """``|W mu^p|`` for ``p = 2, 3`` only (the bounds of the second and third
+        derivatives), the rows ``(p, j)`` stacked, shape ``(2 ns, nt)``."""
+        if self._aWp23 is None:
+            aW = np.abs(self.W)
+            nt = aW.shape[1]
+            self._aWp23 = (aW[None] * self.region.amupow[2:, None, :]).reshape(2 * self.ns, nt)
+        return self._aWp23
+
+    @property
+    def colnorm(self) -> np.ndarray:
+        """``sum_i |Y_iq|``: the size of each term in the state."""
+        if self._colnorm is None:
+            self._colnorm = np.abs(self.Y).sum(axis=0)
+        return self._colnorm
+
+    @property
+    def tol(self) -> np.ndarray:
+        """Tangency tolerance of each surface: ``_TOL_ULPS`` rounding units of the size of the
+        terms of ``s_j``."""
+        if self._tol is None:
+            scale = np.abs(self.W).sum(axis=1) + self.region.absd
+            if self.has_res:
+                scale = scale + np.abs(self.rc).sum(axis=1)
+            self._tol = _TOL_ULPS * _EPS * scale
+        return self._tol
 
     # -- rates --------------------------------------------------------------------------------
     def step(self, tau: float) -> float:
@@ -1641,19 +1673,21 @@ def _scan_compiled(kernel, piece, tau_end: float, touching: set[int], budget: _B
     touch = np.zeros(piece.ns, dtype=bool)
     for j in touching:
         touch[j] = True
+    region = piece.region
     status, tau, j, value, tt, tj, used = kernel(
         piece.W,
-        piece.region.mupow,
+        piece.Y,
+        region.mupow,
+        region.amupow,
         piece.sig,
-        piece.aWp23,
-        piece.colnorm,
-        piece.tol,
+        region.absd,
+        _TOL_ULPS,
         float(tau_end),
         touch,
         budget.left,
     )
     budget.take(used, piece.t0 + tau)  # (over the budget: raises, naming the time)
-    tangs = list(zip(tt.tolist(), tj.tolist(), strict=True))
+    tangs = list(zip(tt.tolist(), tj.tolist(), strict=True)) if tt.size else []
     if status == scan_kernel.CROSSING:
         return (tau, j), tangs
     if status == scan_kernel.OVERFLOW:

@@ -192,14 +192,15 @@ def crossing_or_graze(G4, j, mu, e, a, w, ga, gw, tol, has_slopes, s1, s2):
 
 
 @njit
-def first_event(G4, aWp23, mu, e, ns, j, tol, u0, w0, gu0, gw0, touch0, clamp0, M2b, M3b):
+def first_event(G4, aWp23, mu, e, st, ns, j, tol, u0, w0, G, i, touch0, clamp0, M2b, M3b):
     """The first crossing or tangency of ``g_j`` in ``(u0, w0]`` (``_first_event``), its
     recursive halving as a depth-first stack (the left half first)."""
-    # stack rows: u, w, gu (3), gw (3), touching, clamp, has_bounds, depth
-    st = np.empty((MAX_DEPTH + 4, 12))
+    # stack rows (``st``, at least MAX_DEPTH + 2 of them): u, w, gu (3), gw (3), touching,
+    # clamp, has_bounds, depth; the first row from the grid G at intervals i, i + 1
     st[0, 0], st[0, 1] = u0, w0
-    st[0, 2:5] = gu0
-    st[0, 5:8] = gw0
+    for p in range(3):
+        st[0, 2 + p] = G[p, j, i]
+        st[0, 5 + p] = G[p, j, i + 1]
     st[0, 8], st[0, 9], st[0, 10], st[0, 11] = touch0, clamp0, 1.0, 0.0
     top = 1
     while top > 0:
@@ -301,7 +302,7 @@ def step(colnorm, mu, amu1, tau):
 
 
 @njit
-def scan_modal(W, mupow, sig, aWp23, colnorm, tol, tau_end, touching, budget_left):
+def scan_modal(W, Y, mupow, amupow, sig, absd, tol_ulps, tau_end, touching, budget_left):
     """First crossing of a modal piece without resonant pairs in ``(0, tau_end)``.
 
     Returns ``(status, tau, j, value, tangency_taus, tangency_surfaces, used)``:
@@ -310,13 +311,29 @@ def scan_modal(W, mupow, sig, aWp23, colnorm, tol, tau_end, touching, budget_lef
     signed ``s``); ``used`` the grid intervals scanned."""
     ns, nt = W.shape
     mu = mupow[1].copy()
-    amu1 = np.abs(mu)
+    amu1 = amupow[1].copy()
+    # the piece's bounds and tolerances (as the Python piece computes them)
+    aW = np.abs(W)
+    aWp23 = np.empty((2 * ns, nt))
+    tol = np.empty(ns)
+    for j in range(ns):
+        sc = 0.0
+        for q in range(nt):
+            aWp23[j, q] = aW[j, q] * amupow[2, q]
+            aWp23[ns + j, q] = aW[j, q] * amupow[3, q]
+            sc += aW[j, q]
+        tol[j] = tol_ulps * EPS * (sc + absd[j])
+    colnorm = np.zeros(nt)
+    for i in range(Y.shape[0]):
+        for q in range(nt):
+            colnorm[q] += abs(Y[i, q])
     G4 = np.empty((4, ns, nt), dtype=np.complex128)
     for p in range(4):
         for j in range(ns):
             for q in range(nt):
                 G4[p, j, q] = W[j, q] * (mupow[p, q] * sig[j])
     e = np.empty(nt, dtype=np.complex128)
+    st = np.empty((MAX_DEPTH + 4, 12))
     tt = np.empty(8)
     tj = np.empty(8, dtype=np.int64)
     ntang = 0
@@ -423,20 +440,19 @@ def scan_modal(W, mupow, sig, aWp23, colnorm, tol, tau_end, touching, budget_lef
                 if not low[j, i] <= tol[j]:
                     continue
                 first = i == 0 and touch[j]
-                gu = np.array([G[0, j, i], G[1, j, i], G[2, j, i]])
-                gw = np.array([G[0, j, i + 1], G[1, j, i + 1], G[2, j, i + 1]])
                 t_ev, kind = first_event(
                     G4,
                     aWp23,
                     mu,
                     e,
+                    st,
                     ns,
                     j,
                     tol[j],
                     taus[i],
                     taus[i + 1],
-                    gu,
-                    gw,
+                    G,
+                    i,
                     1.0 if first else 0.0,
                     1.0 if (first and clamp[j]) else 0.0,
                     B2[j, i],
