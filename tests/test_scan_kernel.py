@@ -1,5 +1,7 @@
-"""The compiled switch scan (perturb.simulate.flows.scan_kernel) against the Python scan it
-translates (affine_exact._scan_python), piece by piece, and against closed-form crossing times.
+"""The compiled kernels against the Python code they translate: the switch scan
+(perturb.simulate.flows.scan_kernel against affine_exact._scan_python), piece by piece, and
+against closed-form crossing times; the orbit statistics (exact_response.statistics_numba
+against Engine.nd_statistics), orbit by orbit, and against dense sampling.
 
 The Python scan is certified separately (tests/test_affine_exact.py: DOP853 with events and
 restarts, grazing constructions); with numba installed those tests run the compiled path, so
@@ -17,6 +19,7 @@ import pytest
 from perturb.errors import PerturbError
 from perturb.model.affine import PiecewiseAffineSystem
 from perturb.model.system_builtins import builtin_system
+from perturb.simulate.exact_response import exact_branches, problem
 from perturb.simulate.flows import affine_exact as ae
 from perturb.simulate.flows import scan_kernel
 
@@ -152,9 +155,49 @@ def test_same_errors(kernel):
 
 
 def test_switched_off_by_the_environment(monkeypatch):
-    monkeypatch.setattr(scan_kernel, "_KERNEL", [])
-    monkeypatch.setenv("PERTURB_COMPILED", "0")
-    assert scan_kernel.compiled_scan() is None
-    monkeypatch.setattr(scan_kernel, "_KERNEL", [])
-    monkeypatch.setenv("PERTURB_COMPILED", "1")
-    assert scan_kernel.compiled_scan() is not None
+    for flag, off in (("0", True), ("off", True), ("1", False)):
+        monkeypatch.setattr(scan_kernel, "_KERNEL", [])
+        monkeypatch.setattr(scan_kernel, "_KERNELS", {})
+        monkeypatch.setenv("PERTURB_COMPILED", flag)
+        assert (scan_kernel.compiled_scan() is None) is off
+
+
+# ------------------------------------------------------------------------------------------
+# the compiled orbit statistics (exact_response/statistics_numba.py)
+# ------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name, window", [("nsd2", (1.15, 1.35)), ("impact_pair", (0.9, 0.95))])
+def test_compiled_statistics_equal_the_python_statistics(monkeypatch, kernel, name, window):
+    compiled = problem.Engine._compiled_statistics
+    python = problem.Engine.nd_statistics
+    tally = {"orbits": 0, "worst": 0.0, "dense": 0.0}
+
+    def both(self, flow, Z, P, trajs=None):
+        got = python(self, flow, Z, P, trajs)
+        monkeypatch.setattr(problem.Engine, "_compiled_statistics", lambda *a, **k: None)
+        try:
+            ref = python(self, flow, Z, P, trajs)
+        finally:
+            monkeypatch.setattr(problem.Engine, "_compiled_statistics", compiled)
+        (a0, a1, a2), (aa, am), asig = got
+        (b0, b1, b2), (ba, bm), bsig = ref
+        scale = max(1.0, abs(b0))
+        diff = max(
+            abs(a0 - b0), abs(a1 - b1), abs(a2 - b2), np.max(np.abs(aa - ba)),
+            np.max(np.abs(am - bm)), np.max(np.abs(asig - bsig)),
+        )  # fmt: skip
+        tally["worst"] = max(tally["worst"], diff / scale)
+        if tally["orbits"] % 50 == 0:
+            # an oracle of neither: max |x1| of the closed form sampled densely
+            traj = flow.trajectory(Z[0], self.t0, self.t0 + P)
+            dense = np.max(np.abs(traj(np.linspace(self.t0, self.t0 + P, 40001))[0]))
+            # (a sample misses the peak by at most max|x1''| (P / 40000)^2 / 8 ~ 1e-9 here)
+            tally["dense"] = max(tally["dense"], (aa[0] - dense) / scale)
+            assert -1e-13 <= (aa[0] - dense) / scale < 1e-8
+        tally["orbits"] += 1
+        return got
+
+    monkeypatch.setattr(problem.Engine, "nd_statistics", both)
+    exact_branches(builtin_system(name), window, workers=1, attractors=False)
+    assert tally["orbits"] > 100
+    # (measured 6.5e-15 over 15,000 orbits of nsd2 (0.5, 2) and impact_pair (0.8, 1.0))
+    assert tally["worst"] < 1e-12

@@ -29,6 +29,7 @@ from perturb.simulate.exact_response.base import (
 from perturb.simulate.flows.base import ODEFlow
 from perturb.simulate.flows.factory import FlowFamily
 from perturb.simulate.flows.piecewise_exact import sample_trajectories
+from perturb.simulate.flows.scan_kernel import compiled_kernel
 from perturb.simulate.flows.system import frequency_symbol
 from perturb.simulate.orbits.shooting import (
     monodromy_multipliers,
@@ -741,6 +742,9 @@ class Engine:
         node_t = self.node_times(P, N)
         if trajs is None and self.exact:
             trajs = [flow.trajectory(Z[i], node_t[i], node_t[i + 1]) for i in range(N)]
+        got_c = self._compiled_statistics(trajs, t, node_t, ns, P) if N == 1 else None
+        if got_c is not None:
+            return got_c
         X = np.empty((n, ns + 1))
         # the exact affine flow: states and rates from the closed form of each piece (None:
         # a piece without one, then the field at the samples)
@@ -835,6 +839,34 @@ class Engine:
         mean = float(means[self._out_is if self._out_is is not None else 0])
         sig = X[:, : ns : STAT_SAMPLES // SIG_PHASES].T.ravel().copy()
         return (float(amps[0]), first, mean), (amps[1:].copy(), means[1:].copy()), sig
+
+    def _compiled_statistics(
+        self, trajs: list[Any] | None, t: np.ndarray, node_t: np.ndarray, ns: int, P: float
+    ) -> tuple[tuple[float, float, float], tuple[np.ndarray, np.ndarray], np.ndarray] | None:
+        """:meth:`nd_statistics` of a one-node orbit of the exact affine flow by the compiled
+        kernel (:mod:`.statistics_numba`, the same algorithm), or None where it does not
+        apply (numba missing, a piece without a modal closed form)."""
+        modal = getattr(trajs[0], "modal_pieces", None) if trajs else None
+        if modal is None:
+            return None
+        kernel = compiled_kernel(
+            "perturb.simulate.exact_response.statistics_numba", "orbit_statistics"
+        )
+        if kernel is None:
+            return None
+        arrays = modal()
+        if arrays is None:
+            return None
+        starts, Y, mu, D, scaled = arrays
+        a, b = float(node_t[0]), float(node_t[1])
+        out_is = -1 if self._out_is is None else self._out_is
+        amps, means, first, X = kernel(
+            starts, Y, mu, D, scaled, self._funcs, t, np.clip(t, a, b), a, b, ns, P / ns,
+            self.m, out_is,
+        )  # fmt: skip
+        mean = float(means[self._out_is if self._out_is is not None else 0])
+        sig = X[:, : ns : STAT_SAMPLES // SIG_PHASES].T.ravel().copy()
+        return (float(amps[0]), float(first), mean), (amps[1:].copy(), means[1:].copy()), sig
 
     @staticmethod
     def _reversal_extremum(

@@ -260,6 +260,25 @@ class AffineTrajectory:
     def __len__(self) -> int:
         return len(self._pieces)
 
+    def modal_pieces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool] | None:
+        """The closed forms of every piece as arrays, for compiled evaluation: ``(starts,
+        Y, mu, D, scaled)`` with the piece ``k`` state ``D * Re(Y[k] @ e^{mu[k] tau})``,
+        ``tau = t - starts[k]`` (``Y`` of shape ``(pieces, n, nt)``, ``mu`` ``(pieces,
+        nt)``; ``D`` only when ``scaled``); None when a piece has no such form (a resonant
+        pair, the augmented-exponential representation, or regions with different numbers of
+        terms)."""
+        pieces = self._pieces
+        first = pieces[0]
+        if not all(getattr(p, "has_res", True) is False for p in pieces):
+            return None
+        nt = first.mu.size
+        if any(p.mu.size != nt for p in pieces):
+            return None
+        Y = np.stack([p.Y for p in pieces])
+        mu = np.stack([p.mu for p in pieces])
+        model = first.region.model
+        return self.starts, Y, mu, model.D, bool(model.scaled)
+
     def transition(self, k: int, h: float) -> np.ndarray | None:
         """``e^{A h}`` of piece ``k`` over its duration ``h`` in the system's units, as the
         flow's sensitivity computed it (the modal product of the region's eigen-decomposition,

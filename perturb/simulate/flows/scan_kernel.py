@@ -18,6 +18,7 @@ holds what both versions share (the constants of the algorithm) and the switch.
 
 from __future__ import annotations
 
+import importlib
 import os
 
 import numpy as np
@@ -40,22 +41,32 @@ _NONE, _CROSS, _TANG = 0, 1, 2
 
 
 _KERNEL: list = []  # [the compiled scan or None], once looked up
+_KERNELS: dict = {}  # (module, name) -> the compiled function or None
 
 
-def compiled_scan():
-    """The compiled scan ``scan_modal(W, mupow, sig, aWp23, colnorm, tol, tau_end, touching,
-    budget_left)``, or None (numba not installed, or ``PERTURB_COMPILED=0``).  numba is
-    imported at the first call, not with perturb; the kernel is compiled at its own first
-    call, or loaded from numba's cache."""
-    if not _KERNEL:
+def compiled_kernel(module: str, name: str):
+    """The function ``name`` of the numba module ``module`` (a dotted path in perturb), or
+    None: numba not installed, or ``PERTURB_COMPILED=0``.  numba is imported at the first
+    call, not with perturb; a kernel is compiled at its own first call, or loaded from
+    numba's cache."""
+    key = (module, name)
+    if key not in _KERNELS:
         kernel = None
         flag = os.environ.get("PERTURB_COMPILED", "1").strip().lower()
         if flag not in ("0", "false", "no", "off"):
             try:
-                from perturb.simulate.flows import scan_kernel_numba
+                mod = importlib.import_module(module)
             except ImportError:
                 pass
             else:
-                kernel = scan_kernel_numba.scan_modal
-        _KERNEL.append(kernel)
+                kernel = getattr(mod, name)
+        _KERNELS[key] = kernel
+    return _KERNELS[key]
+
+
+def compiled_scan():
+    """The compiled scan ``scan_modal(W, Y, mupow, amupow, sig, absd, tol_ulps, tau_end,
+    touching, budget_left)``, or None (numba not installed, or ``PERTURB_COMPILED=0``)."""
+    if not _KERNEL:
+        _KERNEL.append(compiled_kernel("perturb.simulate.flows.scan_kernel_numba", "scan_modal"))
     return _KERNEL[0]
