@@ -29,8 +29,11 @@ resonance window W in [0.5, 2] (both modes of the structure, the device's wells)
   issue's ">= 100x serial" goal for the oscillator).
 
 Both are timed by CPU time of this process (``time.process_time``: the machine is shared, and
-the wall time of either is inflated by other jobs), interleaved: exact, brute force (each
-settling tolerance), exact (the ratios use the mean of the two exact runs).
+the wall time of either is inflated by other jobs), after one warm-up call of the exact solver
+on a small window when the compiled kernels (numba, ``pip install perturb[fast]``) are in use
+(it loads them from numba's cache, or compiles them once per installation), interleaved:
+exact, brute force (each settling tolerance), exact (the ratios use the mean of the two exact
+runs).
 ``--bf-stride n`` runs the brute force on every n-th frequency of each sweep and scales its
 time by n (an estimate: each frequency costs about the same number of periods whatever the
 previous state).
@@ -51,6 +54,7 @@ from scipy.integrate import solve_ivp
 from perturb.model.builtins import builtin_model
 from perturb.model.system_builtins import builtin_system
 from perturb.simulate.exact_response import exact_branches
+from perturb.simulate.flows.scan_kernel import compiled_scan
 
 NSD2 = {"k": -0.5, "mu1": 0.05, "mu2": 0.02, "k2": 1.0, "m2": 1.0, "F": 2.0}
 WINDOW_2DOF = (0.5, 2.0)
@@ -229,6 +233,22 @@ def main() -> None:
         f"python {platform.python_version()}, numpy {np.__version__}, scipy {scipy.__version__}, "
         f"{os.cpu_count()} cpus, load average {os.getloadavg()[0]:.2f} (1 min)"
     )
+    kernel = compiled_scan()
+    if kernel is None:
+        print("compiled kernels: off (numba not installed, or PERTURB_COMPILED=0): pure numpy")
+    else:
+        import numba
+
+        # the kernels are compiled once per installation (numba's cache) and loaded at their
+        # first call in a process: that first call is timed here, not in the rows below
+        c0 = time.process_time()
+        exact_branches(
+            builtin_system("nsd2", **NSD2), (1.2, 1.3), workers=1, progress=False, attractors=False
+        )
+        print(
+            f"compiled kernels: numba {numba.__version__}; warm-up call (nsd2 over (1.2, 1.3), "
+            f"loads or compiles the kernels) {time.process_time() - c0:.2f} s CPU, not counted"
+        )
     compare(
         "nsd2 (2-DOF)",
         builtin_system("nsd2", **NSD2),

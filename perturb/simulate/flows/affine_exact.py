@@ -139,6 +139,7 @@ from __future__ import annotations
 
 import bisect
 import cmath
+import functools
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -515,6 +516,12 @@ class _RegionCore:
         # the modes each source excites (beta == 0 skipped, as the loops did)
         self.nz = [[j for j in range(n) if beta[j] != 0.0] for beta in self.betas]
         self.nz0 = [j for j in range(n) if self.beta0[j] != 0.0]
+        # (the same as index arrays, and the columns of V and the eigenvalues they pick: the
+        # particular solution of each input in one product, see _ModalRegion)
+        self.nz_idx = [np.array(nz, dtype=int) for nz in self.nz]
+        self.V_nz = [V[:, nz] for nz in self.nz_idx]
+        self.lam_nz = [lam[nz].astype(complex) for nz in self.nz_idx]
+        self.beta_nz = [beta[nz] for beta, nz in zip(self.betas, self.nz_idx, strict=True)]
         self.lamj = [lam[j] for j in range(n)]
         self.Vcols = [V[:, j] for j in range(n)]
         self.lam_max = float(np.max(np.abs(lam))) if n else 0.0
@@ -584,13 +591,18 @@ class _ModalRegion:
         res, yconst, ycol = core.constant(rho)
         res = list(res)  # (lambda, sigma, V_j beta_jm)
         C = model.C
-        # (the loop's order of operations is kept: the propagation is bit-for-bit that of the
-        # loop, and chaotic transients, e.g. the impact pair's, amplify any rounding change)
         lamj, Vcols = core.lamj, core.Vcols
         Z = np.zeros((om.size, n), dtype=complex)
         for k, w in enumerate(om):
-            beta = core.betas[k]
             s = 1j * w
+            d = s - core.lam_nz[k]
+            if not d.size:
+                continue
+            if np.abs(d).min() >= _RESONANCE_BAND * w:
+                # no mode resonant with this input (the common case): one product
+                Z[k] = core.V_nz[k] @ (core.beta_nz[k] / d)
+                continue
+            beta = core.betas[k]
             for j in core.nz[k]:
                 if abs(lamj[j] - s) < _RESONANCE_BAND * w:
                     res.append((complex(lamj[j]), s, Vcols[j] * beta[j]))
@@ -605,8 +617,8 @@ class _ModalRegion:
         mupow = self.mupow = np.empty((4, mu.size), dtype=complex)
         mupow[0] = 1.0
         mupow[1] = mu
-        mupow[2] = mu**2
-        mupow[3] = mu**3
+        np.multiply(mu, mu, out=mupow[2])
+        np.multiply(mupow[2], mu, out=mupow[3])
         self.amupow = np.abs(mupow)
         if res:
             self.res_rho = max(max(abs(r[0]), abs(r[1])) for r in res)
@@ -623,11 +635,21 @@ class _ModalRegion:
         self.Ybase, self.Wbase = self.YWbase[:n], self.YWbase[n:]
         self.n = n
         self.sig = core.sig
-        self.mupow_sig = self.mupow[:3, None, :] * core.sig3
         self.absd = model.absd
-        self.amu1 = self.amupow[1]
-        self.amu1_list = self.amu1.tolist()
-        self.mu_re = self.mu.real.copy()
+        self._sig3 = core.sig3
+
+    # (the Python scan's data: built when first needed, the compiled scan does without)
+    @functools.cached_property
+    def mupow_sig(self) -> np.ndarray:
+        return self.mupow[:3, None, :] * self._sig3
+
+    @functools.cached_property
+    def amu1_list(self) -> list[float]:
+        return self.amupow[1].tolist()
+
+    @functools.cached_property
+    def mu_re(self) -> np.ndarray:
+        return self.mu.real.copy()
 
     def particular(self, t: float) -> np.ndarray:
         """The regular particular solution ``y_p(t)`` (resonant pairs excluded)."""
