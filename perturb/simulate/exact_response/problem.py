@@ -153,12 +153,27 @@ class Eval:
     trajs: list[Any] | None
 
 
+#: the eigenvalues of the last monodromy asked for: the corrector's acceptance test
+#: (:func:`node_growth`) and the accepted point's multipliers (:meth:`Engine.finish`) take
+#: them of the same matrix (the entry holds the matrix itself, so its id stays its own)
+_LAST_EIG: list = [None, None]
+
+
+def _eigvals(M: np.ndarray) -> np.ndarray:
+    """``numpy.linalg.eigvals(M)``, once per monodromy (see ``_LAST_EIG``)."""
+    if _LAST_EIG[0] is M:
+        return _LAST_EIG[1]
+    mu = np.linalg.eigvals(M)
+    _LAST_EIG[0], _LAST_EIG[1] = M, mu
+    return mu
+
+
 def node_growth(M: np.ndarray, N: int) -> float:
     """Growth of a perturbation over one of ``N`` node intervals, from the monodromy."""
     if M.shape[0] != 2:
         # n states: the spectral radius itself
         try:
-            rho = float(np.max(np.abs(np.linalg.eigvals(M))))
+            rho = float(np.max(np.abs(_eigvals(M))))
         except np.linalg.LinAlgError:
             return NODE_GROWTH
         return max(1.0, rho) ** (1.0 / N) if math.isfinite(rho) else NODE_GROWTH
@@ -478,7 +493,9 @@ class Engine:
         flow = self.flow(p_ev)
         P = self.m * float(flow.period)
         if self.nd:
-            pt.mult = monodromy_multipliers(ev.M, None)
+            # (monodromy_multipliers for n states: eigvals by decreasing modulus)
+            mu = _eigvals(ev.M).astype(complex)
+            pt.mult = mu[np.argsort(-np.abs(mu), kind="stable")]
             pt.switches = ev.switches
             pt.stats, pt.extra, pt.sig = self.nd_statistics(flow, Zev, P, ev.trajs)
             pt.J = None

@@ -1574,7 +1574,7 @@ def _scan(piece, tau_end: float, touching: set[int], budget: _Budget):
     """First crossing ``(tau, j)`` of the piece in ``(0, tau_end)`` (None if none) and the
     tangencies ``[(tau, j), ...]`` before it; see the module docstring.  The compiled kernel
     (:mod:`.scan_kernel`) where it applies and is installed, else :func:`_scan_python`."""
-    if piece.ns and tau_end > 0.0 and piece.region.kind == "modal" and not piece.has_res:
+    if 0 < piece.ns <= 62 and tau_end > 0.0 and piece.region.kind == "modal" and not piece.has_res:
         kernel = scan_kernel.compiled_scan()
         if kernel is not None:
             return _scan_compiled(kernel, piece, tau_end, touching, budget)
@@ -1711,9 +1711,9 @@ def _scan_python(piece, tau_end: float, touching: set[int], budget: _Budget):
 def _scan_compiled(kernel, piece, tau_end: float, touching: set[int], budget: _Budget):
     """:func:`_scan` by the compiled kernel (:mod:`.scan_kernel`): a modal piece without
     resonant pairs.  Same results to rounding, same errors."""
-    touch = np.zeros(piece.ns, dtype=bool)
+    mask = 0  # the surfaces the state is on, as bits (at most 62 surfaces, see _scan)
     for j in touching:
-        touch[j] = True
+        mask |= 1 << j
     region = piece.region
     status, tau, j, value, tt, tj, used = kernel(
         piece.W,
@@ -1724,7 +1724,7 @@ def _scan_compiled(kernel, piece, tau_end: float, touching: set[int], budget: _B
         region.absd,
         _TOL_ULPS,
         float(tau_end),
-        touch,
+        mask,
         budget.left,
     )
     budget.take(used, piece.t0 + tau)  # (over the budget: raises, naming the time)

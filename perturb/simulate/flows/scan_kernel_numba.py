@@ -303,7 +303,8 @@ def step(colnorm, mu, amu1, tau):
 
 @njit
 def scan_modal(W, Y, mupow, amupow, sig, absd, tol_ulps, tau_end, touching, budget_left):
-    """First crossing of a modal piece without resonant pairs in ``(0, tau_end)``.
+    """First crossing of a modal piece without resonant pairs in ``(0, tau_end)``, from the
+    surfaces whose bits are set in ``touching`` (the state is on them).
 
     Returns ``(status, tau, j, value, tangency_taus, tangency_surfaces, used)``:
     ``status`` one of NO_CROSSING, CROSSING (at ``tau`` through ``j``), OVER_BUDGET (at
@@ -347,8 +348,10 @@ def scan_modal(W, Y, mupow, amupow, sig, absd, tol_ulps, tau_end, touching, budg
     B2 = np.empty((ns, mmax))
     low = np.empty((ns, mmax))
     L = np.empty(mmax)
-    touch = touching.copy()
-    clamp = touching.copy()
+    touch = np.zeros(ns, dtype=np.bool_)
+    for j in range(ns):
+        touch[j] = (touching >> j) & 1 == 1
+    clamp = touch.copy()
     tau = 0.0
     batch = BATCH_FIRST
     while tau < tau_end:
