@@ -688,6 +688,7 @@ class _ModalPiece:
         "ns",
         "_colnorm",
         "_YY",
+        "y_scan",
     )
 
     def __init__(self, region: _ModalRegion, t0: float, y0: np.ndarray) -> None:
@@ -716,6 +717,9 @@ class _ModalPiece:
         self.W = YW[n:]
         self._Wp = None  # W mu^p, (4, ns, nt): built when first needed (see Wp)
         self._YY = None  # (Y; Y mu), (2n, nt): built when first needed (see state_rate)
+        # the state where the compiled scan stopped: at the crossing, already placed on the
+        # surface, or at the end of the interval (None: the Python scan, see _run)
+        self.y_scan = None
         self.trans = None  # (h, e^{A h}) once the sensitivity has computed it (see _sensitivity)
         # the Python scan's data (Gp, aWp23, colnorm, tol): built when first needed (the
         # compiled scan computes its own from W and Y)
@@ -1715,7 +1719,8 @@ def _scan_compiled(kernel, piece, tau_end: float, touching: set[int], budget: _B
     for j in touching:
         mask |= 1 << j
     region = piece.region
-    status, tau, j, value, tt, tj, used = kernel(
+    model = region.model
+    status, tau, j, value, tt, tj, used, y = kernel(
         piece.W,
         piece.Y,
         region.mupow,
@@ -1726,10 +1731,14 @@ def _scan_compiled(kernel, piece, tau_end: float, touching: set[int], budget: _B
         float(tau_end),
         mask,
         budget.left,
+        model.C,
+        model.d,
+        model.cc,
     )
     budget.take(used, piece.t0 + tau)  # (over the budget: raises, naming the time)
     tangs = list(zip(tt.tolist(), tj.tolist(), strict=True)) if tt.size else []
     if status == scan_kernel.CROSSING:
+        piece.y_scan = y
         return (tau, j), tangs
     if status == scan_kernel.OVERFLOW:
         raise PerturbError(
@@ -1742,6 +1751,7 @@ def _scan_compiled(kernel, piece, tau_end: float, touching: set[int], budget: _B
             f"{j} (s = {value!r}) for region {piece.region.key}: the "
             "propagation lost track of the region (a non-finite or huge state?)"
         )
+    piece.y_scan = y
     return None, tangs
 
 
@@ -1808,13 +1818,15 @@ def _run(model: _Model, y0: np.ndarray, t0: float, t1: float, max_events: int, m
             break
         tau, j = hit
         t_c = t + tau
-        y_c = piece.state1(tau)
+        y_scan = getattr(piece, "y_scan", None)  # (the compiled scan: already on the surface)
+        y_c = piece.state1(tau) if y_scan is None else y_scan
         if not (np.isfinite(y_c).all() and math.isfinite(t_c)):
             raise PerturbError(
                 f"a switch at t = {t_c!r} with a non-finite state in region {key}: overflow"
             )
-        # exactly onto the surface (rounding of the closed form leaves s ~ eps off)
-        y_c = y_c - model.C[j] * ((model.C[j] @ y_c - model.d[j]) / model.cc[j])
+        if y_scan is None:
+            # exactly onto the surface (rounding of the closed form leaves s ~ eps off)
+            y_c = y_c - model.C[j] * ((model.C[j] @ y_c - model.d[j]) / model.cc[j])
         new = key[:j] + (-key[j],) + key[j + 1 :]
         model.region(new)  # a missing region is a ModelError naming the pattern
         if not model.continuous[j]:
@@ -1845,7 +1857,8 @@ def _run(model: _Model, y0: np.ndarray, t0: float, t1: float, max_events: int, m
                 )
         t, y, key, touching = t_c, y_c, new, {j}
     t_last, _, last = pieces[-1]
-    y_end = last.state1(t1 - t_last) * D
+    y_scan = getattr(last, "y_scan", None)
+    y_end = (last.state1(t1 - t_last) if y_scan is None else y_scan) * D
     if not np.isfinite(y_end).all():
         raise PerturbError(
             f"the orbit escapes to infinity in region {last.region.key} before t = {t1!r} "

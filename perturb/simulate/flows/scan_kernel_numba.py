@@ -302,14 +302,43 @@ def step(colnorm, mu, amu1, tau):
 
 
 @njit
-def scan_modal(W, Y, mupow, amupow, sig, absd, tol_ulps, tau_end, touching, budget_left):
+def state_at(Y, mu, tau):
+    """``Re(Y @ e^{mu tau})``: the piece's state at ``tau``."""
+    n, nt = Y.shape
+    y = np.zeros(n)
+    for q in range(nt):
+        e = np.exp(mu[q] * tau)
+        for i in range(n):
+            c = Y[i, q]
+            y[i] += c.real * e.real - c.imag * e.imag
+    return y
+
+
+@njit
+def on_surface(Y, mu, tau, C, d, cc, j):
+    """The state at ``tau`` placed exactly on surface ``j`` (rounding of the closed form
+    leaves ``s ~ eps`` off)."""
+    y = state_at(Y, mu, tau)
+    s = 0.0
+    for i in range(y.size):
+        s += C[j, i] * y[i]
+    f = (s - d[j]) / cc[j]
+    for i in range(y.size):
+        y[i] -= C[j, i] * f
+    return y
+
+
+@njit
+def scan_modal(W, Y, mupow, amupow, sig, absd, tol_ulps, tau_end, touching, budget_left, C, d, cc):
     """First crossing of a modal piece without resonant pairs in ``(0, tau_end)``, from the
     surfaces whose bits are set in ``touching`` (the state is on them).
 
-    Returns ``(status, tau, j, value, tangency_taus, tangency_surfaces, used)``:
+    Returns ``(status, tau, j, value, tangency_taus, tangency_surfaces, used, y)``:
     ``status`` one of NO_CROSSING, CROSSING (at ``tau`` through ``j``), OVER_BUDGET (at
     ``tau``), OVERFLOW (at ``tau``), WRONG_SIDE (surface ``j`` at ``tau``, ``value`` the
-    signed ``s``); ``used`` the grid intervals scanned."""
+    signed ``s``); ``used`` the grid intervals scanned; ``y`` the state at the crossing,
+    placed on surface ``j`` (surfaces ``C y = d``, ``cc = |C_j|^2``), or at ``tau_end``
+    (no crossing), else empty."""
     ns, nt = W.shape
     mu = mupow[1].copy()
     amu1 = amupow[1].copy()
@@ -335,6 +364,7 @@ def scan_modal(W, Y, mupow, amupow, sig, absd, tol_ulps, tau_end, touching, budg
                 G4[p, j, q] = W[j, q] * (mupow[p, q] * sig[j])
     e = np.empty(nt, dtype=np.complex128)
     st = np.empty((MAX_DEPTH + 4, 12))
+    empty = np.empty(0)
     tt = np.empty(8)
     tj = np.empty(8, dtype=np.int64)
     ntang = 0
@@ -375,7 +405,7 @@ def scan_modal(W, Y, mupow, amupow, sig, absd, tol_ulps, tau_end, touching, budg
             taus[0], taus[1] = tau, tau_end
         used += m1 - 1
         if used > budget_left:
-            return OVER_BUDGET, tau, -1, 0.0, tt[:ntang], tj[:ntang], used
+            return OVER_BUDGET, tau, -1, 0.0, tt[:ntang], tj[:ntang], used, empty
         m = m1 - 1  # intervals
         for i in range(m1):
             for q in range(nt):
@@ -400,7 +430,7 @@ def scan_modal(W, Y, mupow, amupow, sig, absd, tol_ulps, tau_end, touching, budg
                     B[r, j, i] = s
                     total += s
         if not math.isfinite(total):
-            return OVERFLOW, taus[m], -1, 0.0, tt[:ntang], tj[:ntang], used
+            return OVERFLOW, taus[m], -1, 0.0, tt[:ntang], tj[:ntang], used, empty
         for i in range(m):
             L[i] = taus[i + 1] - taus[i]
         for j in range(ns):
@@ -420,9 +450,19 @@ def scan_modal(W, Y, mupow, amupow, sig, absd, tol_ulps, tau_end, touching, budg
                     G[1, j, 0] = max(G[1, j, 0], 0.0)
             elif not all_pos and G[0, j, 0] < 0.0:
                 if G[0, j, 0] < -tol[j]:
-                    return WRONG_SIDE, tau, j, sig[j] * G[0, j, 0], tt[:ntang], tj[:ntang], used
+                    return (
+                        WRONG_SIDE,
+                        tau,
+                        j,
+                        sig[j] * G[0, j, 0],
+                        tt[:ntang],
+                        tj[:ntang],
+                        used,
+                        empty,
+                    )
                 if G[1, j, 0] < 0.0:
-                    return CROSSING, tau, j, 0.0, tt[:ntang], tj[:ntang], used
+                    y = on_surface(Y, mu, tau, C, d, cc, j)
+                    return CROSSING, tau, j, 0.0, tt[:ntang], tj[:ntang], used, y
                 G[0, j, 0] = 0.0
                 touch[j] = True
         for j in range(ns):
@@ -472,9 +512,11 @@ def scan_modal(W, Y, mupow, amupow, sig, absd, tol_ulps, tau_end, touching, budg
             batch = min(2 * batch, BATCH_MAX)
             continue
         if best_t >= tau_end:
-            return NO_CROSSING, math.nan, -1, 0.0, tt[:ntang], tj[:ntang], used
+            y = state_at(Y, mu, tau_end)
+            return NO_CROSSING, math.nan, -1, 0.0, tt[:ntang], tj[:ntang], used, y
         if best_kind == _CROSS:
-            return CROSSING, best_t, best_j, 0.0, tt[:ntang], tj[:ntang], used
+            y = on_surface(Y, mu, best_t, C, d, cc, best_j)
+            return CROSSING, best_t, best_j, 0.0, tt[:ntang], tj[:ntang], used, y
         if ntang == tt.size:
             tt2 = np.empty(2 * tt.size)
             tj2 = np.empty(2 * tt.size, dtype=np.int64)
@@ -490,4 +532,5 @@ def scan_modal(W, Y, mupow, amupow, sig, absd, tol_ulps, tau_end, touching, budg
         touch[best_j] = True
         clamp[best_j] = True
         batch = BATCH_FIRST
-    return NO_CROSSING, math.nan, -1, 0.0, tt[:ntang], tj[:ntang], used
+    y = state_at(Y, mu, tau_end)
+    return NO_CROSSING, math.nan, -1, 0.0, tt[:ntang], tj[:ntang], used, y
