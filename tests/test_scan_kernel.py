@@ -12,6 +12,7 @@ rounding, the same grid (the same number of intervals scanned).
 from __future__ import annotations
 
 import math
+import signal
 
 import numpy as np
 import pytest
@@ -201,3 +202,72 @@ def test_compiled_statistics_equal_the_python_statistics(monkeypatch, kernel, na
     assert tally["orbits"] > 100
     # (measured 6.5e-15 over 15,000 orbits of nsd2 (0.5, 2) and impact_pair (0.8, 1.0))
     assert tally["worst"] < 1e-12
+
+
+# ------------------------------------------------------------------------------------------
+# robustness of both scans and of the switch (found by review)
+# ------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("compiled", [True, False])
+def test_a_switching_function_flat_within_rounding_of_zero_does_not_hang(monkeypatch, compiled):
+    # x' = v, v' = -x - 0.3 v + 1 settles on x = 1; the surface one ulp below it: once the
+    # homogeneous part underflows, g is a constant within the tangency tolerance of zero,
+    # which the halving search explored to depth 60 (2^60 intervals) on both scans
+    if compiled:
+        if scan_kernel.compiled_scan() is None:
+            pytest.skip("the compiled scan is switched off")
+    else:
+        monkeypatch.setattr(scan_kernel, "_KERNEL", [None])
+    A = [[0.0, 1.0], [-1.0, -0.3]]
+    system = PiecewiseAffineSystem.build(
+        ("x", "v"),
+        [((1.0, 0.0), 1.0 - math.ulp(1.0))],
+        {(1,): (A, (0.0, 1.0)), (-1,): (A, (0.0, 1.0))},
+    )
+    signal.signal(signal.SIGALRM, _timeout)
+    signal.alarm(60)  # (a regression fails here instead of hanging; numba code ignores it, the
+    try:  # CI's own time cap remains)
+        res = ae.propagate(system, [0.0, 0.0], 0.0, 8000.0)
+    finally:
+        signal.alarm(0)
+    # the orbit itself: the closed form of the linear field (no switch changes it)
+    assert abs(res.y[0] - 1.0) < 1e-12 and abs(res.y[1]) < 1e-12
+
+
+def _timeout(*_):
+    raise TimeoutError("the scan did not return within 60 s")
+
+
+def test_the_kernel_constants_are_scan_kernels(kernel):
+    from perturb.simulate.flows import scan_kernel_numba
+
+    assert tuple(scan_kernel_numba.constants()) == scan_kernel._CONSTANTS
+    assert scan_kernel._CONSTANTS == (
+        ae._EPS, ae._STEPS_PER_SCALE, ae._BATCH_FIRST, ae._BATCH_MAX, ae._MAX_DEPTH,
+        ae._ROOT_ITER, ae._MAX_NODES,
+    )  # fmt: skip
+
+
+def test_a_failing_kernel_falls_back_to_numpy_with_a_warning(monkeypatch, kernel):
+    def broken(*args):
+        raise RuntimeError("cannot compile")
+
+    monkeypatch.setattr(scan_kernel, "_KERNEL", [broken])
+    monkeypatch.setattr(scan_kernel, "_KERNELS", {})
+    pa = builtin_system("nsd2").with_params({"Omega": 1.2}).piecewise_affine()
+    y0 = np.array([2.0, 0.0, 0.0, 0.0])
+    with pytest.warns(RuntimeWarning, match="compiled kernel scan_modal failed"):
+        got = ae.propagate(pa, y0, 0.0, 3 * pa.period)
+    assert scan_kernel.compiled_scan() is None  # off for the rest of the process
+    ref = ae.propagate(pa, y0, 0.0, 3 * pa.period)
+    assert np.array_equal(got.y, ref.y)
+
+
+def test_numbas_cache_only_where_nobody_else_writes(tmp_path):
+    private = tmp_path / "mine"
+    private.mkdir(mode=0o755)
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o777)
+    assert scan_kernel._private(str(private))
+    assert not scan_kernel._private(str(shared))
+    assert scan_kernel._private(str(tmp_path / "absent"))

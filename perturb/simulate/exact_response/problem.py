@@ -30,6 +30,7 @@ from perturb.simulate.flows.base import ODEFlow
 from perturb.simulate.flows.factory import FlowFamily
 from perturb.simulate.flows.piecewise_exact import sample_trajectories
 from perturb.simulate.flows.scan_kernel import compiled_kernel
+from perturb.simulate.flows.scan_kernel import disable as disable_kernel
 from perturb.simulate.flows.system import frequency_symbol
 from perturb.simulate.orbits.shooting import (
     monodromy_multipliers,
@@ -151,29 +152,29 @@ class Eval:
     switches: int
     blocks: list[np.ndarray]
     trajs: list[Any] | None
+    eig: np.ndarray | None = None
+
+    def eigenvalues(self) -> np.ndarray:
+        """``numpy.linalg.eigvals`` of the monodromy, once: the corrector's acceptance test
+        (:meth:`node_growth`) and the accepted point's multipliers (:meth:`Engine.finish`)
+        both need them."""
+        if self.eig is None:
+            self.eig = np.linalg.eigvals(self.M)
+        return self.eig
+
+    def node_growth(self, N: int) -> float:
+        """:func:`node_growth` of the monodromy."""
+        return node_growth(self.M, N, self.eigenvalues if self.M.shape[0] != 2 else None)
 
 
-#: the eigenvalues of the last monodromy asked for: the corrector's acceptance test
-#: (:func:`node_growth`) and the accepted point's multipliers (:meth:`Engine.finish`) take
-#: them of the same matrix (the entry holds the matrix itself, so its id stays its own)
-_LAST_EIG: list = [None, None]
-
-
-def _eigvals(M: np.ndarray) -> np.ndarray:
-    """``numpy.linalg.eigvals(M)``, once per monodromy (see ``_LAST_EIG``)."""
-    if _LAST_EIG[0] is M:
-        return _LAST_EIG[1]
-    mu = np.linalg.eigvals(M)
-    _LAST_EIG[0], _LAST_EIG[1] = M, mu
-    return mu
-
-
-def node_growth(M: np.ndarray, N: int) -> float:
-    """Growth of a perturbation over one of ``N`` node intervals, from the monodromy."""
+def node_growth(M: np.ndarray, N: int, eigenvalues: Any = None) -> float:
+    """Growth of a perturbation over one of ``N`` node intervals, from the monodromy
+    (``eigenvalues``: a function giving those of ``M``, when already known)."""
     if M.shape[0] != 2:
         # n states: the spectral radius itself
         try:
-            rho = float(np.max(np.abs(_eigvals(M))))
+            mu = np.linalg.eigvals(M) if eigenvalues is None else eigenvalues()
+            rho = float(np.max(np.abs(mu)))
         except np.linalg.LinAlgError:
             return NODE_GROWTH
         return max(1.0, rho) ** (1.0 / N) if math.isfinite(rho) else NODE_GROWTH
@@ -494,7 +495,7 @@ class Engine:
         P = self.m * float(flow.period)
         if self.nd:
             # (monodromy_multipliers for n states: eigvals by decreasing modulus)
-            mu = _eigvals(ev.M).astype(complex)
+            mu = ev.eigenvalues().astype(complex)
             pt.mult = mu[np.argsort(-np.abs(mu), kind="stable")]
             pt.switches = ev.switches
             pt.stats, pt.extra, pt.sig = self.nd_statistics(flow, Zev, P, ev.trajs)
@@ -866,9 +867,8 @@ class Engine:
         modal = getattr(trajs[0], "modal_pieces", None) if trajs else None
         if modal is None:
             return None
-        kernel = compiled_kernel(
-            "perturb.simulate.exact_response.statistics_numba", "orbit_statistics"
-        )
+        where = "perturb.simulate.exact_response.statistics_numba"
+        kernel = compiled_kernel(where, "orbit_statistics")
         if kernel is None:
             return None
         arrays = modal()
@@ -877,10 +877,14 @@ class Engine:
         starts, Y, mu, D, scaled = arrays
         a, b = float(node_t[0]), float(node_t[1])
         out_is = -1 if self._out_is is None else self._out_is
-        amps, means, first, X = kernel(
-            starts, Y, mu, D, scaled, self._funcs, t, np.clip(t, a, b), a, b, ns, P / ns,
-            self.m, out_is,
-        )  # fmt: skip
+        try:
+            amps, means, first, X = kernel(
+                starts, Y, mu, D, scaled, self._funcs, t, np.clip(t, a, b), a, b, ns, P / ns,
+                self.m, out_is,
+            )  # fmt: skip
+        except Exception as exc:  # a numba that cannot compile or run it: numpy from now on
+            disable_kernel(where, "orbit_statistics", exc)
+            return None
         mean = float(means[self._out_is if self._out_is is not None else 0])
         sig = X[:, : ns : STAT_SAMPLES // SIG_PHASES].T.ravel().copy()
         return (float(amps[0]), float(first), mean), (amps[1:].copy(), means[1:].copy()), sig

@@ -9,7 +9,8 @@ the means and the first harmonic in one call instead of ~50 small numpy calls.  
 with the Python version to rounding.
 
 Imported only where numba is installed (see :func:`perturb.simulate.flows.scan_kernel.
-compiled_kernel`); compiled once per installation (``cache=True``, beside this file).
+compiled_kernel`); compiled once per installation where numba's cache is private
+(:data:`perturb.simulate.flows.scan_kernel.CACHE_OK`), else once per process.
 """
 
 from __future__ import annotations
@@ -19,7 +20,9 @@ import math
 import numpy as np
 from numba import njit as _njit
 
-njit = _njit(cache=True, nogil=True)
+from perturb.simulate.flows.scan_kernel import CACHE_OK
+
+njit = _njit(cache=CACHE_OK, nogil=True)
 
 
 @njit

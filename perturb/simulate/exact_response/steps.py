@@ -27,7 +27,7 @@ from perturb.simulate.exact_response.base import (
 )
 from perturb.simulate.exact_response.closed_form import segment_distance
 from perturb.simulate.exact_response.options import Settings
-from perturb.simulate.exact_response.problem import Engine, Pt, node_growth
+from perturb.simulate.exact_response.problem import Engine, Pt
 
 
 def key_step(a: Pt, b: Pt, Sp: float) -> float:
@@ -322,7 +322,7 @@ def correct_point(
         # a tenth of the tolerance keeps their error well inside it; the quintic predictor
         # of march.Tracer makes this the common case)
         lim = 0.1 * stats_tol if (k == 0 and eng.nd) else stats_tol
-        return est <= st.tol and n * node_growth(e.payload.M, N) <= lim
+        return est <= st.tol and n * e.payload.node_growth(N) <= lim
 
     newton = Corrector(evaluate, scaled=False, fd_column=fd_column)
     c = newton.correct(

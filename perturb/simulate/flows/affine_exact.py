@@ -181,6 +181,8 @@ _BATCH_FIRST, _BATCH_MAX = scan_kernel.BATCH_FIRST, scan_kernel.BATCH_MAX
 _ARANGE = np.arange(_BATCH_MAX + 1, dtype=float)
 #: halvings of an interval before it is treated as one convex/concave piece
 _MAX_DEPTH = scan_kernel.MAX_DEPTH
+#: intervals examined by one search for a surface's first event before giving up
+_MAX_NODES = scan_kernel.MAX_NODES
 #: iterations of the Newton-bisection root solver (it stops at full precision long before)
 _ROOT_ITER = scan_kernel.ROOT_ITER
 #: a burst of this many crossings within a negligible time is Zeno behaviour / sliding
@@ -1410,13 +1412,23 @@ class _Budget:
             )
 
 
-def _first_event(piece, j, u, w, gu, gw, touching, clamp, bounds=None, depth=0):
+def _first_event(piece, j, u, w, gu, gw, touching, clamp, bounds=None, depth=0, nodes=None):
     """The first root (crossing) or tangency of ``g = sigma_j s_j`` in ``(u, w]``.
 
     ``gu``, ``gw``: ``(g, g', g'')`` at the ends (``g(u) > 0``, or ``touching``: the orbit
     is on the surface at ``u`` and ``g(u)`` counts as ``+0``; ``clamp``: it is known to be
     entering, ``g'(u) >= 0``); ``bounds``: the bounds of ``|g''|``, ``|g'''|`` on the interval
-    when known (from the grid).  Returns ``(tau, kind)`` or None."""
+    when known (from the grid).  Returns ``(tau, kind)`` or None.  ``nodes``: the intervals
+    examined so far in this search (a list of one count; at most ``_MAX_NODES``)."""
+    if nodes is None:
+        nodes = [0]
+    nodes[0] += 1
+    if nodes[0] > _MAX_NODES:
+        raise PerturbError(
+            f"the switch scan of surface {j} could not decide between t = {piece.t0 + u!r} "
+            f"and {piece.t0 + w!r} after {_MAX_NODES} halvings (the switching function "
+            "stays within rounding of zero there)"
+        )
     sig = piece.sig[j]
     tol = float(piece.tol[j])
     g0u, g1u, g2u = gu
@@ -1442,12 +1454,17 @@ def _first_event(piece, j, u, w, gu, gw, touching, clamp, bounds=None, depth=0):
         return _crossing_or_graze(piece, j, u, w, g0u, g0w, tol, (g1u, g1w))
     simple = g2u * g2w > 0.0 and abs(g2u) + abs(g2w) > M3 * L
     if not simple and depth < _MAX_DEPTH and L > 8.0 * _EPS * max(abs(u), abs(w), 1e-300):
+        if g0u > 0.0 and g0w > 0.0 and (abs(g1u) + M2 * L) * L <= tol:
+            # g stays within tol of g(u) > 0 on the interval (|g'| <= |g'(u)| + M2 L): flat to
+            # rounding, neither a crossing nor a tangency to resolve (halving a constant g
+            # within tol of zero would explore the whole tree, 2^_MAX_DEPTH intervals)
+            return None
         m = 0.5 * (u + w)
         gm = sig * piece.derivs(j, m)[:3]
-        ev = _first_event(piece, j, u, m, gu, gm, touching, clamp, None, depth + 1)
+        ev = _first_event(piece, j, u, m, gu, gm, touching, clamp, None, depth + 1, nodes)
         if ev is not None:
             return ev
-        return _first_event(piece, j, m, w, gm, gw, False, False, None, depth + 1)
+        return _first_event(piece, j, m, w, gm, gw, False, False, None, depth + 1, nodes)
     convex = (g2u + g2w) > 0.0
 
     def g01(t: float) -> tuple[float, float]:
@@ -1581,7 +1598,12 @@ def _scan(piece, tau_end: float, touching: set[int], budget: _Budget):
     if 0 < piece.ns <= 62 and tau_end > 0.0 and piece.region.kind == "modal" and not piece.has_res:
         kernel = scan_kernel.compiled_scan()
         if kernel is not None:
-            return _scan_compiled(kernel, piece, tau_end, touching, budget)
+            try:
+                return _scan_compiled(kernel, piece, tau_end, touching, budget)
+            except PerturbError:
+                raise
+            except Exception as exc:  # a numba that cannot compile or run it: numpy from now on
+                scan_kernel.disable("perturb.simulate.flows.scan_kernel_numba", "scan_modal", exc)
     return _scan_python(piece, tau_end, touching, budget)
 
 
@@ -1651,8 +1673,9 @@ def _scan_python(piece, tau_end: float, touching: set[int], budget: _Budget):
                 if G[0, j, 0] < -tol[j]:
                     raise PerturbError(
                         f"the state at t = {piece.t0 + tau!r} is on the wrong side of surface "
-                        f"{j} (s = {sig[j] * G[0, j, 0]!r}) for region {piece.region.key}: the "
-                        "propagation lost track of the region (a non-finite or huge state?)"
+                        f"{j} (s = {float(sig[j] * G[0, j, 0])!r}) for region "
+                        f"{piece.region.key}: the propagation lost track of the region (a "
+                        "non-finite or huge state?)"
                     )
                 if G[1, j, 0] < 0.0:
                     return (tau, j), tangs  # on a second surface and leaving through it
@@ -1730,7 +1753,7 @@ def _scan_compiled(kernel, piece, tau_end: float, touching: set[int], budget: _B
         _TOL_ULPS,
         float(tau_end),
         mask,
-        budget.left,
+        min(budget.left, 1 << 62),
         model.C,
         model.d,
         model.cc,
@@ -1744,6 +1767,12 @@ def _scan_compiled(kernel, piece, tau_end: float, touching: set[int], budget: _B
         raise PerturbError(
             f"the orbit escapes to infinity in region {piece.region.key} near t = "
             f"{piece.t0 + tau!r} (floating-point overflow); shorten the interval"
+        )
+    if status == scan_kernel.UNDECIDED:
+        raise PerturbError(
+            f"the switch scan of surface {j} could not decide near t = {piece.t0 + tau!r} "
+            f"after {_MAX_NODES} halvings (the switching function stays within rounding of "
+            "zero there)"
         )
     if status == scan_kernel.WRONG_SIDE:
         raise PerturbError(

@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import importlib
 import os
+import stat
+import warnings
 
 import numpy as np
 
@@ -33,40 +35,115 @@ BATCH_FIRST, BATCH_MAX = 32, 256
 MAX_DEPTH = 60
 #: iterations of the Newton-bisection root solvers (they stop at full precision long before)
 ROOT_ITER = 200
+#: intervals examined by one search for a surface's first event before giving up (a search
+#: normally examines a few dozen)
+MAX_NODES = 100_000
 
-#: status codes of :data:`scan_modal`
-NO_CROSSING, CROSSING, OVER_BUDGET, OVERFLOW, WRONG_SIDE = 0, 1, 2, 3, 4
+#: status codes of the compiled scan
+NO_CROSSING, CROSSING, OVER_BUDGET, OVERFLOW, WRONG_SIDE, UNDECIDED = 0, 1, 2, 3, 4, 5
 #: kinds of the events of ``first_event``
-_NONE, _CROSS, _TANG = 0, 1, 2
+_NONE, _CROSS, _TANG, _UNDECIDED = 0, 1, 2, 3
 
+
+def _private(path: str) -> bool:
+    """Whether ``path`` (a directory, when it exists) is writable by its owner only, and that
+    owner is the current user (or root): nobody else can plant files there."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return True  # (not there: numba creates it, with the user's umask)
+    if st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        return False
+    return not hasattr(os, "getuid") or st.st_uid in (os.getuid(), 0)
+
+
+def _cache_ok() -> bool:
+    """numba's cache loads its index with pickle, so it is used only where other users cannot
+    write: this package's directories and ``__pycache__``, and ``NUMBA_CACHE_DIR`` when set
+    (numba falls back to the user's own cache directory when the package's is read-only).
+    Elsewhere the kernels are compiled once per process instead."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    dirs = [here, os.path.join(here, "__pycache__")]
+    up = os.path.join(os.path.dirname(here), "exact_response")
+    dirs += [up, os.path.join(up, "__pycache__")]
+    custom = os.environ.get("NUMBA_CACHE_DIR")
+    if custom:
+        dirs.append(custom)
+    return all(_private(d) for d in dirs)
+
+
+#: whether the compiled kernels keep their machine code in numba's cache (see _cache_ok)
+CACHE_OK = _cache_ok()
 
 _KERNEL: list = []  # [the compiled scan or None], once looked up
 _KERNELS: dict = {}  # (module, name) -> the compiled function or None
 
 
+def _off() -> bool:
+    flag = os.environ.get("PERTURB_COMPILED", "1").strip().lower()
+    return flag in ("0", "false", "no", "off")
+
+
+def _load(module: str):
+    """Import a kernel module; None (with one warning) when numba is missing or unusable."""
+    try:
+        mod = importlib.import_module(module)
+    except ImportError:
+        return None
+    except Exception as exc:  # numba present but broken (llvmlite, no cache location, ...)
+        warnings.warn(
+            f"perturb: the compiled kernels are off ({type(exc).__name__}: {exc}); "
+            "the numpy code runs instead (PERTURB_COMPILED=0 silences this)",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+        return None
+    check = getattr(mod, "constants", None)
+    if check is not None and tuple(check()) != _CONSTANTS:
+        # numba froze the constants of an earlier scan_kernel.py into its cache (the cache
+        # is keyed by the kernel module's own source): compile again from today's
+        for obj in vars(mod).values():
+            recompile = getattr(obj, "recompile", None)
+            if callable(recompile) and getattr(obj, "py_func", None) is not None:
+                recompile()
+        if tuple(check()) != _CONSTANTS:
+            return None
+    return mod
+
+
+_CONSTANTS = (EPS, STEPS_PER_SCALE, BATCH_FIRST, BATCH_MAX, MAX_DEPTH, ROOT_ITER, MAX_NODES)
+
+
 def compiled_kernel(module: str, name: str):
     """The function ``name`` of the numba module ``module`` (a dotted path in perturb), or
-    None: numba not installed, or ``PERTURB_COMPILED=0``.  numba is imported at the first
-    call, not with perturb; a kernel is compiled at its own first call, or loaded from
-    numba's cache."""
+    None: numba not installed or unusable, or ``PERTURB_COMPILED=0``.  numba is imported at
+    the first call, not with perturb; a kernel is compiled at its own first call, or loaded
+    from numba's cache."""
     key = (module, name)
     if key not in _KERNELS:
-        kernel = None
-        flag = os.environ.get("PERTURB_COMPILED", "1").strip().lower()
-        if flag not in ("0", "false", "no", "off"):
-            try:
-                mod = importlib.import_module(module)
-            except ImportError:
-                pass
-            else:
-                kernel = getattr(mod, name)
-        _KERNELS[key] = kernel
+        mod = None if _off() else _load(module)
+        _KERNELS[key] = None if mod is None else getattr(mod, name)
     return _KERNELS[key]
+
+
+def disable(module: str, name: str, exc: BaseException) -> None:
+    """Turn a kernel off for this process after it failed to compile or run (a numba that
+    cannot type it): one warning, then the numpy code."""
+    _KERNELS[(module, name)] = None
+    if name == "scan_modal":
+        _KERNEL[:] = [None]
+    warnings.warn(
+        f"perturb: the compiled kernel {name} failed ({type(exc).__name__}: {exc}); the numpy "
+        "code runs instead",
+        RuntimeWarning,
+        stacklevel=3,
+    )
 
 
 def compiled_scan():
     """The compiled scan ``scan_modal(W, Y, mupow, amupow, sig, absd, tol_ulps, tau_end,
-    touching, budget_left)``, or None (numba not installed, or ``PERTURB_COMPILED=0``)."""
+    touching, budget_left, C, d, cc)``, or None (numba not installed or unusable, or
+    ``PERTURB_COMPILED=0``)."""
     if not _KERNEL:
         _KERNEL.append(compiled_kernel("perturb.simulate.flows.scan_kernel_numba", "scan_modal"))
     return _KERNEL[0]

@@ -17,20 +17,33 @@ from perturb.simulate.flows.scan_kernel import (
     _CROSS,
     _NONE,
     _TANG,
+    _UNDECIDED,
     BATCH_FIRST,
     BATCH_MAX,
+    CACHE_OK,
     CROSSING,
     EPS,
     MAX_DEPTH,
+    MAX_NODES,
     NO_CROSSING,
     OVER_BUDGET,
     OVERFLOW,
     ROOT_ITER,
     STEPS_PER_SCALE,
+    UNDECIDED,
     WRONG_SIDE,
 )
 
-njit = _njit(cache=True, nogil=True)
+njit = _njit(cache=CACHE_OK, nogil=True)
+
+
+@njit
+def constants():
+    """The algorithm's constants as compiled into this module's machine code (numba freezes
+    globals, and its cache is keyed by this file only: :func:`perturb.simulate.flows.
+    scan_kernel.compiled_kernel` compares them with scan_kernel's and recompiles on a
+    difference)."""
+    return (EPS, STEPS_PER_SCALE, BATCH_FIRST, BATCH_MAX, MAX_DEPTH, ROOT_ITER, MAX_NODES)
 
 
 @njit
@@ -203,8 +216,12 @@ def first_event(G4, aWp23, mu, e, st, ns, j, tol, u0, w0, G, i, touch0, clamp0, 
         st[0, 5 + p] = G[p, j, i + 1]
     st[0, 8], st[0, 9], st[0, 10], st[0, 11] = touch0, clamp0, 1.0, 0.0
     top = 1
+    nodes = 0
     while top > 0:
         top -= 1
+        nodes += 1
+        if nodes > MAX_NODES:
+            return u0, _UNDECIDED
         u, w = st[top, 0], st[top, 1]
         g0u, g1u, g2u = st[top, 2], st[top, 3], st[top, 4]
         g0w, g1w, g2w = st[top, 5], st[top, 6], st[top, 7]
@@ -234,6 +251,8 @@ def first_event(G4, aWp23, mu, e, st, ns, j, tol, u0, w0, G, i, touch0, clamp0, 
             return crossing_or_graze(G4, j, mu, e, u, w, g0u, g0w, tol, True, g1u, g1w)
         simple = g2u * g2w > 0.0 and abs(g2u) + abs(g2w) > M3 * L
         if not simple and depth < MAX_DEPTH and L > 8.0 * EPS * max(abs(u), abs(w), 1e-300):
+            if g0u > 0.0 and g0w > 0.0 and (abs(g1u) + M2 * L) * L <= tol:
+                continue  # flat to rounding: no event (see affine_exact._first_event)
             m = 0.5 * (u + w)
             gm0, gm1, gm2 = g012(G4, j, mu, m, e)
             # the right half below the left (popped after it, if the left has no event)
@@ -501,6 +520,8 @@ def scan_modal(W, Y, mupow, amupow, sig, absd, tol_ulps, tau_end, touching, budg
                     B2[j, i],
                     B[1, j, i],
                 )
+                if kind == _UNDECIDED:
+                    return UNDECIDED, t_ev, j, 0.0, tt[:ntang], tj[:ntang], used, empty
                 if kind != _NONE and (best_kind == _NONE or t_ev < best_t):
                     best_t, best_j, best_kind = t_ev, j, kind
             if best_kind != _NONE:
