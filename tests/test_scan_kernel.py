@@ -271,3 +271,11 @@ def test_numbas_cache_only_where_nobody_else_writes(tmp_path):
     assert scan_kernel._private(str(private))
     assert not scan_kernel._private(str(shared))
     assert scan_kernel._private(str(tmp_path / "absent"))
+
+
+def test_whether_the_kernels_are_wanted_is_known_without_numba(monkeypatch):
+    # (a checkpointed sweep records it: see perturb.apps.grid)
+    monkeypatch.setenv("PERTURB_COMPILED", "0")
+    assert scan_kernel.wanted() is False
+    monkeypatch.setenv("PERTURB_COMPILED", "1")
+    assert scan_kernel.wanted() is True  # (numba is installed: importorskip above)

@@ -127,6 +127,7 @@ from perturb.atomic import atomic_path, write_text
 from perturb.checks import parse_number
 from perturb.errors import ParameterError, PerturbError
 from perturb.progress import Progress
+from perturb.simulate.flows import scan_kernel
 
 __all__ = [
     "QUANTITIES",
@@ -1186,7 +1187,8 @@ class _Checkpoint:
             if not isinstance(old, dict) or old.get("fingerprint") != fingerprint:
                 raise PerturbError(
                     f"checkpoint {str(self.dir)!r} belongs to a different sweep (another scene, "
-                    "grid or perturb version): remove it or choose another directory"
+                    "grid or perturb version, or the compiled kernels switched on or off): "
+                    "remove it or choose another directory"
                 )
             same = {k: v for k, v in old.items() if k != "format"} == json.loads(
                 json.dumps({k: v for k, v in expected.items() if k != "format"})
@@ -1579,6 +1581,9 @@ def _plan_sweep(
         grid={k: [float(v) for v in a] for k, a in g.items()},
         version=_version(),
     )
+    if scan_kernel.wanted():
+        # (results with the compiled kernels agree with numpy's to rounding, not bit for bit)
+        ident["compiled"] = True
     fingerprint = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()
     attrs["fingerprint"] = fingerprint
     return _SweepPlan(g, names, is_function, task, task_args, schema, attrs, fingerprint)

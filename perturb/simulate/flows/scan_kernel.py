@@ -19,6 +19,7 @@ holds what both versions share (the constants of the algorithm) and the switch.
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import os
 import stat
 import warnings
@@ -82,6 +83,14 @@ _KERNELS: dict = {}  # (module, name) -> the compiled function or None
 def _off() -> bool:
     flag = os.environ.get("PERTURB_COMPILED", "1").strip().lower()
     return flag in ("0", "false", "no", "off")
+
+
+def wanted() -> bool:
+    """Whether the compiled kernels will be used (numba installed and not switched off),
+    without importing numba: results agree with the numpy code's to rounding only, so a
+    checkpointed sweep records it (a resume with the other setting would not be
+    bit-identical)."""
+    return not _off() and importlib.util.find_spec("numba") is not None
 
 
 def _load(module: str):
