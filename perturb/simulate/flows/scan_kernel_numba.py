@@ -36,6 +36,9 @@ from perturb.simulate.flows.scan_kernel import (
 
 njit = _njit(cache=CACHE_OK, nogil=True)
 
+#: the grid's exponentials are recomputed directly every this many steps (see scan_modal)
+EXP_EVERY = 16
+
 
 @njit
 def constants():
@@ -426,11 +429,22 @@ def scan_modal(W, Y, mupow, amupow, sig, absd, tol_ulps, tau_end, touching, budg
         if used > budget_left:
             return OVER_BUDGET, tau, -1, 0.0, tt[:ntang], tj[:ntang], used, empty
         m = m1 - 1  # intervals
-        for i in range(m1):
-            for q in range(nt):
-                v = np.exp(mu[q] * taus[i])
+        for q in range(nt):
+            # e^{mu t} on the uniform grid by products with e^{mu h}, recomputed directly every
+            # EXP_EVERY steps and at the last point (taus[k] = tau_end): each value within
+            # ~EXP_EVERY rounding units, a fraction of the tangency tolerance (TOL_ULPS); the
+            # moduli (the rigorous bounds B) directly, as real exponentials
+            mq = mu[q]
+            ratio = np.exp(mq * h)
+            v = np.exp(mq * taus[0])
+            for i in range(m1):
+                if i > 0:
+                    if i % EXP_EVERY == 0 or i == m1 - 1:
+                        v = np.exp(mq * taus[i])
+                    else:
+                        v = v * ratio
                 E[q, i] = v
-                aE[q, i] = abs(v)
+                aE[q, i] = math.exp(mq.real * taus[i])
         for p in range(3):
             for j in range(ns):
                 for i in range(m1):
