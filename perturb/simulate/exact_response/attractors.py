@@ -7,6 +7,9 @@ the window reaches: a stable isola, or a branch that lies in the window only nea
 and is stable only on a short stretch (an isola straddling the edge, a branch that folds back
 out of it; on ``nsd`` with ``k = -3`` at low frequency there are many, with basins of a few
 per cent of the box of states, that the unstable manifolds of the traced orbits lead to).
+Last, Newton at the window edges from states near the traced orbits there (multiples of
+them; beside a symmetric unstable one, each state moved in turn): the branches that enter and
+leave the window through one edge and are unstable there.
 Every state found here only starts Newton on the exact period map (:meth:`Tracer.polish`);
 the orbit is accepted on the exact flow's own residual.  Nothing here comes from an
 approximation.
@@ -24,6 +27,7 @@ import numpy as np
 from perturb.errors import PerturbError
 from perturb.simulate.exact_response.march import Tracer
 from perturb.simulate.exact_response.problem import Engine, Pt
+from perturb.simulate.exact_response.symmetry import mirror_point
 from perturb.simulate.orbits.shooting import ShootingError
 
 #: Initial states of the simulation per frequency: ``EDGE_GRID**2`` at the two window edges,
@@ -68,6 +72,12 @@ POLISH_ITERATIONS = 10
 #: no attractor at the edge and may have no traced saddle beside it; its orbits at the edge
 #: are, in state, near a multiple of a traced orbit's (there 1.5 times the stable one's).
 EDGE_SCALES = (0.5, 0.75, 1.25, 1.5, 2.0)
+#: Offsets (relative to ``max(1, |y0|)``) of the starts beside a symmetric unstable orbit at a
+#: window edge of an odd system (:func:`symmetric_edge_starts`), each state in turn, both
+#: signs.  On ``impact_pair`` over (0.6, 1.4) the 40 starts reach each of the four isolas that
+#: cross Omega = 0.6 from two or three of them (the same starts with and without the compiled
+#: kernels); (0.2, 0.4) reached each from one.
+EDGE_OFFSETS = (0.1, 0.15, 0.2, 0.3, 0.5)
 
 
 # =============================================================================================
@@ -680,6 +690,48 @@ def edge_starts(
     return out
 
 
+def symmetric_edge_starts(
+    tracer: Tracer, edges: Sequence[float], internals: Sequence[Sequence[Pt]], traced: Sequence[int]
+) -> list[tuple[float, np.ndarray]]:
+    """``(p, y)``: beside every end point of the branches ``traced`` that lies on a window edge
+    of ``edges``, is unstable and is its own mirror image (an odd system's symmetric orbit,
+    :func:`~perturb.simulate.exact_response.symmetry.mirror_point`), the states ``y0`` with one
+    state moved by ``+-f max(1, |y0|)`` for every ``f`` of ``EDGE_OFFSETS``.
+
+    Starts of Newton for the asymmetric orbits (mirror pairs) next to an unstable symmetric
+    one at the edge, on branches that enter and leave the window through that edge and are
+    unstable everywhere (no attractor, sweep or branch point leads to them): on
+    ``impact_pair`` over (0.6, 1.4) four unstable isolas (each with its mirror image; folds at
+    Omega ~0.51-0.54 below the window and ~0.76-0.80 inside) cross Omega = 0.6 next to the
+    symmetric saddle.  No scaling of the symmetric orbit reaches them (they differ from it in
+    the contact pattern, not in size); which of them the sweeps' Newton starts and
+    :func:`edge_starts` reached depended on rounding (two, or none)."""
+    out: list[tuple[float, np.ndarray]] = []
+    seen: set[tuple[float, ...]] = set()
+    for b in traced:
+        pts = internals[b]
+        for q in (pts[0], pts[-1]) if pts else ():
+            key = (q.p, *q.y0.tolist())
+            if q.p not in edges or q.max_mult < 1.0 or key in seen:
+                continue
+            seen.add(key)
+            y = np.asarray(q.y0, dtype=float)
+            size = max(1.0, float(np.max(np.abs(y))))
+            try:
+                image = mirror_point(tracer, q).y0
+            except PerturbError:
+                continue
+            if float(np.max(np.abs(image - y))) > 1e-6 * size:
+                continue  # an asymmetric orbit: its neighbours are the image's
+            for k in range(y.size):
+                for f in EDGE_OFFSETS:
+                    for sgn in (1.0, -1.0):
+                        z = y.copy()
+                        z[k] += sgn * f * size
+                        out.append((float(q.p), z))
+    return out
+
+
 def attractor_states(
     eng: Engine,
     extra: Sequence[tuple[int, np.ndarray]] = (),
@@ -811,12 +863,15 @@ def attractor_stage(
     traced: Sequence[int],
     try_seed: Callable[[Pt], bool],
     budget_left: Callable[[], bool],
+    *,
+    symmetric: bool = False,
 ) -> tuple[int, int]:
     """Trace the branches of the attractors of :func:`attractor_states`, started from the grid
     and from :func:`saddle_starts` beside the unstable orbits of the branches ``traced`` (their
     indices into ``internals``; mirror images left out: their attractors are the images),
     then of the orbits at the window edges that Newton reaches from :func:`edge_starts` (of
-    those branches and the ones added here), that lie on no traced branch (checked against
+    those branches and the ones added here) and, when ``symmetric`` (an odd system), from
+    :func:`symmetric_edge_starts`, that lie on no traced branch (checked against
     ``internals`` before Newton, then by ``try_seed`` on the exact orbit, which traces the
     branch).  Returns (states polished, branches added)."""
     eng = tracer.eng
@@ -840,10 +895,14 @@ def attractor_stage(
     for p, y in attractor_states(eng, extra):
         start(p, y)
     # last, so the branches of the attractors are traced as without them; from the branches
-    # traced before and those this stage added (with their mirror images: a few more starts).
-    # Exact flows only (where Newton is cheap), as the scan
+    # traced before and those this stage added (with their mirror images: a few more starts),
+    # then (odd systems) beside their symmetric unstable orbits at the edges.  Exact flows
+    # only (where Newton is cheap), as the scan
     if eng.exact and eng.m == 1:
         found = [*traced, *range(n_before, len(internals))]
         for p, y in edge_starts((eng.lo, eng.hi), internals, found):
             start(p, y)
+        if symmetric:
+            for p, y in symmetric_edge_starts(tracer, (eng.lo, eng.hi), internals, found):
+                start(p, y)
     return polished, added

@@ -385,7 +385,7 @@ def _exact_branches(
                 primary = [
                     b for b in range(len(branches)) if mirror_of[b] is None and branches[b].m == 1
                 ]
-                attractor_stage(tracer, internals, primary, try_seed, budget_left)
+                attractor_stage(tracer, internals, primary, try_seed, budget_left, symmetric=sym)
                 continue
             for b in todo:
                 done.add(b)
