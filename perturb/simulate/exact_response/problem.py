@@ -879,8 +879,7 @@ class Engine:
         out_is = -1 if self._out_is is None else self._out_is
         try:
             amps, means, first, X = kernel(
-                starts, Y, mu, D, scaled, self._funcs, t, np.clip(t, a, b), a, b, ns, P / ns,
-                self.m, out_is,
+                starts, Y, mu, D, scaled, self._funcs, t, a, b, ns, P / ns, self.m, out_is,
             )  # fmt: skip
         except Exception as exc:  # a numba that cannot compile or run it: numpy from now on
             disable_kernel(where, "orbit_statistics", exc)

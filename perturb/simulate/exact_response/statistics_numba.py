@@ -138,13 +138,13 @@ def _refine(c, g, gd, t, j, sign, ns, starts, Y, mu, D, scaled, lo_t0, hi_t0, y,
 
 
 @njit
-def orbit_statistics(starts, Y, mu, D, scaled, funcs, t, tc, node0, node1, ns, h, m, out_is):
+def orbit_statistics(starts, Y, mu, D, scaled, funcs, t, node0, node1, ns, h, m, out_is):
     """Samples and statistics of one orbit (one node).
 
     ``starts`` (pieces), ``Y`` (pieces, n, nt) and ``mu`` (pieces, nt): the closed forms;
     ``D``: the state scale (``scaled``); ``funcs`` (K, n): the output and the coordinates;
-    ``t`` (ns + 1) the sample times and ``tc`` the same clipped to ``[node0, node1]``, ``h``
-    their spacing; ``m`` the forcing periods per orbit; ``out_is`` the row equal to the
+    ``t`` (ns + 1) the sample times (evaluated clipped to ``[node0, node1]``), ``h`` their
+    spacing; ``m`` the forcing periods per orbit; ``out_is`` the row equal to the
     output (-1: none).
 
     Returns ``(amps, means, first, X)``: max |.| and mean of every row, the output's first
@@ -152,6 +152,9 @@ def orbit_statistics(starts, Y, mu, D, scaled, funcs, t, tc, node0, node1, ns, h
     n = Y.shape[1]
     K = funcs.shape[0]
     npts = ns + 1
+    tc = np.empty(npts)
+    for i in range(npts):
+        tc[i] = min(max(t[i], node0), node1)
     X = np.empty((n, npts))
     F = np.empty((n, npts))
     # the samples: piece k holds the samples up to and including its end time (as

@@ -277,8 +277,11 @@ class AffineTrajectory:
         nt = first.mu.size
         if any(p.mu.size != nt for p in pieces):
             return None
-        Y = np.stack([p.Y for p in pieces])
-        mu = np.stack([p.mu for p in pieces])
+        if len(pieces) == 1:  # (no switch in the period: views, no copies)
+            Y, mu = first.Y[None], first.mu[None]
+        else:
+            Y = np.stack([p.Y for p in pieces])
+            mu = np.stack([p.mu for p in pieces])
         model = first.region.model
         return self.starts, Y, mu, model.D, bool(model.scaled)
 
