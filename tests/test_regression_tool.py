@@ -4,13 +4,21 @@
 from __future__ import annotations
 
 import importlib.util
+import os
 from pathlib import Path
 
 _spec = importlib.util.spec_from_file_location(
     "regression_set", Path(__file__).resolve().parents[1] / "tools" / "regression_set.py"
 )
 regression_set = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(regression_set)
+# (the tool switches the derivation cache and progress off in its process environment when
+# imported: kept out of this test process, where the cache tests run after it)
+_environ = dict(os.environ)
+try:
+    _spec.loader.exec_module(regression_set)
+finally:
+    os.environ.clear()
+    os.environ.update(_environ)
 
 
 def _branch(rle, mult):
