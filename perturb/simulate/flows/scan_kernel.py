@@ -116,6 +116,12 @@ def _load(module: str):
             if callable(recompile) and getattr(obj, "py_func", None) is not None:
                 recompile()
         if tuple(check()) != _CONSTANTS:
+            warnings.warn(
+                f"perturb: the compiled kernels of {module} keep constants other than "
+                "scan_kernel's after recompiling; the numpy code runs instead",
+                RuntimeWarning,
+                stacklevel=3,
+            )
             return None
     return mod
 
